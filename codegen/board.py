@@ -1,0 +1,240 @@
+"""The board model: what one board YAML says, with the seed's values as defaults.
+
+Schemas are composed from reusable parts (a pin, an I2C bus, a UART, an I2C device), as ESPHome composes its
+components. This module only describes shapes and per-field ranges; rules that need the whole board (a pin used
+twice, an address collision, a rail nobody enables, chip pin capabilities) live in `codegen.rules`.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Optional, Union
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+STANDARD_GRAVITY = 9.80665  # m/s^2
+
+ACCEL_RANGES_G = (2, 4, 8, 16)
+GYRO_RANGES_DPS = (250, 500, 1000, 2000)
+# MPU-6050 full-scale -> sensitivity, datasheet section 6.1/6.2
+ACCEL_LSB_PER_G = {2: 16384.0, 4: 8192.0, 8: 4096.0, 16: 2048.0}
+GYRO_LSB_PER_DPS = {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}
+# DLPF_CFG 0 runs the gyro at 8 kHz, 1..6 at 1 kHz (register 0x1A)
+DLPF_BANDWIDTH_HZ = {0: 260, 1: 184, 2: 94, 3: 44, 4: 21, 5: 10, 6: 5}
+
+AXIS_NAMES = ("x", "y", "z", "-x", "-y", "-z")
+
+
+class Part(BaseModel):
+    """Base of every schema part: unknown keys are errors, values are not coerced between kinds silently."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class PinSpec(Part):
+    """A GPIO, written either as a number or as a mapping with the escape hatch for strapping pins."""
+
+    pin: int = Field(ge=0, le=63, description="GPIO number")
+    strapping_by_design: bool = Field(
+        False, description="this strapping pin is used on purpose (silences the warning; an error on other pins)"
+    )
+
+
+Pin = Union[Annotated[int, Field(ge=0, le=63)], PinSpec]
+
+
+def pin_number(pin: Pin) -> int:
+    return pin.pin if isinstance(pin, PinSpec) else pin
+
+
+def pin_marked_by_design(pin: Pin) -> bool:
+    return isinstance(pin, PinSpec) and pin.strapping_by_design
+
+
+class Partitions(Part):
+    bootloader: int = Field(0x1000, ge=0, description="bootloader offset")
+    partition_table: int = Field(0x8000, ge=0, description="partition table offset")
+    app: int = Field(0x10000, ge=0, description="MicroPython firmware (app) offset")
+
+
+class Filesystem(Part):
+    offset: int = Field(0x200000, ge=0, description="vfs partition offset, bytes")
+    size: int = Field(0x200000, gt=0, description="vfs partition size, bytes")
+    block_size: int = Field(4096, gt=0, description="LittleFS block size, bytes (the flash erase size)")
+
+    @field_validator("offset", "size")
+    @classmethod
+    def _block_aligned(cls, value: int) -> int:
+        if value % 4096:
+            raise ValueError(f"{value:#x} is not a multiple of the 4096-byte flash sector")
+        return value
+
+
+class MicroPython(Part):
+    version: str = Field("1.24.1", pattern=r"^\d+\.\d+(\.\d+)?$", description="MicroPython release on the board")
+    partitions: Partitions = Partitions()
+    filesystem: Filesystem = Filesystem()
+
+
+class I2CBus(Part):
+    id: int = Field(0, ge=0, le=1)
+    sda: Pin
+    scl: Pin
+    frequency: int = Field(400000, ge=10000, le=1000000, description="Hz")
+
+
+class UARTBus(Part):
+    id: int = Field(1, ge=0, le=2)
+    rx: Pin
+    tx: Optional[Pin] = None
+    baud: int = Field(9600, ge=1200, le=921600)
+
+
+class I2CDevice(Part):
+    bus: str = Field(description="name of an entry under i2c:")
+    address: int = Field(ge=0, le=0xFF, description="7-bit I2C address")
+
+
+class Imu(I2CDevice):
+    model: Literal["mpu6050"] = "mpu6050"
+    address: int = Field(0x68, ge=0, le=0xFF, description="7-bit I2C address: 0x68 (AD0 low) or 0x69")
+    accel_range_g: Literal[2, 4, 8, 16] = 2
+    gyro_range_dps: Literal[250, 500, 1000, 2000] = 250
+    dlpf: int = Field(3, ge=0, le=6, description="DLPF_CFG, register 0x1A")
+    sample_rate_hz: float = Field(200.0, gt=0, description="sample rate the app runs the IMU at")
+    axes: tuple[str, str, str] = Field(
+        ("x", "y", "z"), description="board x, y, z <- sensor axis, e.g. [-y, x, z] for a sensor turned 90 degrees"
+    )
+    use_fifo: bool = False
+
+    @field_validator("axes")
+    @classmethod
+    def _axes_permutation(cls, axes: tuple[str, str, str]) -> tuple[str, str, str]:
+        for axis in axes:
+            if axis not in AXIS_NAMES:
+                raise ValueError(f"axis {axis!r} is not one of {', '.join(AXIS_NAMES)}")
+        if sorted(a[-1] for a in axes) != ["x", "y", "z"]:
+            raise ValueError(f"axes {list(axes)} must use each of x, y, z exactly once")
+        return axes
+
+    @property
+    def accel_lsb_per_g(self) -> float:
+        return ACCEL_LSB_PER_G[self.accel_range_g]
+
+    @property
+    def gyro_lsb_per_dps(self) -> float:
+        return GYRO_LSB_PER_DPS[self.gyro_range_dps]
+
+    @property
+    def gyro_output_rate_hz(self) -> int:
+        return 8000 if self.dlpf in (0, 7) else 1000
+
+    @property
+    def sample_rate_divider(self) -> int:
+        """SMPLRT_DIV (register 0x19): sample rate = gyro output rate / (1 + SMPLRT_DIV)."""
+        return max(0, round(self.gyro_output_rate_hz / self.sample_rate_hz) - 1)
+
+    @property
+    def axis_map(self) -> tuple[tuple[int, int], ...]:
+        """Per board axis: (sensor axis index 0..2, sign +1/-1)."""
+        return tuple(("xyz".index(a[-1]), -1 if a.startswith("-") else 1) for a in self.axes)
+
+
+class Gps(Part):
+    model: Literal["neo-6m", "neo-m8n", "generic-nmea"] = "neo-6m"
+    uart: str = Field(description="name of an entry under uart:")
+    rate_hz: float = Field(1.0, gt=0, le=10)
+    power: str = Field("always_on", description="'always_on' or the name of a power rail under power.rails")
+    fix_timeout_s: float = Field(3.0, gt=0, description="the fix counts as lost after this long without a valid one")
+
+
+class Display(I2CDevice):
+    model: Literal["ssd1306", "ssd1315", "sh1106"] = "ssd1306"
+    address: int = Field(0x3C, ge=0, le=0xFF)
+    width: Literal[64, 72, 128] = 128
+    height: Literal[32, 48, 64] = 64
+    refresh_ms: int = Field(500, ge=50, description="screen refresh period")
+
+
+class Rail(Part):
+    enable: bool = True
+    millivolts: int = Field(3300, ge=500, le=3500)
+
+
+PowerChip = Literal["axp192", "axp2101", "none"]
+
+
+class Power(Part):
+    chip: PowerChip = "none"
+    bus: Optional[str] = None
+    address: int = Field(0x34, ge=0, le=0xFF)
+    rails: dict[str, Rail] = Field(default_factory=dict)
+
+
+class Button(Part):
+    pin: Pin
+    pull: Literal["up", "down", "none"] = "up"
+    active: Literal["low", "high"] = "low"
+    debounce_ms: int = Field(50, ge=0, le=1000)
+
+
+class Buttons(Part):
+    calibrate: Optional[Button] = None
+    test_mode: Optional[Button] = None
+
+
+class Led(Part):
+    pin: Pin
+    active_low: bool = False
+
+
+class Algorithm(Part):
+    mode: Literal["seed", "fused"] = "seed"
+    block: int = Field(16, ge=1, description="b: samples per block median")
+    window: int = Field(512, ge=1, le=4096, description="n: samples per processing window")
+    deadband_g: float = Field(0.03125, ge=0, description="l: |a| below this (in g) becomes 0")
+    calibration_s: float = Field(10.0, gt=0, le=120, description="seconds at rest for calibration")
+    motion_threshold_g: float = Field(
+        0.02, gt=0, description="accel standard deviation above this during calibration means 'moved'"
+    )
+
+
+class Logging(Part):
+    enabled: bool = True
+    imu_rate_hz: float = Field(50.0, gt=0)
+    directory: str = Field("/logs", pattern=r"^/[A-Za-z0-9_./-]*$")
+    block_bytes: int = Field(4096, ge=256, le=65536)
+    max_files: int = Field(20, ge=1, le=1000)
+    min_free_kb: int = Field(256, ge=16)
+
+
+Chip = Literal["esp32", "esp32s3", "rp2040"]
+
+
+class Board(Part):
+    """A whole board: the validated form of one board YAML (after `extends:` is resolved)."""
+
+    name: str = Field(pattern=r"^[a-z0-9][a-z0-9._-]*$")
+    description: str = ""
+    chip: Chip = "esp32"
+    flash_size: Literal["2MB", "4MB", "8MB", "16MB"] = "4MB"
+    psram: bool = False
+    micropython: MicroPython = MicroPython()
+    i2c: dict[str, I2CBus] = Field(default_factory=dict)
+    uart: dict[str, UARTBus] = Field(default_factory=dict)
+    power: Power = Power()
+    imu: Imu
+    gps: Gps
+    display: Optional[Display] = None
+    buttons: Buttons = Buttons()
+    led: Optional[Led] = None
+    reserved: dict[str, list[int]] = Field(default_factory=dict, description="pins taken by parts we do not drive")
+    algorithm: Algorithm = Algorithm()
+    logging: Logging = Logging()
+
+    @property
+    def flash_bytes(self) -> int:
+        return int(self.flash_size[:-2]) * 1024 * 1024
+
+    @property
+    def mpy_arch(self) -> str:
+        return {"esp32": "xtensawin", "esp32s3": "xtensawin", "rp2040": "armv6m"}[self.chip]

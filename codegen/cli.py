@@ -1,0 +1,116 @@
+"""The `deadreckon` command: parses arguments and calls library functions (which tests call too).
+
+Every command turns a `UserError` into a located message and exit status 2; no traceback reaches the user.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from codegen.errors import UserError
+
+
+def _board_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "board", nargs="?", default=None, help="board YAML (default: the bundled ttgo-tbeam-v1.1)"
+    )
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    from codegen.loader import load_board_report
+
+    report = load_board_report(args.board)
+    report.print(sys.stderr, strict=args.strict)
+    if report.failed(strict=args.strict):
+        return 2
+    print(f"{report.source_name}: ok ({report.board.name})")
+    return 0
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    from codegen.generate import generate
+    from codegen.loader import load_board
+
+    loaded = load_board(args.board, strict=args.strict)
+    result = generate(loaded, Path(args.output), force=args.force)
+    print(f"generated {len(result.files)} files for {loaded.board.name} in {result.root}")
+    return 0
+
+
+def cmd_boards(args: argparse.Namespace) -> int:
+    from codegen.loader import bundled_boards
+
+    for name, path, description in bundled_boards():
+        print(f"{name:24s} {description}")
+    return 0
+
+
+def cmd_schema(args: argparse.Namespace) -> int:
+    import json
+
+    from codegen.schema import board_json_schema
+
+    print(json.dumps(board_json_schema(), indent=2, sort_keys=True))
+    return 0
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    from codegen.loader import load_board
+    from codegen.schema import resolved_config_lines
+
+    loaded = load_board(args.board)
+    for line in resolved_config_lines(loaded):
+        print(line)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="deadreckon",
+        description="Generate, build and flash a GPS + IMU dead-reckoning device from one board YAML.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    p = sub.add_parser("validate", help="check a board YAML; every problem as FILE:LINE:COL")
+    _board_arg(p)
+    p.add_argument("--strict", action="store_true", help="treat warnings as errors")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("generate", help="render the MicroPython app and native module sources")
+    _board_arg(p)
+    p.add_argument("-o", "--output", default="out", help="output folder (default: out)")
+    p.add_argument("--strict", action="store_true", help="treat warnings as errors")
+    p.add_argument("--force", action="store_true", help="replace a generated folder even if files were edited")
+    p.set_defaults(func=cmd_generate)
+
+    p = sub.add_parser("boards", help="list the bundled boards")
+    p.set_defaults(func=cmd_boards)
+
+    p = sub.add_parser("schema", help="print the board YAML's JSON Schema")
+    p.set_defaults(func=cmd_schema)
+
+    p = sub.add_parser("config", help="print the resolved board config and where each value came from")
+    _board_arg(p)
+    p.set_defaults(func=cmd_config)
+
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except UserError as error:
+        print(error.render(), file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
