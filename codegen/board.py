@@ -7,9 +7,9 @@ twice, an address collision, a rail nobody enables, chip pin capabilities) live 
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Optional, Union
+from typing import Annotated, Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, WithJsonSchema, field_validator
 
 STANDARD_GRAVITY = 9.80665  # m/s^2
 
@@ -27,7 +27,7 @@ AXIS_NAMES = ("x", "y", "z", "-x", "-y", "-z")
 class Part(BaseModel):
     """Base of every schema part: unknown keys are errors, values are not coerced between kinds silently."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
 
 class PinSpec(Part):
@@ -39,15 +39,32 @@ class PinSpec(Part):
     )
 
 
-Pin = Union[Annotated[int, Field(ge=0, le=63)], PinSpec]
+def _pin_from_number(value: object) -> object:
+    return {"pin": value} if isinstance(value, int) and not isinstance(value, bool) else value
 
 
-def pin_number(pin: Pin) -> int:
-    return pin.pin if isinstance(pin, PinSpec) else pin
+Pin = Annotated[
+    PinSpec,
+    BeforeValidator(_pin_from_number),
+    WithJsonSchema(
+        {
+            "anyOf": [
+                {"type": "integer", "minimum": 0, "maximum": 63},
+                {
+                    "type": "object",
+                    "properties": {"pin": {"type": "integer"}, "strapping_by_design": {"type": "boolean"}},
+                    "required": ["pin"],
+                    "additionalProperties": False,
+                },
+            ],
+            "description": "GPIO number, or {pin: N, strapping_by_design: true}",
+        }
+    ),
+]
 
 
-def pin_marked_by_design(pin: Pin) -> bool:
-    return isinstance(pin, PinSpec) and pin.strapping_by_design
+def pin_number(pin: PinSpec) -> int:
+    return pin.pin
 
 
 class Partitions(Part):
@@ -101,14 +118,17 @@ class Imu(I2CDevice):
     gyro_range_dps: Literal[250, 500, 1000, 2000] = 250
     dlpf: int = Field(3, ge=0, le=6, description="DLPF_CFG, register 0x1A")
     sample_rate_hz: float = Field(200.0, gt=0, description="sample rate the app runs the IMU at")
-    axes: tuple[str, str, str] = Field(
-        ("x", "y", "z"), description="board x, y, z <- sensor axis, e.g. [-y, x, z] for a sensor turned 90 degrees"
+    axes: list[str] = Field(
+        ["x", "y", "z"],
+        min_length=3,
+        max_length=3,
+        description="board x, y, z <- sensor axis, e.g. [-y, x, z] for a sensor turned 90 degrees",
     )
     use_fifo: bool = False
 
     @field_validator("axes")
     @classmethod
-    def _axes_permutation(cls, axes: tuple[str, str, str]) -> tuple[str, str, str]:
+    def _axes_permutation(cls, axes: list[str]) -> list[str]:
         for axis in axes:
             if axis not in AXIS_NAMES:
                 raise ValueError(f"axis {axis!r} is not one of {', '.join(AXIS_NAMES)}")
@@ -132,6 +152,10 @@ class Imu(I2CDevice):
     def sample_rate_divider(self) -> int:
         """SMPLRT_DIV (register 0x19): sample rate = gyro output rate / (1 + SMPLRT_DIV)."""
         return max(0, round(self.gyro_output_rate_hz / self.sample_rate_hz) - 1)
+
+    @property
+    def achieved_sample_rate_hz(self) -> float:
+        return self.gyro_output_rate_hz / (1 + self.sample_rate_divider)
 
     @property
     def axis_map(self) -> tuple[tuple[int, int], ...]:

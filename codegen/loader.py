@@ -1,0 +1,319 @@
+"""From a board YAML path to a validated `Board`, in two phases (each part alone, then the whole board).
+
+    load_board(path)         -> LoadedBoard, or raises a UserError listing every located error
+    load_board_report(path)  -> BoardReport with all diagnostics (what `deadreckon validate` prints)
+
+`extends: NAME` (a bundled board) or `extends: ./other.yaml` (relative to the file) starts from another board and
+overrides its keys: mappings merge key by key, anything else is replaced whole.
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import os
+import sys
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, TextIO
+
+from pydantic import BaseModel, ValidationError
+
+from codegen.board import Board
+from codegen.diagnostics import Diagnostic, DiagnosticsError, error, print_all, sort_key
+from codegen.errors import Location, UserError
+from codegen.paths import board_configs_dir, default_board_path
+from codegen.yamlsource import KeyPath, SourceMap, read_yaml
+
+MAX_EXTENDS_DEPTH = 8
+
+
+@dataclass
+class LoadedBoard:
+    """A validated board and everything needed to point back into its files."""
+
+    board: Board
+    source: SourceMap
+    files: list[Path]  # the board file first, then each file it extends
+    data: dict[str, Any]  # the merged YAML data, before defaults
+    lines_by_file: dict[str, list[str]]
+    warnings: list[Diagnostic] = field(default_factory=list)
+
+    @property
+    def source_name(self) -> str:
+        return display_name(self.files[0])
+
+    @property
+    def content_sha256(self) -> str:
+        digest = hashlib.sha256()
+        for path in self.files:
+            digest.update(path.read_bytes())
+        return digest.hexdigest()
+
+
+@dataclass
+class BoardReport:
+    source_name: str
+    diagnostics: list[Diagnostic]
+    lines_by_file: dict[str, list[str]]
+    loaded: Optional[LoadedBoard] = None
+
+    @property
+    def board(self) -> Board:
+        assert self.loaded is not None
+        return self.loaded.board
+
+    def failed(self, strict: bool = False) -> bool:
+        bad = {"error", "warning"} if strict else {"error"}
+        return self.loaded is None or any(d.severity in bad for d in self.diagnostics)
+
+    def print(self, stream: TextIO = sys.stderr, strict: bool = False) -> None:
+        shown = [
+            Diagnostic("error", d.message, d.location, d.hint) if strict and d.severity == "warning" else d
+            for d in self.diagnostics
+        ]
+        print_all(shown, self.lines_by_file, stream)
+
+
+def display_name(path: Path) -> str:
+    """How a file is named in messages: relative to the working folder when inside it."""
+    try:
+        return os.path.relpath(path) if not os.path.relpath(path).startswith("..") else str(path)
+    except ValueError:
+        return str(path)
+
+
+def bundled_boards() -> list[tuple[str, Path, str]]:
+    """(name, path, description) of each board YAML shipped with deadreckon, default first."""
+    boards = []
+    for path in sorted(board_configs_dir().glob("*.yaml")):
+        try:
+            description = str(read_yaml(path).data.get("description", ""))
+        except UserError:
+            description = "(unreadable)"
+        boards.append((path.stem, path, description))
+    boards.sort(key=lambda item: item[1] != default_board_path())
+    return boards
+
+
+def resolve_board_path(board: Optional[str | Path]) -> Path:
+    """A path, a bundled board's name, or None for the default board."""
+    if board is None:
+        return default_board_path()
+    path = Path(board)
+    if path.exists() or path.suffix in (".yaml", ".yml") or os.sep in str(board):
+        return path
+    bundled = board_configs_dir() / f"{board}.yaml"
+    if bundled.exists():
+        return bundled
+    names = [p.stem for p in board_configs_dir().glob("*.yaml")]
+    close = difflib.get_close_matches(str(board), names, n=1)
+    raise UserError(
+        f"no board file or bundled board named {board!r}",
+        hint=f"did you mean `{close[0]}`?" if close else "`deadreckon boards` lists the bundled boards",
+    )
+
+
+def _merge(base: Any, override: Any, path: KeyPath, source: SourceMap) -> Any:
+    if isinstance(base, dict) and isinstance(override, dict):
+        merged = dict(base)
+        for key, value in override.items():
+            merged[key] = _merge(base[key], value, path + (key,), source) if key in base else value
+        return merged
+    source.drop_below(path)
+    return override
+
+
+def _read_chain(path: Path, lines_by_file: dict[str, list[str]]) -> tuple[dict, SourceMap, list[Path]]:
+    chain: list[Path] = []
+    documents = []
+    current: Optional[Path] = path
+    via: Optional[Location] = None
+    while current is not None:
+        resolved = current.resolve()
+        if resolved in [p.resolve() for p in chain]:
+            raise UserError("`extends:` forms a cycle", location=via, hint=" -> ".join(map(display_name, chain)))
+        if len(chain) >= MAX_EXTENDS_DEPTH:
+            raise UserError(f"`extends:` chain deeper than {MAX_EXTENDS_DEPTH} files", location=via)
+        try:
+            document = read_yaml(current, display_name(current))
+        except UserError as problem:
+            if via and problem.location is None:
+                problem.location = via
+            raise
+        lines_by_file[display_name(current)] = document.lines
+        chain.append(current)
+        documents.append(document)
+        parent = document.data.pop("extends", None)
+        via = document.source.value(("extends",))
+        if parent is None:
+            current = None
+        elif not isinstance(parent, str):
+            raise UserError("`extends:` names a bundled board or a path to a board YAML", location=via)
+        else:
+            candidate = (current.parent / parent) if parent.endswith((".yaml", ".yml")) else None
+            if candidate is None:
+                candidate = board_configs_dir() / f"{parent}.yaml"
+                if not candidate.exists():
+                    names = [p.stem for p in board_configs_dir().glob("*.yaml")]
+                    close = difflib.get_close_matches(parent, names, n=1)
+                    raise UserError(
+                        f"`extends: {parent}`: no bundled board by that name",
+                        location=via,
+                        hint=f"did you mean `{close[0]}`?" if close else "`deadreckon boards` lists them",
+                    )
+            current = candidate
+
+    data: dict[str, Any] = {}
+    source = SourceMap()
+    for document in reversed(documents):  # base first, then each override
+        data = _merge(data, document.data, (), source)
+        source.update(document.source)
+    source.values[()] = documents[0].source.values[()]
+    return data, source, chain
+
+
+# --- phase 1: the schema ------------------------------------------------------------------------------------
+
+
+def _field_model(model: type[BaseModel], path: KeyPath) -> Optional[type[BaseModel]]:
+    """The schema part (model class) that `path` (relative to `model`) lands in, if it is a mapping part."""
+    current: Any = model
+    for key in path:
+        if isinstance(current, type) and issubclass(current, BaseModel):
+            info = current.model_fields.get(str(key))
+            if info is None:
+                return None
+            current = info.annotation
+        elif typing.get_origin(current) is dict:
+            current = typing.get_args(current)[1]
+        else:
+            return None
+        current = _unwrap(current)
+    return current if isinstance(current, type) and issubclass(current, BaseModel) else None
+
+
+def _unwrap(annotation: Any) -> Any:
+    """Optional[X] / Annotated[X, ...] / Union[int, X] -> the mapping part X where there is one."""
+    while True:
+        origin = typing.get_origin(annotation)
+        if origin is typing.Annotated:
+            annotation = typing.get_args(annotation)[0]
+        elif origin is typing.Union or str(origin) == "types.UnionType":
+            options = [a for a in typing.get_args(annotation) if a is not type(None)]
+            models = [a for a in map(_unwrap, options) if isinstance(a, type) and issubclass(a, BaseModel)]
+            annotation = models[0] if models else options[0]
+        else:
+            return annotation
+
+
+def _dotted(path: KeyPath) -> str:
+    text = ""
+    for key in path:
+        text += f"[{key}]" if isinstance(key, int) else (f".{key}" if text else str(key))
+    return text or "(top level)"
+
+
+def _schema_diagnostics(exc: ValidationError, data: dict, source: SourceMap) -> list[Diagnostic]:
+    found: list[Diagnostic] = []
+    seen: set[tuple] = set()
+    for item in exc.errors(include_url=False):
+        loc = tuple(part for part in item["loc"] if isinstance(part, (str, int)))
+        path = _data_path(data, loc)
+        kind = item["type"]
+        last = loc[-1] if loc else None
+        hint = None
+        if kind == "extra_forbidden":
+            parent_model = _field_model(Board, path[:-1]) or Board
+            close = difflib.get_close_matches(str(last), list(parent_model.model_fields), n=1)
+            hint = f"did you mean `{close[0]}`?" if close else (
+                f"allowed here: {', '.join(parent_model.model_fields)}"
+            )
+            diagnostic = error(f"unknown key {last!r} in {_dotted(path[:-1])}", source.key(path), hint)
+        elif kind == "missing":
+            parent = path[:-1] if path and path[-1] == last else path
+            diagnostic = error(f"{_dotted(parent)} is missing required key {last!r}", source.key(parent))
+        else:
+            message = item["msg"]
+            if kind in ("model_type", "dict_type", "model_attributes_type"):
+                message = "should be a mapping of keys"
+            elif message.startswith("Input should be "):
+                message = "should be " + message[len("Input should be "):]
+            elif message.startswith("Value error, "):
+                message = message[len("Value error, "):]
+            got = item.get("input")
+            shown = "" if isinstance(got, (dict, list)) or kind == "missing" else f" (got {got!r})"
+            diagnostic = error(f"{_dotted(path)}: {message}{shown}", source.value(path), hint)
+        signature = (diagnostic.message, diagnostic.location)
+        if signature not in seen:
+            seen.add(signature)
+            found.append(diagnostic)
+    return found
+
+
+def _data_path(data: Any, loc: tuple) -> KeyPath:
+    """The longest prefix of pydantic's error location that exists in the data (drops validator tags)."""
+    path: list = []
+    current = data
+    for part in loc:
+        if isinstance(current, dict) and part in current:
+            current = current[part]
+            path.append(part)
+        elif isinstance(current, list) and isinstance(part, int) and 0 <= part < len(current):
+            current = current[part]
+            path.append(part)
+        elif isinstance(current, dict) and isinstance(part, str) and part[:1].isalpha():
+            path.append(part)  # a missing or unknown key: name it, its location falls back to the parent
+            break
+        else:
+            break
+    return tuple(path)
+
+
+# --- both phases ----------------------------------------------------------------------------------------------
+
+
+def load_board_report(board: Optional[str | Path] = None) -> BoardReport:
+    """Read, merge and validate a board; every problem becomes a diagnostic (nothing raises but I/O-free bugs)."""
+    lines_by_file: dict[str, list[str]] = {}
+    path = resolve_board_path(board) if not isinstance(board, Path) else board
+    name = display_name(path)
+    try:
+        data, source, chain = _read_chain(path, lines_by_file)
+    except UserError as problem:
+        return BoardReport(name, [error(problem.message, problem.location, problem.hint)], lines_by_file)
+
+    try:
+        model = Board.model_validate(data)
+    except ValidationError as exc:
+        diagnostics = sorted(_schema_diagnostics(exc, data, source), key=sort_key)
+        return BoardReport(name, diagnostics, lines_by_file)
+
+    from codegen.rules import check_board
+
+    diagnostics = sorted(check_board(model, source), key=sort_key)
+    loaded = LoadedBoard(model, source, chain, data, lines_by_file)
+    loaded.warnings = [d for d in diagnostics if d.severity == "warning"]
+    return BoardReport(name, diagnostics, lines_by_file, loaded)
+
+
+def load_board(board: Optional[str | Path] = None, strict: bool = False) -> LoadedBoard:
+    """The validated board, or a UserError carrying every located diagnostic. Warnings print to stderr."""
+    report = load_board_report(board)
+    if report.failed(strict=strict):
+        if strict:
+            report.diagnostics = [
+                Diagnostic("error", d.message, d.location, d.hint) if d.severity == "warning" else d
+                for d in report.diagnostics
+            ]
+        raise DiagnosticsError(report.diagnostics, report.lines_by_file)
+    assert report.loaded is not None
+    if report.loaded.warnings:
+        print_all(report.loaded.warnings, report.lines_by_file, sys.stderr)
+    return report.loaded
+
+
+def default_board() -> Board:
+    """The default board's model (T-Beam v1.1), for library callers and tests."""
+    return load_board(None).board

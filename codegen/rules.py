@@ -1,0 +1,286 @@
+"""Phase two of validation: rules over the whole board (each part already passed its own schema).
+
+Pins are checked against the chip's capability table in `codegen.chips`; buses, addresses, power rails and the
+algorithm's numbers against each other. Every finding is a located `Diagnostic`.
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass
+from typing import Iterator, Optional
+
+from codegen.board import Board, PinSpec
+from codegen.chips import CHIPS, PMU_RAILS, ChipPins
+from codegen.diagnostics import Diagnostic, error, warning
+from codegen.yamlsource import KeyPath, SourceMap
+
+MPU6050_ADDRESSES = (0x68, 0x69)
+MPU6050_MAX_ACCEL_RATE_HZ = 1000.0
+RESERVED_I2C_ADDRESSES = set(range(0x00, 0x08)) | set(range(0x78, 0x80))
+
+
+@dataclass(frozen=True)
+class PinUse:
+    pin: PinSpec
+    role: str  # what the user wrote, e.g. "i2c.main.sda"
+    path: KeyPath
+    output: bool
+    pull: bool = False
+    reserved: bool = False
+
+
+def _pin_uses(board: Board) -> Iterator[PinUse]:
+    for name, bus in board.i2c.items():
+        yield PinUse(bus.sda, f"i2c.{name}.sda", ("i2c", name, "sda"), output=True)
+        yield PinUse(bus.scl, f"i2c.{name}.scl", ("i2c", name, "scl"), output=True)
+    for name, uart in board.uart.items():
+        yield PinUse(uart.rx, f"uart.{name}.rx", ("uart", name, "rx"), output=False)
+        if uart.tx is not None:
+            yield PinUse(uart.tx, f"uart.{name}.tx", ("uart", name, "tx"), output=True)
+    for role in ("calibrate", "test_mode"):
+        button = getattr(board.buttons, role)
+        if button is not None:
+            yield PinUse(
+                button.pin, f"buttons.{role}.pin", ("buttons", role, "pin"), output=False, pull=button.pull != "none"
+            )
+    if board.led is not None:
+        yield PinUse(board.led.pin, "led.pin", ("led", "pin"), output=True)
+    for group, pins in board.reserved.items():
+        for index, number in enumerate(pins):
+            yield PinUse(PinSpec(pin=number), f"reserved.{group}", ("reserved", group, index), False, reserved=True)
+
+
+def _check_pins(board: Board, chip: ChipPins, source: SourceMap) -> Iterator[Diagnostic]:
+    first_use: dict[int, PinUse] = {}
+    for use in _pin_uses(board):
+        number = use.pin.pin
+        where = source.value(use.path)
+        if number not in chip.existing:
+            yield error(f"{use.role}: GPIO{number} does not exist on the {chip.name}", where)
+            continue
+        if number in chip.flash:
+            yield error(
+                f"{use.role}: GPIO{number} is wired to the SPI flash on the {chip.name}",
+                where,
+                "using it stops the chip from reading its own firmware; pick another pin",
+            )
+        if board.psram and number in chip.psram:
+            yield error(f"{use.role}: GPIO{number} is wired to the PSRAM on this board (psram: true)", where)
+        if number in chip.input_only and use.output:
+            yield error(
+                f"{use.role}: GPIO{number} is input-only on the {chip.name} and cannot drive an output",
+                where,
+                f"GPIO{min(chip.input_only)}..{max(chip.input_only)} can only be inputs (a UART rx, a button)",
+            )
+        if number in chip.input_only and use.pull:
+            yield error(
+                f"{use.role}: GPIO{number} has no internal pull resistor on the {chip.name}",
+                where,
+                "set `pull: none` and fit an external pull-up, or use another pin",
+            )
+        if number in chip.strapping and not use.reserved:
+            if not use.pin.strapping_by_design:
+                yield warning(
+                    f"{use.role}: GPIO{number} is a strapping pin: the level at reset selects the boot mode",
+                    where,
+                    "if the board is designed this way, write `{pin: %d, strapping_by_design: true}`" % number,
+                )
+        elif use.pin.strapping_by_design:
+            yield error(
+                f"{use.role}: `strapping_by_design` on GPIO{number}, which is not a strapping pin of the {chip.name}",
+                source.value(use.path + ("strapping_by_design",)),
+                f"strapping pins are {', '.join(f'GPIO{p}' for p in sorted(chip.strapping)) or 'none'}",
+            )
+        if number in chip.board_taken and not use.reserved:
+            yield warning(f"{use.role}: GPIO{number} is used by the board ({chip.board_taken[number]})", where)
+        previous = first_use.get(number)
+        if previous is not None:
+            yield error(
+                f"GPIO{number} is used twice: by {previous.role} and by {use.role}",
+                where,
+                f"{previous.role} is at {source.value(previous.path)}",
+            )
+        else:
+            first_use[number] = use
+
+
+def _check_fixed_muxing(board: Board, chip: ChipPins, source: SourceMap) -> Iterator[Diagnostic]:
+    for kind, buses, ids, table in (
+        ("i2c", board.i2c, chip.i2c_ids, chip.i2c_pins),
+        ("uart", board.uart, chip.uart_ids, chip.uart_pins),
+    ):
+        seen_ids: dict[int, str] = {}
+        for name, bus in buses.items():
+            if bus.id not in ids:
+                yield error(
+                    f"{kind}.{name}.id: the {chip.name} has no {kind.upper()}{bus.id}",
+                    source.value((kind, name, "id")),
+                    f"valid ids: {', '.join(map(str, sorted(ids)))}",
+                )
+            if bus.id in seen_ids:
+                yield error(
+                    f"{kind}.{name}.id: {kind.upper()}{bus.id} is already used by {kind}.{seen_ids[bus.id]}",
+                    source.value((kind, name, "id")),
+                )
+            seen_ids[bus.id] = name
+            if kind == "uart" and chip.console_uart is not None and bus.id == chip.console_uart:
+                yield warning(
+                    f"uart.{name}.id: UART{bus.id} carries MicroPython's REPL console",
+                    source.value(("uart", name, "id")),
+                    "use UART1 or UART2 for the GPS",
+                )
+            for signal, allowed in table.get(bus.id, {}).items():
+                pin = getattr(bus, signal)
+                if pin is not None and pin.pin not in allowed:
+                    yield error(
+                        f"{kind}.{name}.{signal}: GPIO{pin.pin} cannot be {kind.upper()}{bus.id} {signal.upper()} "
+                        f"on the {chip.name}",
+                        source.value((kind, name, signal)),
+                        f"{kind.upper()}{bus.id} {signal.upper()} is on GPIO {', '.join(map(str, sorted(allowed)))}",
+                    )
+
+
+def _bus_reference(
+    name: Optional[str], kind: str, buses: dict, path: KeyPath, source: SourceMap
+) -> Iterator[Diagnostic]:
+    if name is None or name in buses:
+        return
+    close = difflib.get_close_matches(name, list(buses), n=1)
+    yield error(
+        f"{'.'.join(map(str, path))}: there is no {kind} bus named {name!r}",
+        source.value(path),
+        f"did you mean `{close[0]}`?" if close else (f"defined: {', '.join(buses)}" if buses else f"add {kind}:"),
+    )
+
+
+def _check_i2c_devices(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    devices = [("imu", board.imu, "MPU-6050")]
+    if board.display is not None:
+        devices.append(("display", board.display, board.display.model.upper()))
+    if board.power.chip != "none":
+        devices.append(("power", board.power, board.power.chip.upper()))
+    taken: dict[tuple[str, int], str] = {}
+    for key, device, label in devices:
+        bus = device.bus
+        if key == "power" and bus is None:
+            yield error(f"power.bus: the {label} needs the I2C bus it sits on", source.key(("power", "chip")))
+            continue
+        yield from _bus_reference(bus, "i2c", board.i2c, (key, "bus"), source)
+        where = source.value((key, "address"))
+        address = device.address
+        if address > 0x7F:
+            yield error(
+                f"{key}.address: {address:#04x} is an 8-bit address: I2C addresses here are 7-bit",
+                where,
+                f"{address:#04x} >> 1 = {address >> 1:#04x}"
+                + (": the MPU-6050 is 0x68" if key == "imu" and address >> 1 in MPU6050_ADDRESSES else ""),
+            )
+            continue
+        if address in RESERVED_I2C_ADDRESSES:
+            yield error(f"{key}.address: {address:#04x} is reserved by the I2C specification", where)
+        if key == "imu" and address not in MPU6050_ADDRESSES:
+            yield error(
+                f"imu.address: the MPU-6050 answers only at 0x68 (AD0 low) or 0x69 (AD0 high), not {address:#04x}",
+                where,
+            )
+        other = taken.get((bus, address))
+        if other is not None:
+            yield error(f"{key}.address: {address:#04x} on bus {bus!r} is already taken by {other}", where)
+        taken[(bus, address)] = key
+
+
+def _check_power(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    power = board.power
+    known = PMU_RAILS.get(power.chip, {})
+    for rail in power.rails:
+        if rail not in known:
+            close = difflib.get_close_matches(rail, list(known), n=1)
+            yield error(
+                f"power.rails.{rail}: the {power.chip} has no rail {rail!r}"
+                if known
+                else f"power.rails.{rail}: rails need a power chip (power.chip is none)",
+                source.key(("power", "rails", rail)),
+                f"did you mean `{close[0]}`?" if close else (f"rails: {', '.join(known)}" if known else None),
+            )
+    gps_power = board.gps.power
+    if gps_power == "always_on":
+        return
+    where = source.value(("gps", "power"))
+    if gps_power not in power.rails:
+        yield error(
+            f"gps.power: the GPS is powered from rail {gps_power!r}, which the board does not enable",
+            where,
+            f"add power.rails.{gps_power} with enable: true" if gps_power in known else "or write `always_on`",
+        )
+    elif not power.rails[gps_power].enable:
+        yield error(
+            f"gps.power: the GPS rail {gps_power!r} is switched off (power.rails.{gps_power}.enable: false)",
+            source.value(("power", "rails", gps_power, "enable")),
+            "the GPS would never get a fix",
+        )
+
+
+def _check_algorithm(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    algorithm, imu = board.algorithm, board.imu
+    if algorithm.window % algorithm.block:
+        divisors = [d for d in range(1, algorithm.window + 1) if algorithm.window % d == 0]
+        nearest = min(divisors, key=lambda d: abs(d - algorithm.block))
+        yield error(
+            f"algorithm.block: b = {algorithm.block} does not divide n = {algorithm.window}",
+            source.value(("algorithm", "block")),
+            f"the nearest b that divides {algorithm.window} is {nearest}",
+        )
+    if algorithm.deadband_g >= imu.accel_range_g:
+        yield error(
+            f"algorithm.deadband_g: l = {algorithm.deadband_g} g is not below the accelerometer range "
+            f"±{imu.accel_range_g} g",
+            source.value(("algorithm", "deadband_g")),
+        )
+    rate_where = source.value(("imu", "sample_rate_hz"))
+    if imu.sample_rate_hz > MPU6050_MAX_ACCEL_RATE_HZ:
+        yield error(
+            f"imu.sample_rate_hz: {imu.sample_rate_hz:g} Hz is above the MPU-6050's 1 kHz accelerometer rate",
+            rate_where,
+        )
+    elif imu.sample_rate_hz < imu.gyro_output_rate_hz / 256:
+        yield error(
+            f"imu.sample_rate_hz: {imu.sample_rate_hz:g} Hz is below the slowest rate "
+            f"({imu.gyro_output_rate_hz / 256:.2f} Hz, SMPLRT_DIV = 255)",
+            rate_where,
+        )
+    else:
+        achieved = imu.achieved_sample_rate_hz
+        if abs(achieved - imu.sample_rate_hz) > 0.01 * imu.sample_rate_hz:
+            yield warning(
+                f"imu.sample_rate_hz: the MPU-6050 can run at {achieved:g} Hz, not {imu.sample_rate_hz:g} Hz",
+                rate_where,
+                f"its rates are {imu.gyro_output_rate_hz} Hz / (1 + SMPLRT_DIV)",
+            )
+    if board.logging.imu_rate_hz > imu.sample_rate_hz:
+        yield error(
+            f"logging.imu_rate_hz: {board.logging.imu_rate_hz:g} Hz is faster than the IMU samples "
+            f"({imu.sample_rate_hz:g} Hz)",
+            source.value(("logging", "imu_rate_hz")),
+        )
+
+
+def check_board(board: Board, source: SourceMap) -> list[Diagnostic]:
+    """Every whole-board finding, errors and warnings."""
+    chip = CHIPS[board.chip]
+    found: list[Diagnostic] = []
+    found += _check_pins(board, chip, source)
+    found += _check_fixed_muxing(board, chip, source)
+    found += _check_i2c_devices(board, source)
+    found += _bus_reference(board.gps.uart, "uart", board.uart, ("gps", "uart"), source)
+    found += _check_power(board, source)
+    found += _check_algorithm(board, source)
+    fs = board.micropython.filesystem
+    if fs.offset + fs.size > board.flash_bytes:
+        found.append(
+            error(
+                f"micropython.filesystem: ends at {fs.offset + fs.size:#x}, beyond the {board.flash_size} flash",
+                source.value(("micropython", "filesystem")),
+            )
+        )
+    return found
