@@ -170,6 +170,10 @@ class Gps(Part):
     power: str = Field("always_on", description="'always_on' or the name of a power rail under power.rails")
     fix_timeout_s: float = Field(3.0, gt=0, description="the fix counts as lost after this long without a valid one")
 
+    @property
+    def fix_timeout_ms(self) -> int:
+        return round(self.fix_timeout_s * 1000)
+
 
 class Display(I2CDevice):
     model: Literal["ssd1306", "ssd1315", "sh1106"] = "ssd1306"
@@ -199,6 +203,10 @@ class Button(Part):
     pull: Literal["up", "down", "none"] = "up"
     active: Literal["low", "high"] = "low"
     debounce_ms: int = Field(50, ge=0, le=1000)
+
+    @property
+    def active_low(self) -> bool:
+        return self.active == "low"
 
 
 class Buttons(Part):
