@@ -4,7 +4,8 @@
     load_board_report(path)  -> BoardReport with all diagnostics (what `deadreckon validate` prints)
 
 `extends: NAME` (a bundled board) or `extends: ./other.yaml` (relative to the file) starts from another board and
-overrides its keys: mappings merge key by key, anything else is replaced whole.
+overrides its keys: mappings merge key by key, anything else is replaced whole, and `key: null` removes the
+base's value (so the default applies).
 """
 
 from __future__ import annotations
@@ -119,7 +120,11 @@ def _merge(base: Any, override: Any, path: KeyPath, source: SourceMap) -> Any:
     if isinstance(base, dict) and isinstance(override, dict):
         merged = dict(base)
         for key, value in override.items():
-            merged[key] = _merge(base[key], value, path + (key,), source) if key in base else value
+            if value is None and key in base:
+                del merged[key]  # `key: null` in an extending file removes the base's value (back to default)
+                source.drop_below(path + (key,))
+            else:
+                merged[key] = _merge(base[key], value, path + (key,), source) if key in base else value
         return merged
     source.drop_below(path)
     return override

@@ -1,0 +1,75 @@
+"""The board schema as JSON Schema (for editors) and the resolved config with where each value came from."""
+
+from __future__ import annotations
+
+from typing import Any, Iterator
+
+from codegen.board import Board
+from codegen.loader import LoadedBoard
+from codegen.yamlsource import KeyPath
+
+# Keys whose numbers read best in hexadecimal
+HEX_KEYS = {"address", "offset", "size", "bootloader", "partition_table", "app"}
+
+
+def board_json_schema() -> dict:
+    """JSON Schema (draft 2020-12) of a board YAML; `extends:` is allowed at the top level."""
+    schema = Board.model_json_schema(mode="validation")
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "deadreckon board"
+    schema["properties"]["extends"] = {
+        "type": "string",
+        "description": "a bundled board's name or a path to a board YAML whose keys this file overrides",
+    }
+    schema["required"] = [key for key in schema.get("required", [])]
+    return schema
+
+
+def _leaves(value: Any, path: KeyPath) -> Iterator[tuple[KeyPath, Any]]:
+    if isinstance(value, dict) and value.keys() == {"pin", "strapping_by_design"} and not value["strapping_by_design"]:
+        yield path, value["pin"]  # a plain GPIO number
+    elif isinstance(value, dict) and value:
+        for key, child in value.items():
+            yield from _leaves(child, path + (key,))
+    elif isinstance(value, list) and value and any(isinstance(item, (dict, list)) for item in value):
+        for index, child in enumerate(value):
+            yield from _leaves(child, path + (index,))
+    else:
+        yield path, value
+
+
+def _format(path: KeyPath, value: Any) -> str:
+    if isinstance(value, bool) or value is None:
+        return {True: "true", False: "false", None: "null"}[value]
+    if isinstance(value, int) and path and path[-1] in HEX_KEYS:
+        return f"{value:#x}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_format(path, item) for item in value) + "]"
+    return str(value)
+
+
+def _given(data: Any, path: KeyPath) -> bool:
+    for key in path:
+        if isinstance(data, dict) and key in data:
+            data = data[key]
+        elif isinstance(data, list) and isinstance(key, int) and key < len(data):
+            data = data[key]
+        else:
+            return False
+    return True
+
+
+def resolved_config_lines(loaded: LoadedBoard) -> list[str]:
+    """`key: value    # file:line:col` for every value of the board, `# default` where the YAML is silent."""
+    dumped = loaded.board.model_dump(mode="python")
+    rows = []
+    for path, value in _leaves(dumped, ()):
+        dotted = ".".join(str(part) for part in path)
+        if _given(loaded.data, path):
+            where = loaded.source.value(path)
+            origin = str(where) if where else "board file"
+        else:
+            origin = "default"
+        rows.append((f"{dotted}: {_format(path, value)}", origin))
+    width = max(len(text) for text, _ in rows)
+    return [f"{text.ljust(width)}  # {origin}" for text, origin in rows]
