@@ -67,6 +67,29 @@ def cmd_config(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_build(args: argparse.Namespace) -> int:
+    from codegen.build import build
+
+    result = build(Path(args.out))
+    print(f"built {len(result.files)} files into {result.app_dir} and {result.image}")
+    return 0
+
+
+def cmd_flash(args: argparse.Namespace) -> int:
+    from codegen.flash import flash
+
+    flash(Path(args.out), args.port, firmware=Path(args.firmware) if args.firmware else None, erase=args.erase,
+          stub=not args.no_stub)
+    return 0
+
+
+def cmd_upload(args: argparse.Namespace) -> int:
+    from codegen.upload import upload
+
+    upload(Path(args.out), args.port, force=args.force)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="deadreckon",
@@ -96,6 +119,24 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("config", help="print the resolved board config and where each value came from")
     _board_arg(p)
     p.set_defaults(func=cmd_config)
+
+    p = sub.add_parser("build", help="compile a generated tree for its board: .mpy files and a filesystem image")
+    p.add_argument("out", help="the generated tree (from `deadreckon generate`)")
+    p.set_defaults(func=cmd_build)
+
+    p = sub.add_parser("flash", help="write the firmware (optional) and the app's filesystem image with esptool")
+    p.add_argument("out", help="the built tree (from `deadreckon build`)")
+    p.add_argument("--port", required=True, help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...)")
+    p.add_argument("--firmware", help="MicroPython .bin to write at the bootloader offset (0x1000 on ESP32)")
+    p.add_argument("--erase", action="store_true", help="erase the whole flash first")
+    p.add_argument("--no-stub", action="store_true", help="talk to the ROM loader only (slower; for odd adapters)")
+    p.set_defaults(func=cmd_flash)
+
+    p = sub.add_parser("upload", help="copy the built app onto a board running MicroPython (raw REPL)")
+    p.add_argument("out", help="the built tree (from `deadreckon build`)")
+    p.add_argument("--port", required=True, help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...)")
+    p.add_argument("--force", action="store_true", help="send every file, even those already on the board")
+    p.set_defaults(func=cmd_upload)
 
     return parser
 

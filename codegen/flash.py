@@ -1,0 +1,295 @@
+"""`deadreckon flash OUT --port PORT`: firmware (optional) and the app's filesystem image onto an ESP32, by esptool.
+
+esptool 5 does the talking (`write-flash`, which verifies every region by MD5 afterwards); this module plans the
+regions from the board's layout, checks what can be checked before touching the board, runs esptool, and turns
+its failures into messages that say what to do. Flash mode, frequency and size are always `keep`: anything else
+makes esptool rewrite the firmware's header.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+from codegen.board import Board
+from codegen.errors import UserError
+
+FAST_BAUD = 460800
+SAFE_BAUD = 115200
+ESP_IMAGE_MAGIC = 0xE9
+CHIP_NAMES = {"esp32": "ESP32", "esp32s3": "ESP32-S3", "rp2040": "RP2040"}
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Region:
+    offset: int
+    path: Path
+    label: str
+    size: int
+
+
+@dataclass
+class FlashResult:
+    regions: list[Region]
+    baud: int
+    seconds: float
+    output: str = ""
+    attempts: list[str] = field(default_factory=list)
+
+
+def is_url(port: str) -> bool:
+    return "://" in port
+
+
+def plan_regions(board: Board, image: Path, firmware: Optional[Path] = None) -> list[Region]:
+    """The (offset, file) pairs to write, after checking they fit the board's layout and flash."""
+    fs = board.micropython.filesystem
+    layout_end = fs.offset + fs.size
+    if layout_end > board.flash_bytes:
+        raise UserError(
+            f"the layout ends at {layout_end:#x} (vfs at {fs.offset:#x} + {fs.size:#x}) but {board.name} has "
+            f"{board.flash_size} of flash",
+            hint="fix micropython.filesystem in the board YAML, or flash_size if the board has more flash",
+        )
+    image = Path(image)
+    if not image.is_file():
+        raise UserError(f"no filesystem image at {image}", hint="run `deadreckon build OUT` first")
+    image_size = image.stat().st_size
+    if image_size > fs.size:
+        raise UserError(
+            f"the filesystem image {image} ({image_size} bytes) is larger than the vfs partition ({fs.size} bytes)",
+            hint="rebuild with `deadreckon build OUT` after changing the board's filesystem size",
+        )
+    regions = []
+    if firmware is not None:
+        firmware = Path(firmware)
+        if not firmware.is_file():
+            raise UserError(f"no firmware file at {firmware}", hint="download MicroPython's ESP32 .bin first")
+        data = firmware.read_bytes()[:1]
+        if not data or data[0] != ESP_IMAGE_MAGIC:
+            raise UserError(
+                f"{firmware} is not an ESP firmware image (it does not start with 0xE9)",
+                hint="use the MicroPython .bin for ESP32_GENERIC (the one flashed at 0x1000), not a .uf2, .elf or .zip",
+            )
+        start = board.micropython.partitions.bootloader
+        size = firmware.stat().st_size
+        if start + size > fs.offset:
+            raise UserError(
+                f"the firmware {firmware} ({size} bytes at {start:#x}) runs into the vfs partition at {fs.offset:#x}",
+                hint="this firmware needs a different layout: check micropython.filesystem.offset in the board YAML",
+            )
+        regions.append(Region(start, firmware, "MicroPython firmware", size))
+    regions.append(Region(fs.offset, image, "filesystem image", image_size))
+    return regions
+
+
+def esptool_command(board: Board, port: str, regions: list[Region], baud: int, stub: bool = True,
+                    erase: bool = False, compress: Optional[bool] = None) -> list[str]:
+    """The esptool 5 command line for these regions."""
+    chip = board.chip
+    before = "no-reset" if port.startswith("socket://") else "default-reset"  # a TCP socket has no DTR/RTS
+    command = [sys.executable, "-m", "esptool", "--chip", chip, "--port", port, "--baud", str(baud),
+               "--before", before, "--after", "hard-reset"]
+    if not stub:
+        command.append("--no-stub")
+    command += ["write-flash", "--flash-mode", "keep", "--flash-freq", "keep", "--flash-size", "keep"]
+    if erase:
+        command.append("--erase-all")
+    if compress is True:
+        command.append("--compress")
+    elif compress is False:
+        command.append("--no-compress")
+    for region in regions:
+        command += [f"{region.offset:#x}", str(region.path)]
+    return command
+
+
+def check_port(port: str) -> None:
+    """Fail early, with the fix, when a local serial device is missing, not ours to open, or busy."""
+    if is_url(port):
+        return
+    if not os.path.exists(port):
+        raise UserError(f"no such port {port}", hint=_ports_hint())
+    if not os.access(port, os.R_OK | os.W_OK):
+        raise UserError(
+            f"permission denied on {port}",
+            hint="add yourself to the port's group (`sudo usermod -aG dialout $USER`, then log in again)",
+        )
+    try:
+        import serial
+
+        handle = serial.Serial()
+        handle.port = port
+        handle.exclusive = True
+        handle.dtr = False  # do not reset the board just by looking
+        handle.rts = False
+        handle.open()
+        handle.close()
+    except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException, OSError, ValueError
+        text = str(exc)
+        if "busy" in text.lower() or "lock" in text.lower():
+            raise UserError(f"port {port} is busy", hint=_busy_hint())
+        raise UserError(f"cannot open {port}: {text}")
+
+
+def _ports_hint() -> str:
+    try:
+        from serial.tools import list_ports
+
+        names = [p.device for p in list_ports.comports()]
+    except Exception:  # noqa: BLE001
+        names = []
+    if names:
+        return "serial ports here: " + ", ".join(names)
+    return "no serial ports found: is the board plugged in with a data (not charge-only) cable?"
+
+
+def _busy_hint() -> str:
+    return "another program holds it (a serial monitor, mpremote, screen, an IDE): close it and try again"
+
+
+def classify(output: str, port: str, board: Board, regions: list[Region]) -> Optional[UserError]:
+    """Turn esptool's output into a UserError that says what happened and what to do; None if unknown."""
+    text = output
+    lower = text.lower()
+    expected = CHIP_NAMES.get(board.chip, board.chip)
+    if "this chip is " in lower and "wrong chip argument" in lower:
+        found = text[lower.index("this chip is ") + len("this chip is "):].split(",")[0].split()[0]
+        return UserError(
+            f"the chip on {port} is {found}, but {board.name} has an {expected}",
+            hint="check the port (is another board plugged in?) or the chip: in the board YAML",
+        )
+    if "doesn't appear to be an" in lower or "unexpected chip" in lower:
+        return UserError(
+            f"the chip on {port} is not an {expected} (its chip magic value is unknown to esptool)",
+            hint="check the port, and the chip: in the board YAML",
+        )
+    if "will not fit in" in lower:
+        return UserError(
+            f"the board on {port} has less flash than {board.name}'s layout needs ({board.flash_size})",
+            hint="set flash_size and micropython.filesystem in the board YAML to match the board's flash",
+        )
+    if "is not an" in lower and "image" in lower and "--force" in lower:
+        return UserError(
+            f"the firmware is not built for an {expected}",
+            hint="download the MicroPython firmware for this chip (ESP32_GENERIC for an ESP32)",
+        )
+    if "permission denied" in lower:
+        return UserError(
+            f"permission denied on {port}",
+            hint="add yourself to the port's group (`sudo usermod -aG dialout $USER`, then log in again)",
+        )
+    if "could not exclusively lock" in lower or "resource busy" in lower:
+        return UserError(f"port {port} is busy", hint=_busy_hint())
+    if "connection refused" in lower or "no such file or directory" in lower and "could not open port" in lower:
+        return UserError(f"no such port {port} (nothing answers there)", hint=_ports_hint())
+    if "md5 of file does not match" in lower or "write failed" in lower:
+        return UserError(
+            f"verification failed: the flash on {port} does not hold what was written",
+            hint="try again; if it repeats, try --no-stub or a lower speed (a worn flash chip or a bad cable)",
+        )
+    if ("invalid head of packet" in lower or "invalid slip escape" in lower or "corrupt" in lower
+            or "serial noise" in lower):
+        return UserError(
+            f"the board's replies on {port} arrived corrupted",
+            hint="try again; a shorter or better USB cable helps, and so does a lower baud rate",
+        )
+    if ("socket disconnected" in lower or "lost connection" in lower or "no more data" in lower
+            or "connection reset" in lower or "broken pipe" in lower or "stopped responding" in lower
+            or "serial exception" in lower or "device disconnected" in lower
+            or "packet content transfer stopped" in lower or "timed out waiting" in lower):
+        return UserError(
+            f"the connection to the board on {port} was lost while flashing",
+            hint="check the cable and run the same command again; the write starts over and is verified",
+        )
+    if "failed to connect" in lower:
+        return UserError(
+            f"no {expected} bootloader answered on {port}",
+            hint="hold BOOT (GPIO0) while pressing RESET/EN to enter the download mode, then run the command again",
+        )
+    return None
+
+
+def _last_error_line(output: str) -> str:
+    lines = [line.strip() for line in output.splitlines() if line.strip()]
+    for line in reversed(lines):
+        if "error" in line.lower():
+            return line
+    return lines[-1] if lines else "no output"
+
+
+def run_esptool(command: list[str], progress: Progress, expected_chip: str) -> tuple[int, str]:
+    """Run esptool, echoing its lines; stop it before it writes anything if it connected to another chip."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1", NO_COLOR="1")
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
+    lines: list[str] = []
+    buffer = b""
+    assert process.stdout is not None
+    while True:
+        chunk = process.stdout.read1(4096) if hasattr(process.stdout, "read1") else process.stdout.read(4096)
+        if not chunk:
+            break
+        buffer += chunk
+        *complete, buffer = buffer.replace(b"\r", b"\n").split(b"\n")
+        for raw in complete:
+            line = raw.decode("utf-8", "replace").rstrip()
+            if not line:
+                continue
+            lines.append(line)
+            if not line.startswith("Writing at"):
+                progress(f"  {line}")
+            if "doesn't appear to be an" in line:
+                process.kill()  # esptool would "attempt to continue anyway" and write to the wrong chip
+    if buffer.strip():
+        lines.append(buffer.decode("utf-8", "replace"))
+    process.wait()
+    return process.returncode, "\n".join(lines)
+
+
+def flash(out: Path, port: str, firmware: Optional[Path] = None, erase: bool = False,
+          board: Optional[Board] = None, stub: bool = True, compress: Optional[bool] = None,
+          progress: Progress = print) -> FlashResult:
+    """Write OUT/build/fs.img (and the firmware) to the board on `port`, verified; raise UserError on failure."""
+    from codegen.build import IMAGE_NAME, load_tree
+
+    tree = load_tree(Path(out), board)
+    board = tree.board
+    if board.chip not in ("esp32", "esp32s3"):
+        raise UserError(f"flashing {board.chip} boards is not supported (esptool is for Espressif chips)")
+    if erase and not stub:
+        raise UserError("--erase needs the flasher stub: the ESP32 ROM loader cannot erase the whole flash",
+                        hint="drop --no-stub, or flash without --erase")
+    regions = plan_regions(board, tree.build_dir / IMAGE_NAME, firmware)
+    check_port(port)
+    for region in regions:
+        progress(f"{region.label}: {region.path} ({region.size} bytes) -> {region.offset:#x}")
+    started = time.monotonic()
+    attempts = []
+    error: Optional[UserError] = None
+    output = ""
+    for baud in (FAST_BAUD, SAFE_BAUD):
+        command = esptool_command(board, port, regions, baud, stub=stub, erase=erase, compress=compress)
+        progress(f"esptool at {baud} baud{'' if stub else ' (ROM loader, no stub)'}")
+        status, output = run_esptool(command, progress, CHIP_NAMES.get(board.chip, board.chip))
+        attempts.append(f"{baud}: exit {status}")
+        if status == 0:
+            seconds = time.monotonic() - started
+            progress(f"flashed and verified {len(regions)} region(s) in {seconds:.1f} s")
+            return FlashResult(regions, baud, seconds, output, attempts)
+        error = classify(output, port, board, regions)
+        # a slower line helps with noise, drops and a silent bootloader; a socket has no line speed
+        retriable = error is None or error.message.startswith(("the board's replies", "the connection", "no "))
+        if baud == SAFE_BAUD or not retriable or port.startswith("socket://"):
+            break
+        progress(f"esptool failed at {baud} baud; trying {SAFE_BAUD}")
+    if error is None:
+        error = UserError(f"esptool failed: {_last_error_line(output)}",
+                          hint="run the esptool command above with --trace to see the exchange")
+    raise error
