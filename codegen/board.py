@@ -270,3 +270,8 @@ class Board(Part):
     @property
     def mpy_arch(self) -> str:
         return {"esp32": "xtensawin", "esp32s3": "xtensawin", "rp2040": "armv6m"}[self.chip]
+
+    @property
+    def calibration_samples(self) -> int:
+        """IMU samples the calibration collects: calibration_s at the IMU's achieved sample rate."""
+        return max(1, round(self.algorithm.calibration_s * self.imu.achieved_sample_rate_hz))

@@ -1,0 +1,81 @@
+/*
+ * dr_kernel.h: the dead-reckoning kernel. One window of raw MPU-6050 samples in, ENU displacement and velocity out.
+ *
+ * Float32 only, no allocation, no global or static mutable state: the caller owns a dr_config, a dr_state and a
+ * scratch area of DR_SCRATCH_FLOATS(block) floats. codegen/reference.py is the specification; the steps are
+ *   1. gyro bias subtraction and scaling to rad/s, accel scaling to m/s^2 (after the board's axis remap);
+ *   2. orientation q (body -> ENU) from the gyro: q <- q (x) exp(omega dt / 2), kept at unit length;
+ *   3. a = R(q) f - [0, 0, g];
+ *   4. per axis, the median of each block of b samples;
+ *   5. deadband: |a| < l becomes exactly 0;
+ *   6. zero-order hold: over a block of duration T, p += v T + a T^2 / 2 and v += a T (the same as summing the
+ *      per-sample steps v_k+1 = v_k + a dt_k, p += v_k dt_k + a dt_k^2 / 2, as a is constant over the block).
+ */
+#ifndef DR_KERNEL_H
+#define DR_KERNEL_H
+
+#include <stdint.h>
+
+/* Return codes. */
+#define DR_OK (0)
+#define DR_MOVED (1)          /* dr_calibrate: an accel axis' standard deviation exceeded the motion threshold */
+#define DR_ERR_BLOCK (-1)     /* block < 1 */
+#define DR_ERR_WINDOW (-2)    /* window < 1 or not a multiple of block */
+#define DR_ERR_COUNT (-3)     /* sample count < 1 or not a multiple of block */
+#define DR_ERR_RANGE (-4)     /* a scale or threshold is not positive, or the deadband is negative */
+
+/* Floats of scratch dr_process needs for block size b: one block of ENU accelerations per axis. */
+#define DR_SCRATCH_FLOATS(block) (3 * (block))
+
+/* The run-time parameters. dr_config_init() fills them from the board header; every field is 4 bytes. */
+typedef struct {
+    int32_t block;             /* b: samples per block median */
+    int32_t window;            /* n: samples per window (a multiple of b; the caller's buffer size) */
+    int32_t axis_source[3];    /* body axis i <- sensor axis axis_source[i] (0..2), for accel and gyro alike */
+    float axis_sign[3];        /* ... times axis_sign[i] (+1 or -1) */
+    float accel_ms2_per_lsb;   /* m/s^2 per accel count */
+    float gyro_rads_per_lsb;   /* rad/s per gyro count */
+    float deadband_ms2;        /* l in m/s^2: a block median with |a| below it becomes 0 */
+    float motion_limit_lsb2;   /* calibration "moved" when an accel variance exceeds this, counts^2 */
+} dr_config;
+
+/* What the kernel carries from window to window. */
+typedef struct {
+    float q[4];                /* orientation, unit quaternion w, x, y, z turning body vectors into ENU */
+    float v[3];                /* velocity East, North, Up, m/s */
+    float gyro_bias_lsb[3];    /* body-frame gyro bias, counts */
+} dr_state;
+
+/* Fills cfg from the board constants of dr_board.h. */
+void dr_config_init(dr_config *cfg);
+
+/* Sets cfg's numeric parameters: block b and window n (samples), ranges in counts per g and counts per degree/s,
+ * deadband and motion threshold in g. Returns DR_OK, or DR_ERR_BLOCK/DR_ERR_WINDOW/DR_ERR_RANGE (cfg unchanged). */
+int dr_config_set(dr_config *cfg, int32_t block, int32_t window, float accel_lsb_per_g, float gyro_lsb_per_dps,
+                  float deadband_g, float motion_threshold_g);
+
+/* Resets st: identity orientation, zero velocity, zero gyro bias. */
+void dr_state_init(dr_state *st);
+
+/* Calibrates st from count >= 1 raw samples at rest, interleaved [ax, ay, az, gx, gy, gz] in the sensor frame:
+ * tilt from the mean specific force (yaw 0), gyro bias = mean gyro counts, velocity 0.
+ * Returns DR_OK, DR_MOVED (st is updated all the same) or DR_ERR_COUNT (st unchanged). */
+int dr_calibrate(const dr_config *cfg, dr_state *st, const int16_t *samples, int32_t count);
+
+/* Processes count raw samples (a multiple of cfg->block), interleaved [ax, ay, az, gx, gy, gz] in the sensor frame,
+ * each held for dt_us[k] microseconds, starting from st's orientation and velocity (both updated).
+ * scratch: DR_SCRATCH_FLOATS(cfg->block) floats. out: displacement East, North, Up (m) over the samples, then the
+ * velocity East, North, Up (m/s) at their end. medians: NULL, or 3 * count / block floats receiving the block
+ * medians after the deadband (m/s^2, block-major: E, N, U of block 0, then block 1, ...).
+ * Returns DR_OK or DR_ERR_COUNT (nothing changed). */
+int dr_process(const dr_config *cfg, dr_state *st, float *scratch, const int16_t *samples, const int32_t *dt_us,
+               int32_t count, float out[6], float *medians);
+
+/* Sets the velocity, m/s East, North, Up. */
+void dr_set_velocity(dr_state *st, float ve, float vn, float vu);
+
+/* Turns the earth frame about Up by the angle a with cosine cos_a and sine sin_a (counter-clockwise seen from
+ * above; the pair need not be exactly unit): q <- q_up(a) (x) q. The velocity is left as it is. */
+void dr_rotate_heading(dr_state *st, float cos_a, float sin_a);
+
+#endif /* DR_KERNEL_H */

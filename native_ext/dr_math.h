@@ -1,0 +1,107 @@
+/*
+ * dr_math.h: the small float32 math every kernel file shares (header only).
+ *
+ * The ESP32's FPU adds, multiplies and converts in hardware but has no divide and no square root: a `/` on floats
+ * or sqrtf() becomes a call into libgcc/libm, which a MicroPython native module cannot link. So the kernel never
+ * divides a float; it multiplies by a reciprocal from dr_recip() or dr_inv_sqrt(), Newton iterations from a
+ * bit-level first guess, accurate to a few float32 ulp.
+ */
+#ifndef DR_MATH_H
+#define DR_MATH_H
+
+#include <stdint.h>
+
+#define DR_GRAVITY_MS2 (9.80665f)            /* m/s^2, standard gravity */
+#define DR_PI (3.14159265358979f)            /* rad */
+#define DR_RAD_PER_DEG (0.0174532925199433f) /* rad per degree */
+#define DR_S_PER_US (1.0e-6f)                /* s per microsecond */
+
+/* The bits of a float and back, without breaking aliasing rules (C99 allows reading another union member). */
+typedef union {
+    float f;
+    uint32_t u;
+} dr_bits;
+
+/* Returns |x|. */
+static inline float dr_absf(float x) {
+    return x < 0.0f ? -x : x;
+}
+
+/* Returns 1/sqrt(x) for x > 0 (a few ulp); 0 for x <= 0. */
+static inline float dr_inv_sqrt(float x) {
+    dr_bits b;
+    float y;
+    if (!(x > 0.0f)) {
+        return 0.0f;
+    }
+    b.f = x;
+    b.u = 0x5f375a86u - (b.u >> 1);
+    y = b.f;
+    y = y * (1.5f - 0.5f * x * y * y);
+    y = y * (1.5f - 0.5f * x * y * y);
+    y = y * (1.5f - 0.5f * x * y * y);
+    return y;
+}
+
+/* Returns sqrt(x) for x >= 0 (a few ulp); 0 for x <= 0. */
+static inline float dr_sqrt(float x) {
+    return x * dr_inv_sqrt(x);
+}
+
+/* Returns 1/x for a normal x of either sign (a few ulp). */
+static inline float dr_recip(float x) {
+    dr_bits b;
+    float y;
+    float a = dr_absf(x);
+    b.f = a;
+    b.u = 0x7ef311c7u - b.u;
+    y = b.f;
+    y = y * (2.0f - a * y);
+    y = y * (2.0f - a * y);
+    y = y * (2.0f - a * y);
+    y = y * (2.0f - a * y);
+    return x < 0.0f ? -y : y;
+}
+
+/* Returns x rounded to the nearest integer, halves away from zero; |x| must fit an int32. */
+static inline int32_t dr_round(float x) {
+    return (int32_t)(x < 0.0f ? x - 0.5f : x + 0.5f);
+}
+
+/* Hamilton product r = p (x) q of quaternions [w, x, y, z]; r may not alias p or q. */
+static inline void dr_quat_multiply(float r[4], const float p[4], const float q[4]) {
+    r[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3];
+    r[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2];
+    r[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1];
+    r[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0];
+}
+
+/* Scales q to unit length (q = 0 becomes the identity). */
+static inline void dr_quat_normalise(float q[4]) {
+    float k = dr_inv_sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    if (k == 0.0f) {
+        q[0] = 1.0f;
+        q[1] = q[2] = q[3] = 0.0f;
+        return;
+    }
+    q[0] *= k;
+    q[1] *= k;
+    q[2] *= k;
+    q[3] *= k;
+}
+
+/* r = R(q) v: rotates the body vector v (any unit) into the earth frame by the unit quaternion q.
+ * Uses t = 2 (q_v x v), r = v + w t + q_v x t (15 multiplies). r may alias v. */
+static inline void dr_quat_rotate(float r[3], const float q[4], const float v[3]) {
+    float tx = 2.0f * (q[2] * v[2] - q[3] * v[1]);
+    float ty = 2.0f * (q[3] * v[0] - q[1] * v[2]);
+    float tz = 2.0f * (q[1] * v[1] - q[2] * v[0]);
+    float rx = v[0] + q[0] * tx + (q[2] * tz - q[3] * ty);
+    float ry = v[1] + q[0] * ty + (q[3] * tx - q[1] * tz);
+    float rz = v[2] + q[0] * tz + (q[1] * ty - q[2] * tx);
+    r[0] = rx;
+    r[1] = ry;
+    r[2] = rz;
+}
+
+#endif /* DR_MATH_H */
