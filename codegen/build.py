@@ -98,11 +98,13 @@ def _manifest_board(out: Path) -> Board:
         raise UserError(f"{manifest_path} is missing", hint="run `deadreckon generate BOARD.yaml -o OUT` first")
     except json.JSONDecodeError as exc:
         raise UserError(f"{manifest_path} is not valid JSON ({exc.msg}, line {exc.lineno})")
-    board_file = manifest.get("board_file")
+    board_file = manifest.get("board_file") or (manifest.get("board_files") or [None])[0]
     candidates = []
     if board_file:
+        from codegen.paths import board_configs_dir
+
         path = Path(board_file)
-        candidates = [path] if path.is_absolute() else [out / path, Path.cwd() / path, path]
+        candidates = [path] if path.is_absolute() else [out / path, Path.cwd() / path, board_configs_dir() / path]
     for candidate in candidates:
         if candidate.is_file():
             return load_board(candidate).board

@@ -43,7 +43,7 @@ UART_CLKDIV_REG = 0x3FF40014
 RTCCALICFG1 = 0x3FF5F06C
 
 MAC = bytes.fromhex("240ac4123456")
-JEDEC_ID = (0xEF, 0x40, 0x16)  # Winbond W25Q32: 0x16 -> 4 MiB
+WINBOND = 0xEF  # JEDEC manufacturer; the capacity byte is log2(size): 0x16 -> 4 MiB
 SFDP_SIGNATURE = 0x50444653
 
 # opcodes
@@ -229,9 +229,9 @@ class Session:
         command = self.regs.get(SPI0_BASE + 0x24, 0) & 0xFF
         address = self.regs.get(SPI0_BASE + 0x04, 0)
         if command == 0x9F:  # RDID
-            answer = JEDEC_ID[0] | JEDEC_ID[1] << 8 | JEDEC_ID[2] << 16
+            answer = WINBOND | 0x40 << 8 | (len(self.peer.flash).bit_length() - 1) << 16
         elif command == 0x5A:  # RDSFDP
-            answer = SFDP_SIGNATURE if address == 0 else JEDEC_ID[0]
+            answer = SFDP_SIGNATURE if address == 0 else WINBOND
         else:
             answer = 0  # status registers read as 0 (no protection bits), resets and the like just complete
         self.regs[SPI0_BASE + 0x80] = answer

@@ -1,0 +1,74 @@
+"""Small generated-tree stand-ins and firmware images for the deploy tests (made here, never downloaded)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import struct
+from pathlib import Path
+
+from codegen.board import Board
+
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULT_BOARD_YAML = ROOT / "board_configs" / "ttgo-tbeam-v1.1.yaml"
+
+APP_FILES = {
+    "main.py": "import app\napp.run()\n",
+    "app.py": "from lib import util\n\ndef run():\n    print('deadreckon', util.double(21))\n",
+    "lib/util.py": "def double(x):\n    return 2 * x\n",
+    "config.json": '{"rate_hz": 200}\n',
+}
+
+
+def default_board(**changes) -> Board:
+    """The bundled default board, validated by the model alone (independent of the whole-board rules)."""
+    from ruamel.yaml import YAML
+
+    data = YAML(typ="safe").load(DEFAULT_BOARD_YAML.read_text())
+    for dotted, value in changes.items():
+        node = data
+        *parents, last = dotted.split(".")
+        for key in parents:
+            node = node.setdefault(key, {})
+        node[last] = value
+    return Board.model_validate(data)
+
+
+def make_tree(root: Path, files: dict[str, str] | None = None) -> Path:
+    """A folder shaped like `deadreckon generate`'s output: MANIFEST.json + app/."""
+    files = APP_FILES if files is None else files
+    manifest = {"board_files": [str(DEFAULT_BOARD_YAML)], "board": "ttgo-tbeam-v1.1", "files": {}}
+    for rel, text in files.items():
+        path = root / "app" / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+        manifest["files"][f"app/{rel}"] = {"sha256": hashlib.sha256(text.encode()).hexdigest()}
+    (root / "MANIFEST.json").write_text(json.dumps(manifest, indent=2))
+    return root
+
+
+def esp_image(chip_id: int = 0, segment_bytes: int = 0x30000, seed: int = 1) -> bytes:
+    """A well-formed ESP firmware image (the layout esptool parses): header, extended header, one segment,
+    checksum. chip_id 0 is the ESP32, 9 the ESP32-S3. Contents are pseudo-random, so they do not compress."""
+    rng = hashlib.sha256(seed.to_bytes(4, "little"))
+    data = bytearray()
+    while len(data) < segment_bytes:
+        rng = hashlib.sha256(rng.digest())
+        data += rng.digest()
+    data = bytes(data[:segment_bytes])
+    header = struct.pack("<BBBBI", 0xE9, 1, 2, 0x20, 0x400D0018)  # magic, 1 segment, DIO, 4MB@40m, entry
+    extended = struct.pack("<B3sHBHH4sB", 0xEE, b"\0\0\0", chip_id, 0, 0, 0, b"\0\0\0\0", 0)
+    segment = struct.pack("<II", 0x3F400020, len(data)) + data
+    body = header + extended + segment
+    check = 0xEF
+    for byte in data:
+        check ^= byte
+    padding = 15 - (len(body) % 16)
+    return body + b"\0" * padding + bytes([check])
+
+
+def fresh_environment() -> dict:
+    env = dict(os.environ)
+    env.pop("MPY_DIR", None)
+    return env
