@@ -1,0 +1,111 @@
+"""A `time` module for the unix-port MicroPython whose clock the test controls.
+
+Virtual microseconds advance only when the program sleeps, talks to an emulated peripheral, or reads the clock
+(a few microseconds per read), so a run is deterministic. ticks_* wrap with the ESP32's period (2**30), and the
+scenario may start the counter just below the wrap. When the scenario's duration is over, the clock ends the run
+(the world is finalised and SystemExit is raised; the app's `except Exception` blocks do not catch it).
+"""
+
+TICKS_PERIOD = 1 << 30
+_HALF = TICKS_PERIOD >> 1
+_MASK = TICKS_PERIOD - 1
+READ_COST_US = 3  # each clock read costs the program this much virtual time
+
+_now = 0  # virtual microseconds since the start of the run (unbounded)
+_start_ticks = 0  # ticks_us() value at _now == 0
+_end = -1  # end of the run in virtual us (-1: never)
+_epoch_s = 0  # time() at _now == 0
+_on_end = None
+
+
+def _configure(start_ticks_us, end_us, epoch_s, on_end):
+    global _start_ticks, _end, _epoch_s, _on_end
+    _start_ticks = start_ticks_us & _MASK
+    _end = end_us
+    _epoch_s = epoch_s
+    _on_end = on_end
+
+
+def now():
+    """Virtual microseconds since the start of the run (for the emulated peripherals)."""
+    return _now
+
+
+def advance(us):
+    global _now, _end
+    _now += int(us)
+    if 0 <= _end <= _now:
+        _end = -1
+        if _on_end is not None:
+            _on_end()
+        raise SystemExit(0)
+
+
+def ticks_us():
+    advance(READ_COST_US)
+    return (_start_ticks + _now) & _MASK
+
+
+def ticks_ms():
+    advance(READ_COST_US)
+    return ((_start_ticks + _now) // 1000) & _MASK
+
+
+def ticks_cpu():
+    return ticks_us()
+
+
+def ticks_add(ticks, delta):
+    return (ticks + delta) & _MASK
+
+
+def ticks_diff(end, start):
+    return ((end - start + _HALF) & _MASK) - _HALF
+
+
+def sleep_us(us):
+    if us > 0:
+        advance(us)
+
+
+def sleep_ms(ms):
+    if ms > 0:
+        advance(ms * 1000)
+
+
+def sleep(s):
+    if s > 0:
+        advance(s * 1000000)
+
+
+def time():
+    return _epoch_s + _now // 1000000
+
+
+def time_ns():
+    return (_epoch_s * 1000000 + _now) * 1000
+
+
+def gmtime(secs=None):
+    # 2000-01-01 based like the ESP32 port; only used for file names and diagnostics
+    if secs is None:
+        secs = time()
+    days, rem = divmod(int(secs), 86400)
+    hh, rem = divmod(rem, 3600)
+    mm, ss = divmod(rem, 60)
+    y = 2000
+    while True:
+        ylen = 366 if (y % 4 == 0 and (y % 100 != 0 or y % 400 == 0)) else 365
+        if days < ylen:
+            break
+        days -= ylen
+        y += 1
+    mdays = [31, 29 if ylen == 366 else 28, 31, 30, 31, 30, 31, 31, 30, 31, 30, 31]
+    m = 0
+    while days >= mdays[m]:
+        days -= mdays[m]
+        m += 1
+    return (y, m + 1, days + 1, hh, mm, ss, 0, 0)
+
+
+localtime = gmtime
