@@ -1,0 +1,261 @@
+/*
+ * dr_native.c: the thin MicroPython binding of the kernel, module `dr_native` (API in API.md).
+ *
+ * One file, two builds: a dynamic native module (.mpy, Makefile, MICROPY_ENABLE_DYNRUNTIME) and a user C module
+ * linked into the firmware (micropython.mk / micropython.cmake). Each function parses its buffers (array('f') state
+ * and out, array('h') samples, array('i') intervals), calls the kernel and returns; nothing is allocated per sample.
+ *
+ * state buffer layout (floats): dr_state (q w,x,y,z | v E,N,U | gyro bias x,y,z), dr_config, scratch 3 * block.
+ */
+#if MICROPY_ENABLE_DYNRUNTIME
+#include "py/dynruntime.h"
+#else
+#include "py/runtime.h"
+#include "py/obj.h"
+#endif
+
+#include "dr_board.h"
+#include "dr_geo.h"
+#include "dr_kernel.h"
+#include "dr_median.h"
+
+#define DR_STATE_FLOATS ((mp_int_t)(sizeof(dr_state) / sizeof(float)))
+#define DR_CONFIG_FLOATS ((mp_int_t)(sizeof(dr_config) / sizeof(float)))
+#define DR_HEADER_FLOATS (DR_STATE_FLOATS + DR_CONFIG_FLOATS)
+#define DR_OUT_FLOATS (6)
+
+/* The buffer of obj with the given array typecode, or a TypeError. */
+static void dr_get_array(mp_obj_t obj, mp_buffer_info_t *info, mp_uint_t flags, char typecode) {
+    mp_get_buffer_raise(obj, info, flags);
+    if (info->typecode != typecode) {
+        switch (typecode) {
+            case 'f':
+                mp_raise_TypeError(MP_ERROR_TEXT("expected array('f')"));
+            case 'h':
+                mp_raise_TypeError(MP_ERROR_TEXT("expected array('h')"));
+            default:
+                mp_raise_TypeError(MP_ERROR_TEXT("expected array('i')"));
+        }
+    }
+}
+
+static mp_int_t dr_state_len(mp_int_t block) {
+    return DR_HEADER_FLOATS + 3 * block;
+}
+
+/* The kernel structs inside a state buffer; checks its size against the block stored in it. */
+static float *dr_unpack(mp_obj_t state_obj, dr_state **st, dr_config **cfg, mp_int_t *floats) {
+    mp_buffer_info_t info;
+    float *base;
+    dr_get_array(state_obj, &info, MP_BUFFER_RW, 'f');
+    *floats = (mp_int_t)(info.len / sizeof(float));
+    if (*floats < DR_HEADER_FLOATS) {
+        mp_raise_ValueError(MP_ERROR_TEXT("state buffer shorter than state_len(block)"));
+    }
+    base = (float *)info.buf;
+    *st = (dr_state *)base;
+    *cfg = (dr_config *)(base + DR_STATE_FLOATS);
+    return base + DR_HEADER_FLOATS;
+}
+
+static void dr_raise(int code) {
+    switch (code) {
+        case DR_ERR_BLOCK:
+            mp_raise_ValueError(MP_ERROR_TEXT("block must be at least 1"));
+        case DR_ERR_WINDOW:
+            mp_raise_ValueError(MP_ERROR_TEXT("window must be a positive multiple of block"));
+        case DR_ERR_COUNT:
+            mp_raise_ValueError(MP_ERROR_TEXT("sample count must be a positive multiple of block"));
+        default:
+            mp_raise_ValueError(MP_ERROR_TEXT("ranges and threshold must be > 0, deadband >= 0"));
+    }
+}
+
+static mp_obj_t dr_state_len_fn(mp_obj_t block_obj) {
+    return mp_obj_new_int(dr_state_len(mp_obj_get_int(block_obj)));
+}
+static MP_DEFINE_CONST_FUN_OBJ_1(dr_state_len_obj, dr_state_len_fn);
+
+/* init(state) or init(state, block, window, accel_lsb_per_g, gyro_lsb_per_dps, deadband_g, motion_threshold_g) */
+static mp_obj_t dr_init_fn(size_t n_args, const mp_obj_t *args) {
+    dr_state *st;
+    dr_config *cfg;
+    dr_config fresh;
+    mp_int_t floats;
+    (void)dr_unpack(args[0], &st, &cfg, &floats);
+    dr_config_init(&fresh);
+    if (n_args == 7) {
+        int code = dr_config_set(&fresh, mp_obj_get_int(args[1]), mp_obj_get_int(args[2]),
+                                 (float)mp_obj_get_float(args[3]), (float)mp_obj_get_float(args[4]),
+                                 (float)mp_obj_get_float(args[5]), (float)mp_obj_get_float(args[6]));
+        if (code != DR_OK) {
+            dr_raise(code);
+        }
+    } else if (n_args != 1) {
+        mp_raise_TypeError(MP_ERROR_TEXT("init takes state, or state and 6 parameters"));
+    }
+    if (floats < dr_state_len(fresh.block)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("state buffer shorter than state_len(block)"));
+    }
+    *cfg = fresh;
+    dr_state_init(st);
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_init_obj, 1, 7, dr_init_fn);
+
+static mp_obj_t dr_calibrate_fn(mp_obj_t state_obj, mp_obj_t samples_obj) {
+    dr_state *st;
+    dr_config *cfg;
+    mp_int_t floats;
+    mp_buffer_info_t samples;
+    int code;
+    (void)dr_unpack(state_obj, &st, &cfg, &floats);
+    dr_get_array(samples_obj, &samples, MP_BUFFER_READ, 'h');
+    code = dr_calibrate(cfg, st, (const int16_t *)samples.buf, (int32_t)(samples.len / (6 * sizeof(int16_t))));
+    if (code < 0) {
+        dr_raise(code);
+    }
+    return mp_obj_new_int(code);
+}
+static MP_DEFINE_CONST_FUN_OBJ_2(dr_calibrate_obj, dr_calibrate_fn);
+
+static mp_obj_t dr_process_fn(size_t n_args, const mp_obj_t *args) {
+    dr_state *st;
+    dr_config *cfg;
+    mp_int_t floats, count;
+    mp_buffer_info_t samples, dt, out;
+    float *scratch;
+    int code;
+    (void)n_args;
+    scratch = dr_unpack(args[0], &st, &cfg, &floats);
+    dr_get_array(args[1], &samples, MP_BUFFER_READ, 'h');
+    dr_get_array(args[2], &dt, MP_BUFFER_READ, 'i');
+    dr_get_array(args[3], &out, MP_BUFFER_RW, 'f');
+    if (cfg->block < 1 || floats < dr_state_len(cfg->block)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("state not initialised by init() or shorter than state_len(block)"));
+    }
+    count = (mp_int_t)(samples.len / (6 * sizeof(int16_t)));
+    if (samples.len != (size_t)count * 6 * sizeof(int16_t) || dt.len != (size_t)count * sizeof(int32_t)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("samples must hold 6 values and dt_us 1 value per sample"));
+    }
+    if (out.len < DR_OUT_FLOATS * sizeof(float)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("out must hold OUT_LEN floats"));
+    }
+    code = dr_process(cfg, st, scratch, (const int16_t *)samples.buf, (const int32_t *)dt.buf, (int32_t)count,
+                      (float *)out.buf, 0);
+    if (code != DR_OK) {
+        dr_raise(code);
+    }
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_process_obj, 4, 4, dr_process_fn);
+
+static mp_obj_t dr_set_velocity_fn(size_t n_args, const mp_obj_t *args) {
+    dr_state *st;
+    dr_config *cfg;
+    mp_int_t floats;
+    (void)n_args;
+    (void)dr_unpack(args[0], &st, &cfg, &floats);
+    dr_set_velocity(st, (float)mp_obj_get_float(args[1]), (float)mp_obj_get_float(args[2]),
+                    (float)mp_obj_get_float(args[3]));
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_set_velocity_obj, 4, 4, dr_set_velocity_fn);
+
+static mp_obj_t dr_rotate_heading_fn(mp_obj_t state_obj, mp_obj_t cos_obj, mp_obj_t sin_obj) {
+    dr_state *st;
+    dr_config *cfg;
+    mp_int_t floats;
+    (void)dr_unpack(state_obj, &st, &cfg, &floats);
+    dr_rotate_heading(st, (float)mp_obj_get_float(cos_obj), (float)mp_obj_get_float(sin_obj));
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_3(dr_rotate_heading_obj, dr_rotate_heading_fn);
+
+static mp_obj_t dr_offset_latlon_fn(size_t n_args, const mp_obj_t *args) {
+    int32_t lat, lon;
+    mp_obj_t result[2];
+    (void)n_args;
+    dr_offset_latlon((int32_t)mp_obj_get_int(args[0]), (int32_t)mp_obj_get_int(args[1]),
+                     (float)mp_obj_get_float(args[2]), (float)mp_obj_get_float(args[3]), &lat, &lon);
+    result[0] = mp_obj_new_int(lat);
+    result[1] = mp_obj_new_int(lon);
+    return mp_obj_new_tuple(2, result);
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_offset_latlon_obj, 4, 4, dr_offset_latlon_fn);
+
+static mp_obj_t dr_block_median_fn(mp_obj_t values_obj, mp_obj_t block_obj, mp_obj_t out_obj) {
+    mp_buffer_info_t values, out;
+    mp_int_t block = mp_obj_get_int(block_obj);
+    int32_t count;
+    dr_get_array(values_obj, &values, MP_BUFFER_RW, 'f');
+    dr_get_array(out_obj, &out, MP_BUFFER_RW, 'f');
+    count = (int32_t)(values.len / sizeof(float));
+    if (block < 1 || (count / block) * (mp_int_t)sizeof(float) > (mp_int_t)out.len) {
+        mp_raise_ValueError(MP_ERROR_TEXT("block must be >= 1 and out hold len(values) // block floats"));
+    }
+    if (dr_block_median((float *)values.buf, count, (int32_t)block, (float *)out.buf) < 0) {
+        dr_raise(DR_ERR_COUNT);
+    }
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_3(dr_block_median_obj, dr_block_median_fn);
+
+#if MICROPY_ENABLE_DYNRUNTIME
+
+mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *args) {
+    MP_DYNRUNTIME_INIT_ENTRY
+    mp_store_global(MP_QSTR_state_len, MP_OBJ_FROM_PTR(&dr_state_len_obj));
+    mp_store_global(MP_QSTR_init, MP_OBJ_FROM_PTR(&dr_init_obj));
+    mp_store_global(MP_QSTR_calibrate, MP_OBJ_FROM_PTR(&dr_calibrate_obj));
+    mp_store_global(MP_QSTR_process, MP_OBJ_FROM_PTR(&dr_process_obj));
+    mp_store_global(MP_QSTR_set_velocity, MP_OBJ_FROM_PTR(&dr_set_velocity_obj));
+    mp_store_global(MP_QSTR_rotate_heading, MP_OBJ_FROM_PTR(&dr_rotate_heading_obj));
+    mp_store_global(MP_QSTR_offset_latlon, MP_OBJ_FROM_PTR(&dr_offset_latlon_obj));
+    mp_store_global(MP_QSTR_block_median, MP_OBJ_FROM_PTR(&dr_block_median_obj));
+    mp_store_global(MP_QSTR_STATE_LEN, MP_OBJ_NEW_SMALL_INT(dr_state_len(DR_BLOCK_SAMPLES)));
+    mp_store_global(MP_QSTR_OUT_LEN, MP_OBJ_NEW_SMALL_INT(DR_OUT_FLOATS));
+    mp_store_global(MP_QSTR_BLOCK, MP_OBJ_NEW_SMALL_INT(DR_BLOCK_SAMPLES));
+    mp_store_global(MP_QSTR_WINDOW, MP_OBJ_NEW_SMALL_INT(DR_WINDOW_SAMPLES));
+    mp_store_global(MP_QSTR_CALIBRATION_SAMPLES, MP_OBJ_NEW_SMALL_INT(DR_CALIBRATION_SAMPLES));
+    mp_store_global(MP_QSTR_Q, MP_OBJ_NEW_SMALL_INT(0));
+    mp_store_global(MP_QSTR_V, MP_OBJ_NEW_SMALL_INT(4));
+    mp_store_global(MP_QSTR_GYRO_BIAS, MP_OBJ_NEW_SMALL_INT(7));
+    MP_DYNRUNTIME_INIT_EXIT
+}
+
+#else
+
+static const mp_rom_map_elem_t dr_native_globals_table[] = {
+    { MP_ROM_QSTR(MP_QSTR___name__), MP_ROM_QSTR(MP_QSTR_dr_native) },
+    { MP_ROM_QSTR(MP_QSTR_state_len), MP_ROM_PTR(&dr_state_len_obj) },
+    { MP_ROM_QSTR(MP_QSTR_init), MP_ROM_PTR(&dr_init_obj) },
+    { MP_ROM_QSTR(MP_QSTR_calibrate), MP_ROM_PTR(&dr_calibrate_obj) },
+    { MP_ROM_QSTR(MP_QSTR_process), MP_ROM_PTR(&dr_process_obj) },
+    { MP_ROM_QSTR(MP_QSTR_set_velocity), MP_ROM_PTR(&dr_set_velocity_obj) },
+    { MP_ROM_QSTR(MP_QSTR_rotate_heading), MP_ROM_PTR(&dr_rotate_heading_obj) },
+    { MP_ROM_QSTR(MP_QSTR_offset_latlon), MP_ROM_PTR(&dr_offset_latlon_obj) },
+    { MP_ROM_QSTR(MP_QSTR_block_median), MP_ROM_PTR(&dr_block_median_obj) },
+    /* sizeof(dr_state) + sizeof(dr_config) = 22 floats (checked below) */
+    { MP_ROM_QSTR(MP_QSTR_STATE_LEN), MP_ROM_INT(22 + 3 * DR_BLOCK_SAMPLES) },
+    { MP_ROM_QSTR(MP_QSTR_OUT_LEN), MP_ROM_INT(DR_OUT_FLOATS) },
+    { MP_ROM_QSTR(MP_QSTR_BLOCK), MP_ROM_INT(DR_BLOCK_SAMPLES) },
+    { MP_ROM_QSTR(MP_QSTR_WINDOW), MP_ROM_INT(DR_WINDOW_SAMPLES) },
+    { MP_ROM_QSTR(MP_QSTR_CALIBRATION_SAMPLES), MP_ROM_INT(DR_CALIBRATION_SAMPLES) },
+    { MP_ROM_QSTR(MP_QSTR_Q), MP_ROM_INT(0) },
+    { MP_ROM_QSTR(MP_QSTR_V), MP_ROM_INT(4) },
+    { MP_ROM_QSTR(MP_QSTR_GYRO_BIAS), MP_ROM_INT(7) },
+};
+static MP_DEFINE_CONST_DICT(dr_native_globals, dr_native_globals_table);
+
+/* the ROM table's 22 must match the structs */
+typedef char dr_header_floats_is_22[(sizeof(dr_state) + sizeof(dr_config)) == 22 * sizeof(float) ? 1 : -1];
+
+const mp_obj_module_t dr_native_user_cmodule = {
+    .base = { &mp_type_module },
+    .globals = (mp_obj_dict_t *)&dr_native_globals,
+};
+
+MP_REGISTER_MODULE(MP_QSTR_dr_native, dr_native_user_cmodule);
+
+#endif
