@@ -1,0 +1,64 @@
+"""The plain CSV pair: `t,ax,ay,az` (s, g) and `t,lat,lon,sog,cog,climb` (s, deg, m/s, deg from North, m/s)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from codegen.board import STANDARD_GRAVITY
+from codegen.post.model import GpsSeries, ImuSeries, PostLog
+from codegen.post.table import check_increasing, read_table
+
+IMU_COLUMNS = ("t", "ax", "ay", "az")
+GPS_COLUMNS = ("t", "lat", "lon", "sog", "cog", "climb")
+DEFAULT_DOPPLER_SIGMA = 0.1  # m/s, u-blox 6 velocity accuracy (NEO-6M datasheet: 0.1 m/s)
+DEFAULT_POSITION_SIGMA = 2.5  # m, u-blox 6 horizontal CEP
+
+
+def read_imu_csv(path: Path) -> tuple[ImuSeries, list[str]]:
+    table = read_table(path, "IMU log", IMU_COLUMNS)
+    check_increasing(table, "IMU log")
+    c = table.columns
+    acc = np.stack([c["ax"], c["ay"], c["az"]], axis=1) * STANDARD_GRAVITY
+    return ImuSeries(c["t"], acc), table.notes
+
+
+def velocity_from_sog_cog(sog, cog_deg, climb) -> np.ndarray:
+    """ENU velocity: v_E = SOG sin(COG), v_N = SOG cos(COG), v_U = climb."""
+    cog = np.radians(cog_deg)
+    return np.stack([sog * np.sin(cog), sog * np.cos(cog), climb], axis=1)
+
+
+def average_duplicate_epochs(t: np.ndarray, *columns: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Collapse rows with equal t into their mean (t must be non-decreasing)."""
+    unique, start = np.unique(t, return_index=True)
+    if len(unique) == len(t):
+        return t, list(columns)
+    counts = np.diff(np.append(start, len(t)))
+    out = [np.add.reduceat(col, start, axis=0) / counts.reshape((-1,) + (1,) * (col.ndim - 1)) for col in columns]
+    return unique, out
+
+
+def read_gps_csv(path: Path, doppler_sigma: float = DEFAULT_DOPPLER_SIGMA,
+                 position_sigma: float = DEFAULT_POSITION_SIGMA) -> tuple[GpsSeries, list[str]]:
+    table = read_table(path, "GPS log", GPS_COLUMNS, optional=("alt", "h"))
+    check_increasing(table, "GPS log", strict=False)
+    c = table.columns
+    vel = velocity_from_sog_cog(c["sog"], c["cog"], c["climb"])
+    h = c.get("alt", c.get("h", np.full(len(table), np.nan)))
+    n_rows = len(table)
+    t, (lat, lon, h, vel) = average_duplicate_epochs(c["t"], c["lat"], c["lon"], h, vel)
+    notes = list(table.notes)
+    if len(t) < n_rows:
+        notes.append(f"{path}: averaged {n_rows - len(t)} duplicate GPS epoch(s)")
+    m = len(t)
+    sigma_pos = np.tile([position_sigma, position_sigma, np.nan if np.isnan(h).all() else 2 * position_sigma], (m, 1))
+    gps = GpsSeries(t, lat, lon, h, vel, np.full((m, 3), doppler_sigma), sigma_pos, np.zeros(m, dtype=int))
+    return gps, notes
+
+
+def read_csv_pair(imu_path: Path, gps_path: Path, **gps_options) -> PostLog:
+    imu, imu_notes = read_imu_csv(Path(imu_path))
+    gps, gps_notes = read_gps_csv(Path(gps_path), **gps_options)
+    return PostLog(Path(imu_path).stem, imu, gps, notes=imu_notes + gps_notes)

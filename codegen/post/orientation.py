@@ -1,0 +1,330 @@
+"""Orientation of the sensor in East-North-Up from accelerations and GPS-Doppler velocities (method steps 4-6).
+
+Per GPS interval k (epochs t_k, t_k+1):
+    A_k  = (v_k+1 - v_k) / dt_k                  GPS acceleration, ENU
+    a_k  = mean specific force over the interval, sensor frame (bias-corrected)
+    model: R_k a_k = A_k + g z                   R_k turns sensor vectors into ENU vectors
+
+One vector pair leaves the rotation about that vector free, so each interval is solved together with its neighbours
+(`half_window` on each side). Within that window the device is taken to turn with the track: a neighbour's target
+is turned back by the change of the track's yaw chi = atan2(v_N, v_E) (exact for a device fixed in a vehicle, close
+for one carried facing forward). The angles are Euler ZYX: R = Rz(yaw) Ry(pitch) Rx(roll), yaw counter-clockwise
+from East (a device facing along the track has yaw = pi/2 - COG).
+
+Levenberg-Marquardt (scipy least_squares method='lm', MINPACK) finds the angles; Wahba's closed form
+(Rotation.align_vectors) on the same weighted vectors cross-checks it. Orientation between intervals is Slerp.
+A constant sensor-frame accelerometer bias and the mounting relative to the track are estimated first over the
+whole run (`fit_mounting`), because a horizontal bias looks exactly like tilt inside any one window.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation, Slerp
+
+from codegen.board import STANDARD_GRAVITY
+from codegen.reference import integrate_zoh
+
+UP = np.array([0.0, 0.0, 1.0])
+ACCEL_MEAN_NOISE = 0.01  # m/s^2, 1-sigma floor for an interval's mean accelerometer vector
+
+FLAG_YAW_HELD = "yaw-held"  # too little horizontal acceleration in the window: yaw carried over
+FLAG_STATIONARY = "stationary"  # no usable track direction
+FLAG_POOR_FIT = "poor-fit"  # vectors inconsistent with one rotation (device turning within the window, bad data)
+FLAG_LM_WAHBA = "lm-wahba"  # LM and closed form disagree by more than the tolerance
+FLAG_NO_IMU = "no-imu"  # interval without IMU samples
+
+
+@dataclass
+class OrientationOptions:
+    half_window: int = 10  # intervals on each side solved together
+    min_horizontal_accel: float = 0.5  # m/s^2, RMS over the window; below it yaw is held
+    min_speed: float = 0.5  # m/s, below it the track direction is not used
+    lm_wahba_tolerance_deg: float = 0.1
+    poor_fit_chi2: float = 9.0  # reduced chi-square above which an interval is flagged
+    estimate_bias: bool = True
+
+
+def cumulative_integral(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Node times (N+1,) and the zero-order-hold integral of x from t[0] at those nodes (N+1, 3)."""
+    dt = np.diff(t)
+    dt = np.append(dt, np.median(dt) if len(dt) else 0.0)
+    vel, _ = integrate_zoh(x, dt, np.zeros(3))
+    return np.append(t, t[-1] + dt[-1]), vel
+
+
+def interval_means(nodes: np.ndarray, cum: np.ndarray, t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
+    """Mean of the held signal over [t0, t1] for each interval (exact for zero-order hold)."""
+    c0 = np.stack([np.interp(t0, nodes, cum[:, i]) for i in range(3)], axis=1)
+    c1 = np.stack([np.interp(t1, nodes, cum[:, i]) for i in range(3)], axis=1)
+    return (c1 - c0) / (t1 - t0)[:, None]
+
+
+@dataclass
+class Intervals:
+    t0: np.ndarray
+    t1: np.ndarray
+    gps_accel: np.ndarray  # (K,3) ENU m/s^2
+    sigma: np.ndarray  # (K,) m/s^2, 1-sigma per component of (A - R a)
+    acc_mean: np.ndarray  # (K,3) sensor frame m/s^2 (not bias corrected)
+    track_yaw: np.ndarray  # (K,) rad, carried over where slow
+    moving: np.ndarray  # (K,) bool, speed >= min_speed
+    usable: np.ndarray  # (K,) bool, IMU covers the interval
+    track: "Track" = None
+
+    @property
+    def mid(self) -> np.ndarray:
+        return 0.5 * (self.t0 + self.t1)
+
+    def __len__(self) -> int:
+        return len(self.t0)
+
+
+class Track:
+    """The track's yaw chi(t) = atan2(v_N, v_E) from a cubic spline through the GPS velocities, unwrapped, and held at
+    its last value while slower than `min_speed` (a standing device has no track direction)."""
+
+    def __init__(self, gps_t: np.ndarray, gps_vel: np.ndarray, min_speed: float):
+        self.spline = CubicSpline(gps_t, gps_vel[:, :2], bc_type="natural") if len(gps_t) >= 3 else None
+        self.t0, self.t1 = gps_t[0], gps_t[-1]
+        self.gps_vel = gps_vel
+        self.gps_t = gps_t
+        self.min_speed = min_speed
+
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        t = np.clip(t, self.t0, self.t1)
+        if self.spline is None:
+            return np.stack([np.interp(t, self.gps_t, self.gps_vel[:, i]) for i in range(2)], axis=-1)
+        return self.spline(t)
+
+    def yaw(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """chi(t) (rad, unwrapped, held where slow) and the moving mask, for increasing t."""
+        v = self.velocity(t)
+        speed = np.hypot(v[:, 0], v[:, 1])
+        moving = speed >= self.min_speed
+        raw = np.arctan2(v[:, 1], v[:, 0])
+        if not moving.any():
+            return np.zeros_like(raw), moving
+        index = np.where(moving, np.arange(len(raw)), 0)
+        np.maximum.accumulate(index, out=index)
+        index[: np.argmax(moving)] = np.argmax(moving)
+        held = raw[index]
+        return np.unwrap(held), moving
+
+
+def build_intervals(imu_t, acc, gps_t, gps_vel, gps_sigma_vel, min_speed: float) -> Intervals:
+    t0, t1 = gps_t[:-1], gps_t[1:]
+    dt = t1 - t0
+    gps_accel = np.diff(gps_vel, axis=0) / dt[:, None]
+    sigma_a = np.sqrt(np.mean(gps_sigma_vel[:-1] ** 2 + gps_sigma_vel[1:] ** 2, axis=1)) / dt
+    sigma = np.sqrt(sigma_a**2 + ACCEL_MEAN_NOISE**2)
+    usable = (t0 >= imu_t[0]) & (t1 <= imu_t[-1])
+    nodes, cum = cumulative_integral(imu_t, acc)
+    acc_mean = interval_means(nodes, cum, t0, t1)
+    track = Track(gps_t, gps_vel, min_speed)
+    chi, moving = track.yaw(0.5 * (t0 + t1))
+    return Intervals(t0, t1, gps_accel, sigma, acc_mean, chi, moving, usable, track)
+
+
+def turn_compensated_means(iv: Intervals, imu_t: np.ndarray, acc: np.ndarray, up_sensor: np.ndarray) -> np.ndarray:
+    """Interval means of the sensor vectors turned back to the orientation at the interval's midpoint.
+
+    A device that turns with the track by dchi(t) = chi(t) - chi_k during interval k has R(t) = Rz(dchi) R_k
+    = R_k Rot(u, dchi) with u = R_k^T z, the up axis in the sensor frame; so R_k mean(Rot(u, dchi) s) = A_k + g z
+    holds exactly where R_k mean(s) = A_k + g z only holds for a straight track. up_sensor: (K,3) u per interval.
+    """
+    k_of = np.clip(np.searchsorted(iv.t1, imu_t, side="right"), 0, len(iv) - 1)
+    chi_t, _ = iv.track.yaw(imu_t)
+    d = wrap(chi_t - iv.track_yaw[k_of])
+    u = up_sensor[k_of]
+    c, s_ = np.cos(d)[:, None], np.sin(d)[:, None]
+    turned = acc * c + np.cross(u, acc) * s_ + u * np.sum(u * acc, axis=1, keepdims=True) * (1.0 - c)
+    nodes, cum = cumulative_integral(imu_t, turned)
+    return interval_means(nodes, cum, iv.t0, iv.t1)
+
+
+def euler_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """R = Rz(yaw) Ry(pitch) Rx(roll): sensor -> ENU."""
+    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def rot_z(angle: np.ndarray) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.zeros(np.shape(angle) + (3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1], out[..., 2, 2] = c, -s, s, c, 1.0
+    return out
+
+
+def wrap(angle):
+    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+
+
+# ------------------------------------------------------------------------------------------ whole-run mounting
+
+@dataclass
+class Mounting:
+    euler: np.ndarray  # (3,) roll, pitch, yaw-relative-to-track, rad
+    bias: np.ndarray  # (3,) sensor-frame accelerometer bias, m/s^2
+    sigma_euler: np.ndarray
+    sigma_bias: np.ndarray
+    chi2: float  # reduced chi-square of the fit (1 when the device is rigidly mounted and sigmas are right)
+    used: int
+
+
+def fit_mounting(iv: Intervals, estimate_bias: bool = True) -> Optional[Mounting]:
+    """Mounting M relative to the track and bias b: Rz(chi_k) M (a_k - b) = A_k + g z over all moving intervals."""
+    sel = iv.usable & iv.moving
+    if sel.sum() < 6:
+        return None
+    a, target, w, chi = iv.acc_mean[sel], iv.gps_accel[sel] + STANDARD_GRAVITY * UP, 1.0 / iv.sigma[sel], iv.track_yaw[sel]
+    rz = rot_z(chi)
+
+    def residual(p):
+        m = euler_matrix(*p[:3])
+        b = p[3:] if estimate_bias else np.zeros(3)
+        pred = np.einsum("kij,jl,kl->ki", rz, m, a - b)
+        return ((pred - target) * w[:, None]).ravel()
+
+    # start from the tilt of the mean vector, yaw 0 (facing along the track)
+    mean_a = a.mean(axis=0)
+    roll0 = np.arctan2(mean_a[1], mean_a[2])
+    pitch0 = np.arctan2(-mean_a[0], np.hypot(mean_a[1], mean_a[2]))
+    best = None
+    for yaw0 in np.radians([0.0, 90.0, 180.0, -90.0]):
+        p0 = np.array([roll0, pitch0, yaw0] + ([0.0, 0.0, 0.0] if estimate_bias else []))
+        res = least_squares(residual, p0, method="lm", x_scale=1.0)
+        if best is None or res.cost < best.cost:
+            best = res
+    n = best.x.size
+    dof = max(best.fun.size - n, 1)
+    chi2 = 2 * best.cost / dof
+    try:
+        cov = np.linalg.inv(best.jac.T @ best.jac) * max(chi2, 1.0)
+        sig = np.sqrt(np.diag(cov))
+    except np.linalg.LinAlgError:
+        sig = np.full(n, np.inf)
+    euler = np.array([wrap(best.x[0]), wrap(best.x[1]), wrap(best.x[2])])
+    bias = best.x[3:] if estimate_bias else np.zeros(3)
+    return Mounting(euler, bias, sig[:3], sig[3:] if estimate_bias else np.zeros(3), chi2, int(sel.sum()))
+
+
+# ------------------------------------------------------------------------------------------- per interval
+
+@dataclass
+class OrientationResult:
+    t: np.ndarray  # (K,) interval midpoints, s
+    euler: np.ndarray  # (K,3) roll, pitch, yaw, rad (NaN where unusable)
+    sigma: np.ndarray  # (K,3) 1-sigma, rad (NaN where held)
+    flags: list[list[str]]
+    lm_vs_wahba_deg: np.ndarray  # (K,)
+    horizontal_accel: np.ndarray  # (K,) |A_h| of the interval, m/s^2
+    window_horizontal_accel: np.ndarray  # (K,) RMS |A_h| over the window
+    chi2: np.ndarray  # (K,)
+    mounting: Optional[Mounting]
+    bias: np.ndarray  # (3,) sensor-frame bias removed before solving, m/s^2
+    valid: np.ndarray = field(default=None)  # (K,) bool
+
+    def rotations(self) -> Rotation:
+        e = self.euler[self.valid]
+        return Rotation.from_euler("ZYX", np.stack([e[:, 2], e[:, 1], e[:, 0]], axis=1))
+
+    def slerp(self) -> Callable[[np.ndarray], Rotation]:
+        times = self.t[self.valid]
+        if len(times) == 1:
+            rot = self.rotations()
+            return lambda t: Rotation.concatenate([rot] * len(np.atleast_1d(t)))
+        interp = Slerp(times, self.rotations())
+        return lambda t: interp(np.clip(t, times[0], times[-1]))
+
+
+def solve_orientations(iv: Intervals, options: OrientationOptions, bias: np.ndarray,
+                       mounting: Optional[Mounting] = None, progress=None) -> OrientationResult:
+    k_count = len(iv)
+    a = iv.acc_mean - bias
+    target = iv.gps_accel + STANDARD_GRAVITY * UP
+    weight = 1.0 / iv.sigma
+    horiz = np.hypot(iv.gps_accel[:, 0], iv.gps_accel[:, 1])
+    euler = np.full((k_count, 3), np.nan)
+    sigma = np.full((k_count, 3), np.nan)
+    flags: list[list[str]] = [[] for _ in range(k_count)]
+    lm_wahba = np.full(k_count, np.nan)
+    window_h = np.full(k_count, np.nan)
+    chi2s = np.full(k_count, np.nan)
+    prev = None  # (roll, pitch, yaw, track_yaw) of the last solved interval
+    usable_idx = np.flatnonzero(iv.usable)
+    h = options.half_window
+    for count, k in enumerate(usable_idx):
+        if progress and count % max(1, len(usable_idx) // 10) == 0:
+            progress("orientation", count / len(usable_idx))
+        lo, hi = max(0, k - h), min(k_count, k + h + 1)
+        js = np.arange(lo, hi)
+        js = js[iv.usable[js]]
+        turn = iv.track_yaw[js] - iv.track_yaw[k]
+        tj = np.einsum("kij,kj->ki", rot_z(-turn), target[js])  # targets in the track frame of interval k
+        sj, wj = a[js], weight[js]
+        window_h[k] = float(np.sqrt(np.mean(np.sum(tj[:, :2] ** 2, axis=1))))
+        if prev is not None:
+            init = np.array([prev[0], prev[1], prev[2] + (iv.track_yaw[k] - prev[3])])
+        else:
+            base = mounting.euler if mounting is not None else np.zeros(3)
+            init = np.array([base[0], base[1], iv.track_yaw[k] + base[2]])
+        hold_yaw = window_h[k] < options.min_horizontal_accel and prev is not None
+        if not iv.moving[k] and prev is not None:
+            flags[k].append(FLAG_STATIONARY)
+        if hold_yaw:
+            flags[k].append(FLAG_YAW_HELD)
+            yaw_fixed = init[2]
+
+            def residual(p):
+                return (((euler_matrix(p[0], p[1], yaw_fixed) @ sj.T).T - tj) * wj[:, None]).ravel()
+
+            res = least_squares(residual, init[:2], method="lm")
+            solution = np.array([res.x[0], res.x[1], yaw_fixed])
+        else:
+            def residual(p):
+                return (((euler_matrix(*p) @ sj.T).T - tj) * wj[:, None]).ravel()
+
+            res = least_squares(residual, init, method="lm")
+            solution = res.x
+        n = res.x.size
+        dof = max(res.fun.size - n, 1)
+        chi2 = 2 * res.cost / dof
+        chi2s[k] = chi2
+        try:
+            cov = np.linalg.inv(res.jac.T @ res.jac) * max(chi2, 1.0)
+            sd = np.sqrt(np.diag(cov))
+        except np.linalg.LinAlgError:
+            sd = np.full(n, np.nan)
+        sigma[k, :n] = sd
+        if chi2 > options.poor_fit_chi2:
+            flags[k].append(FLAG_POOR_FIT)
+        # closed-form cross-check on the same weighted vectors
+        r_lm = Rotation.from_matrix(euler_matrix(*solution))
+        r_w, _ = Rotation.align_vectors(tj, sj, weights=wj**2)
+        if hold_yaw:
+            up_lm, up_w = r_lm.inv().apply(UP), r_w.inv().apply(UP)
+            lm_wahba[k] = np.degrees(np.arccos(np.clip(up_lm @ up_w, -1.0, 1.0)))
+        else:
+            lm_wahba[k] = np.degrees((r_lm * r_w.inv()).magnitude())
+        if lm_wahba[k] > options.lm_wahba_tolerance_deg:
+            flags[k].append(FLAG_LM_WAHBA)
+        euler[k] = [wrap(solution[0]), wrap(solution[1]), solution[2]]
+        prev = (solution[0], solution[1], solution[2], iv.track_yaw[k])
+    for k in np.flatnonzero(~iv.usable):
+        flags[k].append(FLAG_NO_IMU)
+    valid = np.isfinite(euler[:, 0])
+    euler[valid, 2] = wrap(euler[valid, 2])
+    if progress:
+        progress("orientation", 1.0)
+    return OrientationResult(iv.mid, euler, sigma, flags, lm_wahba, horiz, window_h, chi2s, mounting,
+                             np.asarray(bias, dtype=float), valid)

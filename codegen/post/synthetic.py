@@ -1,0 +1,124 @@
+"""Synthetic runs with known mounting, motion, bias, noise and delay: the acceptance scenarios of issue 7.
+
+A vehicle drives on flat ground with smooth speed changes and turns (sums of sinusoids, so every derivative is
+exact). The device is fixed in it at a known mounting. The IMU reads specific force in the sensor frame with a
+constant bias, MPU-6050-like white noise, int16 quantisation at +-2 g, and timestamps late by `delay`. The GPS gives
+1 Hz epochs with Doppler velocity noise per ENU component and position noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from codegen.board import ACCEL_LSB_PER_G, STANDARD_GRAVITY
+from codegen.post.geodesy import enu_to_geodetic
+from codegen.post.model import GpsSeries, ImuSeries, PostLog
+
+MPU6050_NOISE_DENSITY = 400e-6 * STANDARD_GRAVITY  # m/s^2/sqrt(Hz), datasheet 400 ug/sqrt(Hz)
+ORIGIN = (47.3769, 8.5417, 408.0)  # lat, lon, h of the start
+
+
+@dataclass
+class Scenario:
+    duration: float = 600.0  # s
+    imu_rate: float = 50.0  # Hz
+    gps_rate: float = 1.0  # Hz
+    mounting_deg: tuple[float, float, float] = (4.0, -3.0, 25.0)  # roll, pitch, yaw relative to the vehicle
+    bias_mg: tuple[float, float, float] = (30.0, -35.0, 20.0)  # |b| = 50 mg
+    doppler_sigma: float = 0.1  # m/s per ENU component
+    position_sigma: float = 2.0  # m per horizontal component
+    delay: float = 0.0  # s, IMU timestamps late by this much
+    quantise: bool = True
+    seed: int = 1
+
+
+@dataclass
+class Truth:
+    scenario: Scenario
+    mounting: Rotation
+
+    def _speed(self, t):
+        s = 10.0 + 3.0 * np.sin(2 * np.pi * t / 23.0) + 2.0 * np.sin(2 * np.pi * t / 9.0 + 1.0) + 0.6 * np.sin(2 * np.pi * t / 4.1)
+        ds = (3.0 * 2 * np.pi / 23.0 * np.cos(2 * np.pi * t / 23.0) + 2.0 * 2 * np.pi / 9.0 * np.cos(2 * np.pi * t / 9.0 + 1.0)
+              + 0.6 * 2 * np.pi / 4.1 * np.cos(2 * np.pi * t / 4.1))
+        return s, ds
+
+    def _heading(self, t):
+        y = 1.2 * np.sin(2 * np.pi * t / 37.0) + 0.8 * np.sin(2 * np.pi * t / 13.0 + 0.5) + 0.02 * t
+        dy = 1.2 * 2 * np.pi / 37.0 * np.cos(2 * np.pi * t / 37.0) + 0.8 * 2 * np.pi / 13.0 * np.cos(2 * np.pi * t / 13.0 + 0.5) + 0.02
+        return y, dy
+
+    def velocity(self, t):
+        s, _ = self._speed(t)
+        y, _ = self._heading(t)
+        return np.stack([s * np.cos(y), s * np.sin(y), np.zeros_like(t)], axis=-1)
+
+    def acceleration(self, t):
+        s, ds = self._speed(t)
+        y, dy = self._heading(t)
+        return np.stack([ds * np.cos(y) - s * dy * np.sin(y), ds * np.sin(y) + s * dy * np.cos(y), np.zeros_like(t)], axis=-1)
+
+    def position(self, t):
+        fine = np.arange(0.0, self.scenario.duration + 2.0, 1e-3)
+        v = self.velocity(fine)
+        p = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (v[1:] + v[:-1]) * 1e-3, axis=0)])
+        return np.stack([np.interp(t, fine, p[:, i]) for i in range(3)], axis=-1)
+
+    def attitude(self, t) -> Rotation:
+        """Sensor -> ENU at time t."""
+        y, _ = self._heading(np.atleast_1d(t))
+        return Rotation.from_euler("z", y[:, None]) * self.mounting
+
+    def euler(self, t) -> np.ndarray:
+        """(K,3) roll, pitch, yaw of the sensor in the convention of codegen.post.orientation."""
+        zyx = self.attitude(t).as_euler("ZYX")
+        return np.stack([zyx[:, 2], zyx[:, 1], zyx[:, 0]], axis=1)
+
+
+def make_run(scenario: Scenario = Scenario()) -> tuple[PostLog, Truth]:
+    rng = np.random.default_rng(scenario.seed)
+    m = scenario.mounting_deg
+    truth = Truth(scenario, Rotation.from_euler("ZYX", [m[2], m[1], m[0]], degrees=True))
+    # IMU
+    t_true = np.arange(0.0, scenario.duration, 1.0 / scenario.imu_rate)
+    f_enu = truth.acceleration(t_true) + STANDARD_GRAVITY * np.array([0.0, 0.0, 1.0])
+    f_sensor = truth.attitude(t_true).inv().apply(f_enu)
+    f_sensor += np.array(scenario.bias_mg) * 1e-3 * STANDARD_GRAVITY
+    f_sensor += rng.normal(0.0, MPU6050_NOISE_DENSITY * np.sqrt(scenario.imu_rate / 2), f_sensor.shape)
+    if scenario.quantise:
+        lsb = STANDARD_GRAVITY / ACCEL_LSB_PER_G[2]
+        f_sensor = np.clip(np.round(f_sensor / lsb), -32768, 32767) * lsb
+    imu = ImuSeries(t_true + scenario.delay, f_sensor)
+    # GPS, epochs inside the IMU span
+    t_gps = np.arange(1.0, scenario.duration - 1.0, 1.0 / scenario.gps_rate)
+    vel = truth.velocity(t_gps) + rng.normal(0.0, scenario.doppler_sigma, (len(t_gps), 3))
+    pos = truth.position(t_gps)
+    pos[:, :2] += rng.normal(0.0, scenario.position_sigma, (len(t_gps), 2))
+    lat, lon, h = enu_to_geodetic(pos, ORIGIN)
+    k = len(t_gps)
+    gps = GpsSeries(t_gps, lat, lon, np.full(k, np.nan), vel, np.full((k, 3), scenario.doppler_sigma),
+                    np.tile([scenario.position_sigma, scenario.position_sigma, np.nan], (k, 1)), np.zeros(k, dtype=int))
+    return PostLog("synthetic", imu, gps), truth
+
+
+def write_csv_pair(log: PostLog, folder: Path) -> tuple[Path, Path]:
+    """Write a run in the plain CSV pair format (what `deadreckon post imu.csv --gps gps.csv` reads)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    imu_path, gps_path = folder / "imu.csv", folder / "gps.csv"
+    acc_g = log.imu.acc / STANDARD_GRAVITY
+    with imu_path.open("w") as f:
+        f.write("t,ax,ay,az\n")
+        for t, a in zip(log.imu.t, acc_g):
+            f.write(f"{t:.4f},{a[0]:.6f},{a[1]:.6f},{a[2]:.6f}\n")
+    v = log.gps.vel
+    sog = np.hypot(v[:, 0], v[:, 1])
+    cog = np.degrees(np.arctan2(v[:, 0], v[:, 1])) % 360.0
+    with gps_path.open("w") as f:
+        f.write("t,lat,lon,sog,cog,climb\n")
+        for i in range(len(log.gps)):
+            f.write(f"{log.gps.t[i]:.3f},{log.gps.lat[i]:.8f},{log.gps.lon[i]:.8f},{sog[i]:.4f},{cog[i]:.4f},{v[i, 2]:.4f}\n")
+    return imu_path, gps_path
