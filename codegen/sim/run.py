@@ -1,0 +1,158 @@
+"""One simulated run (sensors + GPS + truth) and the outage metrics every method is measured by.
+
+    run = build_run("walk", board, seed=1)                  # or "replay-walk" for the real recording
+    result = evaluate(run, horizons=(10, 30, 60))            # every registered method, many outage starts
+    print(format_table([result]))
+
+Metrics (issue 6): for outages starting every `step` seconds (fixed by the seed, never inside the calibration),
+the horizontal error |p_est - p_true| at each horizon after GPS loss; median and 90th percentile per method.
+The "0 s" column is the error of the last fix itself (where every method starts). For the push scenario also
+the seed's error E = |p_e - p| / |p_e| per push, p_e the true and p the estimated displacement over the push.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from codegen.sim import mpu6050, neo6m, trajectory
+from codegen.sim.methods import registered_methods
+
+SCENARIOS = trajectory.SCENARIOS + ("replay-walk",)
+DEFAULT_HORIZONS = (10.0, 30.0, 60.0)
+
+
+@dataclass
+class RunData:
+    """Everything a method may see (IMU stream, GPS fixes) plus the truth it is judged against."""
+
+    scenario: str
+    board: object  # codegen.board.Board
+    seed: int
+    t_us: np.ndarray  # (N,) int64
+    counts: np.ndarray  # (N, 6) int16, sensor frame
+    gps: neo6m.GpsTrack
+    truth: object  # .at(times) -> (K, 3) ENU m; .duration; .rest_s
+    events: dict = field(default_factory=dict)
+    cache: dict = field(default_factory=dict)  # per-run memo for methods (GPS-independent work only)
+
+    @property
+    def duration(self) -> float:
+        return float(min(self.t_us[-1] * 1e-6, self.truth.duration))
+
+    def trusted(self, times) -> np.ndarray:
+        check = getattr(self.truth, "trusted", None)
+        return np.ones(np.shape(times), dtype=bool) if check is None else check(times)
+
+
+def build_run(scenario: str, board, seed: int = 0, quality: str = "open-sky", duration: float | None = None,
+              errors: mpu6050.MpuErrors | None = None, walk_dir=None) -> RunData:
+    """Simulate (or replay) one run on `board`. `quality`: the GPS profile of codegen.sim.neo6m.QUALITY."""
+    if scenario == "replay-walk":
+        from codegen.sim import replay
+
+        t_s, accel_g, gyro, truth = replay.load_walk(walk_dir)
+        t_us, counts = mpu6050.degrade_recording(t_s, accel_g, gyro, board, seed=seed, errors=errors)
+        gps = neo6m.simulate_gps(truth, seed=seed + 1000, quality=quality, rate_hz=board.gps.rate_hz,
+                                 origin=truth.origin)
+        return RunData(scenario, board, seed, t_us, counts, gps, truth)
+    if scenario not in trajectory.SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; choose from {', '.join(SCENARIOS)}")
+    traj = trajectory.make_scenario(scenario, seed=seed, duration=duration)
+    t_us, counts = mpu6050.simulate_imu(traj, board, seed=seed, errors=errors)
+    gps = neo6m.simulate_gps(traj, seed=seed + 1000, quality=quality, rate_hz=board.gps.rate_hz)
+    return RunData(scenario, board, seed, t_us, counts, gps, traj, dict(traj.events))
+
+
+def outage_starts(run: RunData, longest: float, step: float = 5.0) -> np.ndarray:
+    """Outage start times: after calibration and a few fixes, every `step` s, leaving `longest` s to run.
+    Starts fall half-way between 1 Hz fixes, so the last fix is 0.5 s old when the GPS goes."""
+    first = max(run.board.algorithm.calibration_s + 5.0, 10.0) + 0.5
+    last = run.duration - longest
+    if last < first:
+        raise ValueError(f"{run.scenario}: a run of {run.duration:.0f} s is too short for {longest:.0f} s outages")
+    return np.arange(first, last + 1e-9, step)
+
+
+@dataclass
+class Result:
+    scenario: str
+    horizons: tuple[float, ...]
+    errors: dict[str, np.ndarray]  # method -> (S, H+1) m: column 0 is at the moment of loss, NaN where untrusted
+    push_e: dict[str, np.ndarray] = field(default_factory=dict)  # method -> (P,) seed error E per push
+    starts: np.ndarray | None = None
+    seeds: int = 1
+
+    def merge(self, other: "Result") -> "Result":
+        errors = {m: np.vstack([self.errors[m], other.errors[m]]) for m in self.errors}
+        push_e = {m: np.concatenate([self.push_e.get(m, []), other.push_e.get(m, [])]) for m in self.errors}
+        return Result(self.scenario, self.horizons, errors, push_e, None, self.seeds + other.seeds)
+
+
+def evaluate(run: RunData, horizons=DEFAULT_HORIZONS, methods=None, step: float = 5.0) -> Result:
+    """Run every method on every outage start of `run`; errors against truth at each horizon."""
+    methods = registered_methods() if methods is None else methods
+    horizons = tuple(float(h) for h in horizons)
+    starts = outage_starts(run, max(horizons), step)
+    fix_idx = run.gps.last_valid_before(starts)
+    t_fix = run.gps.t[fix_idx]
+    times = np.hstack([t_fix[:, None], starts[:, None] + np.array(horizons)[None, :]])
+    truth = run.truth.at(times)[..., :2]
+    ok = run.trusted(times)
+    errors = {}
+    for name, fn in methods.items():
+        est = fn(run, starts, times)
+        err = np.linalg.norm(est - truth, axis=-1)
+        errors[name] = np.where(ok, err, np.nan)
+    result = Result(run.scenario, horizons, errors, starts=starts)
+    pushes = run.events.get("pushes")
+    if pushes:
+        p_start = np.array([p[0] for p in pushes]) - 0.5
+        p_times = np.stack([p_start, np.array([p[1] for p in pushes]) + 0.5], axis=-1)
+        p_true = run.truth.at(p_times)[..., :2]
+        p_e = p_true[:, 1] - p_true[:, 0]
+        for name, fn in methods.items():
+            est = fn(run, p_start, p_times)
+            d = est[:, 1] - est[:, 0]
+            result.push_e[name] = np.linalg.norm(d - p_e, axis=-1) / np.linalg.norm(p_e, axis=-1)
+    return result
+
+
+def format_table(results: list[Result], file=None) -> str:
+    """The metrics table: one row per scenario x method; median / 90th percentile in metres per horizon."""
+    lines = []
+    horizons = results[0].horizons
+    head = f"{'scenario':12s} {'method':15s} {'outages':>7s} {'0 s':>6s}"
+    for h in horizons:
+        head += f" {f'{h:g} s med':>10s} {'p90':>7s}"
+    head += f"  {'push E med':>10s} {'E<0.1':>6s}"
+    lines.append(head)
+    lines.append("-" * len(head))
+    for res in results:
+        for name, err in res.errors.items():
+            n = int(np.sum(~np.isnan(err[:, -1])))
+            row = f"{res.scenario:12s} {name:15s} {n:7d} {np.nanmedian(err[:, 0]):6.1f}"
+            for j in range(1, len(horizons) + 1):
+                row += f" {np.nanmedian(err[:, j]):10.1f} {np.nanpercentile(err[:, j], 90):7.1f}"
+            e = res.push_e.get(name)
+            if e is not None and len(e):
+                row += f"  {np.median(e):10.2f} {np.mean(e < 0.1):6.0%}"
+            lines.append(row)
+    text = "\n".join(lines)
+    if file is not None:
+        print(text, file=file)
+    return text
+
+
+def progress(done: int, total: int, label: str, stream=sys.stderr) -> None:
+    """A one-line progress bar on stderr (only on a terminal)."""
+    if not getattr(stream, "isatty", lambda: False)():
+        return
+    width = 30
+    filled = int(width * done / max(total, 1))
+    stream.write(f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total} {label:30s}")
+    if done >= total:
+        stream.write("\n")
+    stream.flush()
