@@ -31,6 +31,10 @@ class PinUse:
 
 
 def _pin_uses(board: Board) -> Iterator[PinUse]:
+    """Reserved pins first, so a clash names the reservation before the use that breaks it."""
+    for group, pins in board.reserved.items():
+        for index, number in enumerate(pins):
+            yield PinUse(PinSpec(pin=number), f"reserved.{group}", ("reserved", group, index), False, reserved=True)
     for name, bus in board.i2c.items():
         yield PinUse(bus.sda, f"i2c.{name}.sda", ("i2c", name, "sda"), output=True)
         yield PinUse(bus.scl, f"i2c.{name}.scl", ("i2c", name, "scl"), output=True)
@@ -46,9 +50,6 @@ def _pin_uses(board: Board) -> Iterator[PinUse]:
             )
     if board.led is not None:
         yield PinUse(board.led.pin, "led.pin", ("led", "pin"), output=True)
-    for group, pins in board.reserved.items():
-        for index, number in enumerate(pins):
-            yield PinUse(PinSpec(pin=number), f"reserved.{group}", ("reserved", group, index), False, reserved=True)
 
 
 def _check_pins(board: Board, chip: ChipPins, source: SourceMap) -> Iterator[Diagnostic]:

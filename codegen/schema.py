@@ -21,8 +21,39 @@ def board_json_schema() -> dict:
         "type": "string",
         "description": "a bundled board's name or a path to a board YAML whose keys this file overrides",
     }
-    schema["required"] = [key for key in schema.get("required", [])]
+    # A file that extends another may leave out anything its base provides: it is checked against a copy of the
+    # schema with no required keys at any depth; a standalone file must be complete.
+    partial_defs = {f"Partial{name}": _without_required(part) for name, part in schema["$defs"].items()}
+    schema["$defs"].update(partial_defs)
+    whole = {key: schema.pop(key) for key in ("properties", "additionalProperties", "type", "required") if key in schema}
+    schema["$defs"]["Board"] = whole
+    schema["$defs"]["PartialBoard"] = _without_required(whole)
+    schema["type"] = "object"
+    schema["if"] = {"required": ["extends"]}
+    schema["then"] = {"$ref": "#/$defs/PartialBoard"}
+    schema["else"] = {"$ref": "#/$defs/Board"}
     return schema
+
+
+def _without_required(node: Any) -> Any:
+    if isinstance(node, dict):
+        out = {}
+        for key, value in node.items():
+            if key == "required":
+                continue
+            if key == "$ref" and isinstance(value, str) and value.startswith("#/$defs/"):
+                value = "#/$defs/Partial" + value[len("#/$defs/"):]
+            value = _without_required(value)
+            # `key: null` in an extending file removes the base's value
+            if key == "properties":
+                value = {name: {"anyOf": [child, {"type": "null"}]} for name, child in value.items()}
+            elif key == "additionalProperties" and isinstance(value, dict):
+                value = {"anyOf": [value, {"type": "null"}]}
+            out[key] = value
+        return out
+    if isinstance(node, list):
+        return [_without_required(item) for item in node]
+    return node
 
 
 def _leaves(value: Any, path: KeyPath) -> Iterator[tuple[KeyPath, Any]]:

@@ -1,0 +1,264 @@
+"""Every validation rule, with its exact message and the place it points at."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from codegen.loader import load_board_report
+
+
+def _report(tmp_path: Path, text: str, name: str = "board.yaml"):
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text).lstrip("\n"), encoding="utf-8")
+    return load_board_report(path)
+
+
+def _only(report, severity="error"):
+    found = [d for d in report.diagnostics if d.severity == severity]
+    assert len(found) == 1, [d.message for d in report.diagnostics]
+    return found[0]
+
+
+def _at(diagnostic) -> tuple[int, int]:
+    return diagnostic.location.line, diagnostic.location.col
+
+
+def test_default_board_is_clean():
+    report = load_board_report(None)
+    assert not report.failed(strict=True), [d.message for d in report.diagnostics]
+
+
+@pytest.mark.parametrize("pin, message", [
+    (7, "led.pin: GPIO7 is wired to the SPI flash on the ESP32"),
+    (20, "led.pin: GPIO20 does not exist on the ESP32"),
+    (24, "led.pin: GPIO24 does not exist on the ESP32"),
+    (30, "led.pin: GPIO30 does not exist on the ESP32"),
+    (36, "led.pin: GPIO36 is input-only on the ESP32 and cannot drive an output"),
+    (16, "led.pin: GPIO16 is wired to the PSRAM on this board (psram: true)"),
+])
+def test_esp32_pin_table(tmp_path, pin, message):
+    report = _report(tmp_path, f"""
+        extends: ttgo-tbeam-v1.1
+        led:
+          pin: {pin}
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message == message
+    assert str(diagnostic.location) == f"{tmp_path / 'board.yaml'}:3:8" or _at(diagnostic) == (3, 8)
+
+
+def test_psram_pins_are_free_without_psram(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        psram: false
+        led: {pin: 16}
+    """)
+    assert not report.failed(strict=True), [d.message for d in report.diagnostics]
+
+
+def test_input_only_pin_with_pull(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        buttons:
+          test_mode: {pin: 35, pull: up}
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message == "buttons.test_mode.pin: GPIO35 has no internal pull resistor on the ESP32"
+    assert _at(diagnostic) == (3, 20)
+    assert "pull: none" in diagnostic.hint
+
+
+def test_strapping_pin_warns_and_strict_fails(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        led: {pin: 2}
+    """)
+    diagnostic = _only(report, "warning")
+    assert diagnostic.message == "led.pin: GPIO2 is a strapping pin: the level at reset selects the boot mode"
+    assert _at(diagnostic) == (2, 12)
+    assert not report.failed()
+    assert report.failed(strict=True)
+
+
+def test_strapping_mark_on_ordinary_pin_is_an_error(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        led:
+          pin: {pin: 13, strapping_by_design: true}
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message == (
+        "led.pin: `strapping_by_design` on GPIO13, which is not a strapping pin of the ESP32"
+    )
+    assert _at(diagnostic) == (3, 39)  # the `true`
+
+
+def test_pin_used_twice_names_both(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        led: {pin: 25}
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message == "GPIO25 is used twice: by buttons.test_mode.pin and by led.pin"
+    assert "ttgo-tbeam-v1.1.yaml:" in diagnostic.hint
+
+
+def test_reserved_lora_pin(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        led: {pin: 26}
+    """)
+    assert _only(report).message == "GPIO26 is used twice: by reserved.lora and by led.pin"
+
+
+def test_eight_bit_address_hint(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        imu:
+          address: 0xD0
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message == "imu.address: 0xd0 is an 8-bit address: I2C addresses here are 7-bit"
+    assert diagnostic.hint == "0xd0 >> 1 = 0x68: the MPU-6050 is 0x68"
+    assert _at(diagnostic) == (3, 12)
+
+
+def test_mpu6050_address_and_collision(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        imu: {address: 0x3c}
+    """)
+    messages = sorted(d.message for d in report.diagnostics if d.severity == "error")
+    assert messages == [
+        "display.address: 0x3c on bus 'main' is already taken by imu",
+        "imu.address: the MPU-6050 answers only at 0x68 (AD0 low) or 0x69 (AD0 high), not 0x3c",
+    ]
+
+
+def test_unknown_bus_reference(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        imu: {bus: mian}
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message == "imu.bus: there is no i2c bus named 'mian'"
+    assert diagnostic.hint == "did you mean `main`?"
+
+
+def test_block_must_divide_window(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        algorithm:
+          block: 15
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message == "algorithm.block: b = 15 does not divide n = 512"
+    assert diagnostic.hint == "the nearest b that divides 512 is 16"
+    assert _at(diagnostic) == (3, 10)
+
+
+def test_deadband_below_range(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        algorithm: {deadband_g: 2.5}
+    """)
+    assert _only(report).message == "algorithm.deadband_g: l = 2.5 g is not below the accelerometer range ±2 g"
+
+
+def test_sample_rate_reachable(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        imu: {sample_rate_hz: 2000}
+    """)
+    assert _only(report).message == "imu.sample_rate_hz: 2000 Hz is above the MPU-6050's 1 kHz accelerometer rate"
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        imu: {sample_rate_hz: 300}
+    """)
+    assert _only(report, "warning").message == "imu.sample_rate_hz: the MPU-6050 can run at 333.333 Hz, not 300 Hz"
+
+
+def test_gps_rail_must_be_enabled(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        power:
+          rails:
+            ldo3: {enable: false}
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message == "gps.power: the GPS rail 'ldo3' is switched off (power.rails.ldo3.enable: false)"
+    assert _at(diagnostic) == (4, 20)
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        power:
+          rails:
+            ldo3: null
+    """)
+    assert _only(report).message == "gps.power: the GPS is powered from rail 'ldo3', which the board does not enable"
+
+
+def test_rail_names_come_from_the_pmu_table(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        power:
+          rails:
+            ldo4: {enable: true}
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message == "power.rails.ldo4: the axp192 has no rail 'ldo4'"
+    assert diagnostic.hint == "did you mean `ldo3`?"
+
+
+def test_rp2040_fixed_pin_muxing(tmp_path):
+    report = _report(tmp_path, """
+        extends: pico-gy521
+        i2c:
+          main: {sda: 6}
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message == "i2c.main.sda: GPIO6 cannot be I2C0 SDA on the RP2040"
+    assert diagnostic.hint == "I2C0 SDA is on GPIO 0, 4, 8, 12, 16, 20, 24, 28"
+
+
+def test_esp32s3_table(tmp_path):
+    report = _report(tmp_path, """
+        extends: esp32s3-devkitc-gy521
+        led: {pin: 35}
+    """)
+    assert _only(report).message == "led.pin: GPIO35 is wired to the PSRAM on this board (psram: true)"
+    report = _report(tmp_path, """
+        extends: esp32s3-devkitc-gy521
+        led: {pin: 22}
+    """)
+    assert _only(report).message == "led.pin: GPIO22 does not exist on the ESP32-S3"
+
+
+def test_all_errors_of_a_run_are_reported(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        led: {pin: 7}
+        imu: {address: 0xD0}
+        algorithm: {block: 15}
+    """)
+    assert len([d for d in report.diagnostics if d.severity == "error"]) == 3
+
+
+def test_console_uart_warns(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        uart:
+          gps: {id: 0}
+    """)
+    assert _only(report, "warning").message == "uart.gps.id: UART0 carries MicroPython's REPL console"
+
+
+def test_filesystem_beyond_flash(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        micropython:
+          filesystem: {offset: 0x300000}
+    """)
+    assert _only(report).message == "micropython.filesystem: ends at 0x500000, beyond the 4MB flash"
