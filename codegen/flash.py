@@ -102,9 +102,11 @@ def esptool_command(board: Board, port: str, regions: list[Region], baud: int, s
     command += ["write-flash", "--flash-mode", "keep", "--flash-freq", "keep", "--flash-size", "keep"]
     if erase:
         command.append("--erase-all")
-    if compress is True:
+    if compress is None:
+        compress = True  # the stub and the ESP32 ROM both inflate; a mostly empty 2 MiB image shrinks to kilobytes
+    if compress:
         command.append("--compress")
-    elif compress is False:
+    else:
         command.append("--no-compress")
     for region in regions:
         command += [f"{region.offset:#x}", str(region.path)]

@@ -18,7 +18,7 @@ write without an erase shows up as corrupted data.
 Faults for tests (attributes, apply to every connection while set):
     drop_after_blocks   close the connection after this many flash data blocks
     chip_magic          the value read at the chip magic register (e.g. 0x000007C6, an ESP32-S2)
-    noise_after_blocks  send non-SLIP noise in place of the reply to this flash data block
+    noise_reply         (opcode, n): send non-SLIP line noise in place of the n-th reply to that opcode
 """
 
 from __future__ import annotations
@@ -130,6 +130,7 @@ class Session:
         self.mem: Optional[dict] = None
         self.regs: dict[int, int] = {}
         self.blocks_seen = 0
+        self.replies: dict[int, int] = {}
 
     # -- framing
     def run(self) -> None:
@@ -157,6 +158,10 @@ class Session:
         self.conn.sendall(slip_encode(packet))
 
     def reply(self, op: int, value: int = 0, data: bytes = b"", error: int = 0) -> None:
+        self.replies[op] = self.replies.get(op, 0) + 1
+        if self.peer.noise_reply == (op, self.replies[op]):
+            self.conn.sendall(b"\x55\xaa\x13\x37 line noise")
+            return
         status = bytes([1 if error else 0, error])
         status += b"" if self.stub else b"\x00\x00"
         payload = data + status
@@ -296,10 +301,6 @@ class Session:
         faults = self.peer
         if faults.drop_after_blocks is not None and self.blocks_seen > faults.drop_after_blocks:
             raise Dropped()
-        if faults.noise_after_blocks is not None and self.blocks_seen == faults.noise_after_blocks + 1:
-            state.next_seq += 1  # the block arrived; only its reply is garbled on the wire
-            self.conn.sendall(b"\x55\xaa\x13\x37 noise")
-            return None
         if compressed:
             try:
                 plain = state.inflater.decompress(payload)
@@ -403,7 +404,7 @@ class RomLoaderPeer:
         self.ram: dict[int, bytes] = {}
         self.chip_magic = chip_magic
         self.drop_after_blocks: Optional[int] = None
-        self.noise_after_blocks: Optional[int] = None
+        self.noise_reply: Optional[tuple[int, int]] = None
         self.stats = Stats()
         self._server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self._server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -423,7 +424,7 @@ class RomLoaderPeer:
     def clear_faults(self) -> None:
         self.chip_magic = ESP32_MAGIC
         self.drop_after_blocks = None
-        self.noise_after_blocks = None
+        self.noise_reply = None
 
     def start(self) -> "RomLoaderPeer":
         self._thread = threading.Thread(target=self._serve, name="esp32-rom-peer", daemon=True)

@@ -1,0 +1,186 @@
+"""`deadreckon flash`: the real esptool against the emulated ESP32 ROM loader (tests/peers/esp_rom.py)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from codegen.build import build
+from codegen.errors import UserError
+from codegen.flash import flash, plan_regions
+from codegen.fsimage import mount_image, read_tree
+from conftest import require
+from peers.esp_rom import RomLoaderPeer
+from peers.trees import default_board, esp_image, make_tree
+
+
+def _have_esptool() -> bool:
+    try:
+        import esptool  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    require(_have_esptool(), "esptool is not installed (pip install esptool)")
+    root = tmp_path_factory.mktemp("flash")
+    tree = make_tree(root / "out")
+    result = build(tree, board=default_board(), progress=lambda _: None)
+    firmware = root / "micropython.bin"
+    firmware.write_bytes(esp_image())
+    return tree, result, firmware
+
+
+@pytest.fixture
+def peer():
+    with RomLoaderPeer() as p:
+        yield p
+
+
+def quiet(_line: str) -> None:
+    pass
+
+
+def assert_flashed(peer: RomLoaderPeer, result, firmware) -> None:
+    board = default_board()
+    fw = firmware.read_bytes()
+    start = board.micropython.partitions.bootloader
+    assert peer.flash[start : start + len(fw)] == fw
+    fs = board.micropython.filesystem
+    image = result.image.read_bytes()
+    assert peer.flash[fs.offset : fs.offset + fs.size] == image
+    mounted = read_tree(mount_image(bytes(peer.flash[fs.offset : fs.offset + fs.size]), block_size=fs.block_size))
+    assert mounted == {rel: (result.app_dir / rel).read_bytes() for rel in result.files}
+
+
+def test_flash_over_the_rom_loader(built, peer):
+    """The ROM path alone (--no-stub --no-compress): 0x400-byte blocks, 4-word FLASH_BEGIN, hex MD5 verification."""
+    tree, result, firmware = built
+    started = time.monotonic()
+    outcome = flash(tree, peer.url, firmware=firmware, board=default_board(), stub=False, compress=False,
+                    progress=quiet)
+    print(f"ROM path: 2 MiB image + {firmware.stat().st_size} byte firmware in {time.monotonic() - started:.1f} s")
+    assert_flashed(peer, result, firmware)
+    assert peer.stats.stub_runs == 0
+    assert peer.stats.commands.get(0x03, 0) >= 2048  # every 0x400 block of the 2 MiB image went over the wire
+    assert peer.stats.commands.get(0x13) == 2  # one MD5 verification per region
+    assert [r.offset for r in outcome.regions] == [0x1000, 0x200000]
+
+
+def test_flash_over_the_rom_loader_compressed(built, peer):
+    """What `deadreckon flash --no-stub` does: the ESP32 ROM inflates FLASH_DEFL blocks itself."""
+    tree, result, firmware = built
+    started = time.monotonic()
+    flash(tree, peer.url, firmware=firmware, board=default_board(), stub=False, progress=quiet)
+    print(f"ROM path, compressed: {time.monotonic() - started:.1f} s")
+    assert_flashed(peer, result, firmware)
+    assert peer.stats.stub_runs == 0 and peer.stats.commands.get(0x11, 0) > 0
+
+
+def test_flash_with_the_stub(built, peer):
+    tree, result, firmware = built
+    started = time.monotonic()
+    flash(tree, peer.url, firmware=firmware, board=default_board(), progress=quiet)
+    print(f"stub path: {time.monotonic() - started:.1f} s")
+    assert_flashed(peer, result, firmware)
+    assert peer.stats.stub_runs == 1
+    assert peer.stats.commands.get(0x11, 0) > 0  # compressed writes
+
+
+def test_erase_clears_what_the_layout_does_not_cover(built, peer):
+    tree, result, firmware = built
+    peer.flash[0x100000:0x100010] = b"\0" * 16
+    flash(tree, peer.url, board=default_board(), erase=True, progress=quiet)
+    assert peer.flash[0x100000:0x100010] == b"\xff" * 16
+
+
+def test_dropped_connection_fails_clearly_then_a_retry_succeeds(built, peer):
+    tree, result, firmware = built
+    peer.drop_after_blocks = 3
+    with pytest.raises(UserError) as failure:
+        flash(tree, peer.url, firmware=firmware, board=default_board(), progress=quiet)
+    assert "connection to the board" in failure.value.message and "lost" in failure.value.message
+    peer.clear_faults()
+    flash(tree, peer.url, firmware=firmware, board=default_board(), progress=quiet)
+    assert_flashed(peer, result, firmware)
+
+
+def test_corrupted_reply_fails_clearly_then_a_retry_succeeds(built, peer):
+    tree, result, firmware = built
+    peer.noise_reply = (0x0A, 12)  # the 12th READ_REG reply (chip info) drowns in line noise
+    with pytest.raises(UserError, match="arrived corrupted"):
+        flash(tree, peer.url, firmware=firmware, board=default_board(), progress=quiet)
+    peer.clear_faults()
+    flash(tree, peer.url, firmware=firmware, board=default_board(), progress=quiet)
+    assert_flashed(peer, result, firmware)
+
+
+def test_wrong_chip_is_refused_before_writing(built, peer):
+    tree, result, firmware = built
+    peer.chip_magic = 0x000007C6  # what an ESP32-S2 shows
+    with pytest.raises(UserError) as failure:
+        flash(tree, peer.url, firmware=firmware, board=default_board(), progress=quiet)
+    assert "ESP32-S2" in failure.value.message and "ESP32" in failure.value.message
+    assert peer.flash == bytearray(b"\xff" * len(peer.flash))
+    peer.chip_magic = 0x12345678  # no chip esptool knows: it would "continue anyway"; we stop it
+    with pytest.raises(UserError, match="not an ESP32"):
+        flash(tree, peer.url, firmware=firmware, board=default_board(), progress=quiet)
+    assert peer.flash == bytearray(b"\xff" * len(peer.flash))
+    peer.clear_faults()
+    flash(tree, peer.url, firmware=firmware, board=default_board(), progress=quiet)
+    assert_flashed(peer, result, firmware)
+
+
+def test_flash_smaller_than_the_layout(built):
+    tree, result, firmware = built
+    with RomLoaderPeer(flash_size=2 * 1024 * 1024) as small:
+        with pytest.raises(UserError, match="less flash"):
+            flash(tree, small.url, board=default_board(), progress=quiet)
+
+
+def test_firmware_for_another_chip(built, peer, tmp_path):
+    tree, result, _ = built
+    s3 = tmp_path / "s3.bin"
+    s3.write_bytes(esp_image(chip_id=9, segment_bytes=0x1000))
+    with pytest.raises(UserError, match="not built for an ESP32"):
+        flash(tree, peer.url, firmware=s3, board=default_board(), progress=quiet)
+
+
+def test_layout_checks_before_touching_the_board(built, tmp_path):
+    tree, result, firmware = built
+    board = default_board()
+    with pytest.raises(UserError, match="larger than the vfs partition"):
+        plan_regions(default_board(**{"micropython.filesystem.size": 0x100000}), result.image)
+    with pytest.raises(UserError, match="layout ends at"):
+        plan_regions(default_board(flash_size="2MB"), result.image)
+    with pytest.raises(UserError, match="not an ESP firmware image"):
+        text = tmp_path / "fw.uf2"
+        text.write_bytes(b"UF2\n" * 100)
+        plan_regions(board, result.image, text)
+    with pytest.raises(UserError, match="runs into the vfs partition"):
+        huge = tmp_path / "huge.bin"
+        huge.write_bytes(b"\xe9" + b"\0" * 0x200000)
+        plan_regions(board, result.image, huge)
+
+
+def test_no_such_port(built):
+    tree, _, _ = built
+    with pytest.raises(UserError, match="no such port /dev/ttyDEADRECKON0"):
+        flash(tree, "/dev/ttyDEADRECKON0", board=default_board(), progress=quiet)
+
+
+def test_flash_cli_and_its_error_path(built, peer, capsys, monkeypatch):
+    from codegen import cli
+
+    tree, result, firmware = built
+    monkeypatch.setattr("codegen.build._manifest_board", lambda out: default_board())
+    assert cli.main(["flash", str(tree), "--port", peer.url, "--firmware", str(firmware)]) == 0
+    assert_flashed(peer, result, firmware)
+    assert "flashed and verified 2 region(s)" in capsys.readouterr().out
+    peer.chip_magic = 0x000007C6
+    assert cli.main(["flash", str(tree), "--port", peer.url]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: the chip on socket://") and "hint:" in err and "Traceback" not in err
