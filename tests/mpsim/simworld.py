@@ -282,7 +282,7 @@ class Oled:
     """SSD1306 / SSD1315 / SH1106 command interpreter with display RAM; decodes the shown text.
 
     Text is decoded cell by cell (8x8 on the page grid) against MicroPython's own framebuf font, so what the test
-    reads is what the pixels say. A frame is captured when the last page is written.
+    reads is what the pixels say. The text is captured after every data write (a page at a time, as shown).
     """
 
     def __init__(self, opts):
@@ -350,12 +350,9 @@ class Oled:
             self.page = self.page0
 
     def _data(self, data):
-        last_page_hit = False
         for b in data:
             if self.col < self.ram_w:
                 self.ram[self.page * self.ram_w + self.col] = b
-            if self.page == self.pages - 1:
-                last_page_hit = True
             if self.mode == 0 and self.kind != "sh1106":
                 if self.col >= self.col1:
                     self.col = self.col0
@@ -364,8 +361,7 @@ class Oled:
                     self.col += 1
             else:
                 self.col += 1
-        if last_page_hit:
-            self._capture()
+        self._capture()
 
     def text(self):
         lines = []
@@ -470,7 +466,7 @@ class NmeaStream:
                     tab = line.find(b"\t")
                     if tab < 0:
                         continue
-                    data = line[tab + 1 :].replace(b"\\r\\n", b"\r\n").rstrip(b"\n")
+                    data = line[tab + 1 :].rstrip(b"\n").replace(b"\\r\\n", b"\r\n")
                     self.chunks.append((int(line[:tab]), data))
         self.power = opts.get("power")
         self.idx = 0
