@@ -90,6 +90,18 @@ def cmd_upload(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from codegen.loader import load_board
+    from codegen.sim.simulate import simulate
+
+    if args.on_micropython:
+        raise UserError("--on-micropython is not available yet", hint="the reference pipeline runs without it")
+    loaded = load_board(args.board)
+    simulate(loaded.board, args.scenario, args.outage, seed=args.seed, quality=args.gps, step=args.step,
+             plot=Path(args.plot) if args.plot else None, methods=args.method)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="deadreckon",
@@ -137,6 +149,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", required=True, help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...)")
     p.add_argument("--force", action="store_true", help="send every file, even those already on the board")
     p.set_defaults(func=cmd_upload)
+
+    p = sub.add_parser("simulate", help="simulated sensors through the board's pipeline; outage metrics and plots")
+    _board_arg(p)
+    p.add_argument("--scenario", default="walk", choices=("static", "push", "walk", "car", "replay-walk"))
+    p.add_argument("--outage", type=float, default=30.0, help="seconds without GPS (default 30)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the scenario and sensor models")
+    p.add_argument("--gps", default="open-sky", choices=("open-sky", "poor", "rtk"), help="NEO-6M error profile")
+    p.add_argument("--step", type=float, default=5.0, help="seconds between outage starts (default 5)")
+    p.add_argument("--method", action="append", help="only this method (repeatable; default: all registered)")
+    p.add_argument("--plot", help="write a PNG: truth vs estimate, and error against time since GPS loss")
+    p.add_argument("--on-micropython", action="store_true", help=argparse.SUPPRESS)
+    p.set_defaults(func=cmd_simulate)
 
     return parser
 

@@ -127,7 +127,8 @@ def format_table(results: list[Result], file=None) -> str:
     head = f"{'scenario':12s} {'method':15s} {'outages':>7s} {'0 s':>6s}"
     for h in horizons:
         head += f" {f'{h:g} s med':>10s} {'p90':>7s}"
-    head += f"  {'push E med':>10s} {'E<0.1':>6s}"
+    if any(res.push_e for res in results):
+        head += f"  {'push E med':>10s} {'E<0.1':>6s}"
     lines.append(head)
     lines.append("-" * len(head))
     for res in results:
