@@ -241,26 +241,25 @@ void dr_set_velocity(dr_state *st, float ve, float vn, float vu) {
 void dr_rotate_heading(dr_state *st, float cos_a, float sin_a) {
     float k = dr_inv_sqrt(cos_a * cos_a + sin_a * sin_a);
     float c = cos_a * k, s = sin_a * k;
-    float half_c = dr_sqrt(0.5f * (1.0f + c)); /* cos(a/2) >= 0 */
     float yaw[4], r[4];
     int i;
     if (k == 0.0f) {
         return;
     }
-    yaw[0] = half_c;
+    /* half angle without cancellation: from the larger of cos(a/2) = sqrt((1 + c) / 2) and
+     * |sin(a/2)| = sqrt((1 - c) / 2), the other by sin(a) = 2 sin(a/2) cos(a/2); cos(a/2) >= 0 */
+    if (c >= 0.0f) {
+        yaw[0] = dr_sqrt(0.5f * (1.0f + c));
+        yaw[3] = s * 0.5f * dr_recip(yaw[0]);
+    } else {
+        yaw[3] = dr_sqrt(0.5f * (1.0f - c));
+        if (s < 0.0f) {
+            yaw[3] = -yaw[3];
+        }
+        yaw[0] = s * 0.5f * dr_recip(yaw[3]);
+    }
     yaw[1] = 0.0f;
     yaw[2] = 0.0f;
-    /* sin(a/2) = sin(a) / (2 cos(a/2)); at a = 180 degrees cos(a/2) = 0 and sin(a/2) = 1 */
-    if (half_c > 1.0e-3f) {
-        yaw[3] = s * 0.5f * dr_recip(half_c);
-    } else {
-        dr_bits one; /* +-1 with the sign of s, by bits: LLVM's Xtensa backend cannot select between float constants */
-        dr_bits sign;
-        one.f = 1.0f;
-        sign.f = s;
-        one.u |= sign.u & 0x80000000u;
-        yaw[3] = one.f;
-    }
     dr_quat_multiply(r, yaw, st->q);
     for (i = 0; i < 4; i++) {
         st->q[i] = r[i];
