@@ -1,0 +1,125 @@
+"""The benchmark's machinery: method contract (no GPS after the outage start), metrics, replay, CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from codegen.cli import main
+from codegen.loader import load_board
+from codegen.sim import methods as methods_mod
+from codegen.sim.mpu6050 import MpuErrors
+from codegen.sim.run import RunData, build_run, evaluate, format_table
+from conftest import require_shared_data
+
+
+@pytest.fixture(scope="module")
+def board():
+    return load_board(None).board
+
+
+@pytest.fixture(scope="module")
+def walk_run(board):
+    return build_run("walk", board, seed=2, duration=110.0)
+
+
+def test_baselines_are_registered():
+    assert {"seed", "const-velocity", "hold-last-fix"} <= set(methods_mod.registered_methods())
+
+
+def _blind_after(run: RunData, start: float) -> RunData:
+    """The same run with every fix from `start` on invalid and moved far away: a method must not notice."""
+    gps = run.gps
+    late = gps.t >= start
+    blind = dataclasses.replace(gps, valid=gps.valid & ~late, enu=np.where(late[:, None], 1e6, gps.enu),
+                                speed=np.where(late, 99.0, gps.speed), course=np.where(late, 45.0, gps.course))
+    return dataclasses.replace(run, gps=blind, cache={})
+
+
+@pytest.mark.parametrize("name", sorted(methods_mod.registered_methods()))
+def test_methods_use_no_gps_after_the_outage_start(walk_run, name):
+    fn = methods_mod.registered_methods()[name]
+    starts = np.array([25.5, 47.5])
+    times = starts[:, None] + np.array([0.0, 10.0, 30.0])
+    est = fn(walk_run, starts, times)
+    assert est.shape == (2, 3, 2)
+    for i, start in enumerate(starts):
+        alone = fn(_blind_after(walk_run, start), starts[i : i + 1], times[i : i + 1])
+        np.testing.assert_allclose(alone[0], est[i], atol=1e-9)
+
+
+def test_at_rest_with_perfect_gps_every_method_stays_put(board):
+    run = build_run("static", board, seed=1, quality="rtk", duration=90.0, errors=MpuErrors.ideal())
+    result = evaluate(run, horizons=(10.0, 30.0))
+    for name, err in result.errors.items():
+        assert np.nanmax(err) < 1e-6, name
+
+
+def test_seed_method_from_its_own_pipeline(board):
+    """With an ideal IMU and perfect GPS the seed's method follows a straight push (its own test), within E."""
+    run = build_run("push", board, seed=0, quality="rtk", errors=MpuErrors.ideal())
+    result = evaluate(run, horizons=(10.0,), methods={"seed": methods_mod.seed_method})
+    first = result.push_e["seed"][0]  # the first push goes along x = East: the seed's frame is ENU
+    assert first < 0.5
+    assert np.all(np.isfinite(result.push_e["seed"]))
+
+
+def test_fast_orientation_matches_the_reference(walk_run, board):
+    from codegen import reference
+
+    cfg = reference.KernelConfig.from_board(board)
+    samples = walk_run.counts[3000:5000]
+    dt = np.diff(walk_run.t_us[3000:5001]) * 1e-6
+    q0 = reference.quat_normalise(np.array([0.9, 0.1, -0.2, 0.3]))
+    bias = np.array([12.0, -40.0, 7.0])
+    a_ref, q_ref = reference.enu_acceleration(samples, dt, q0, bias, cfg)
+    a, q = methods_mod.enu_acceleration(samples, dt, q0, bias, cfg)
+    np.testing.assert_allclose(q, q_ref, atol=1e-9)
+    np.testing.assert_allclose(a, a_ref, atol=1e-8)
+
+
+def test_metrics_table(walk_run):
+    result = evaluate(walk_run, horizons=(10.0, 30.0))
+    text = format_table([result])
+    assert "10 s med" in text and "30 s med" in text
+    for name in ("seed", "const-velocity", "hold-last-fix"):
+        assert name in text
+    # the error at the moment of loss is the last fix's own error, identical for every method
+    zero = {name: err[:, 0] for name, err in result.errors.items()}
+    for err in zero.values():
+        np.testing.assert_allclose(err, zero["hold-last-fix"], atol=1e-9)
+    # hold-last-fix grows with walking distance: ~1.4 m/s
+    assert 5.0 < np.nanmedian(result.errors["hold-last-fix"][:, 1]) < 25.0
+
+
+def test_replay_walk(board):
+    require_shared_data("gnss-imu-walk", "imu_1730_sf.csv")
+    from codegen.sim import replay
+
+    t, accel, gyro, truth = replay.load_walk(require_shared_data("gnss-imu-walk"))
+    rate = (len(t) - 1) / t[-1]
+    assert 140 < rate < 175 and 125 < t[-1] < 140
+    assert 10.0 < truth.rest_s < 15.0  # standing still at the start: room for the 10 s calibration
+    np.testing.assert_allclose(np.linalg.norm(accel[:1000].mean(axis=0)), 1.0, atol=0.03)
+    run = build_run("replay-walk", board, seed=0, walk_dir=require_shared_data("gnss-imu-walk"))
+    assert run.counts.dtype == np.int16
+    result = evaluate(run, horizons=(10.0, 30.0), step=4.0)
+    assert np.sum(np.isfinite(result.errors["seed"][:, -1])) >= 10
+
+
+def test_cli_simulate(capsys, tmp_path):
+    plot = tmp_path / "walk.png"
+    code = main(["simulate", "--scenario", "static", "--outage", "20", "--plot", str(plot)])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "hold-last-fix" in out and "20 s med" in out
+    assert plot.stat().st_size > 10_000
+
+
+def test_cli_simulate_user_errors(capsys):
+    assert main(["simulate", "--scenario", "static", "--outage", "500"]) == 2
+    assert "error:" in capsys.readouterr().err
+    assert main(["simulate", "--scenario", "static", "--method", "nope"]) == 2
+    assert "unknown method" in capsys.readouterr().err
