@@ -79,3 +79,4 @@ class PostLog:
     gps: GpsSeries
     calibration: Optional[Calibration] = None
     notes: list[str] = field(default_factory=list)
+    time_scale: str = "relative"  # "gpst": t is GPS time as a Unix-style count (calendar as if UTC); else seconds

@@ -50,12 +50,20 @@ class OrientationOptions:
     estimate_bias: bool = True
 
 
+def sample_edges(t: np.ndarray) -> np.ndarray:
+    """(N+1,) edges of the span each sample stands for: halfway to its neighbours (a sample is the value at its
+    time, so holding it from t_i to t_i+1 would lag the signal by half a sample)."""
+    if len(t) == 1:
+        return np.array([t[0] - 0.5e-3, t[0] + 0.5e-3])
+    mid = 0.5 * (t[1:] + t[:-1])
+    return np.concatenate([[t[0] - (mid[0] - t[0])], mid, [t[-1] + (t[-1] - mid[-1])]])
+
+
 def cumulative_integral(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Node times (N+1,) and the zero-order-hold integral of x from t[0] at those nodes (N+1, 3)."""
-    dt = np.diff(t)
-    dt = np.append(dt, np.median(dt) if len(dt) else 0.0)
-    vel, _ = integrate_zoh(x, dt, np.zeros(3))
-    return np.append(t, t[-1] + dt[-1]), vel
+    """Edge times (N+1,) and the zero-order-hold integral of x (each sample held over its span) at the edges."""
+    edges = sample_edges(t)
+    vel, _ = integrate_zoh(x, np.diff(edges), np.zeros(3))
+    return edges, vel
 
 
 def interval_means(nodes: np.ndarray, cum: np.ndarray, t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
@@ -163,6 +171,38 @@ def rot_z(angle: np.ndarray) -> np.ndarray:
     out = np.zeros(np.shape(angle) + (3, 3))
     out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1], out[..., 2, 2] = c, -s, s, c, 1.0
     return out
+
+
+def euler_jacobian(roll: float, pitch: float, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    """R and its derivatives dR/droll, dR/dpitch, dR/dyaw stacked as (3,3,3)."""
+    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    drx = np.array([[0.0, 0.0, 0.0], [0.0, -sr, -cr], [0.0, cr, -sr]])
+    dry = np.array([[-sp, 0.0, cp], [0.0, 0.0, 0.0], [-cp, 0.0, -sp]])
+    drz = np.array([[-sy, -cy, 0.0], [cy, -sy, 0.0], [0.0, 0.0, 0.0]])
+    ryx = ry @ rx
+    return rz @ ryx, np.stack([rz @ ry @ drx, rz @ dry @ rx, drz @ ryx])
+
+
+def _window_problem(sj: np.ndarray, tj: np.ndarray, wj: np.ndarray, yaw_fixed: Optional[float]):
+    """Residual and Jacobian functions of ||R(roll, pitch, yaw) s_j - t_j|| w_j for least_squares."""
+    w = wj[:, None]
+
+    def angles(p):
+        return (p[0], p[1], yaw_fixed) if yaw_fixed is not None else (p[0], p[1], p[2])
+
+    def residual(p):
+        return (((euler_matrix(*angles(p)) @ sj.T).T - tj) * w).ravel()
+
+    def jacobian(p):
+        _, d = euler_jacobian(*angles(p))
+        cols = np.einsum("mij,kj->kim", d, sj) * w[:, :, None]  # (k, 3, 3 params)
+        cols = cols.reshape(-1, 3)
+        return cols[:, :2] if yaw_fixed is not None else cols
+
+    return residual, jacobian
 
 
 def wrap(angle):
@@ -284,17 +324,12 @@ def solve_orientations(iv: Intervals, options: OrientationOptions, bias: np.ndar
         if hold_yaw:
             flags[k].append(FLAG_YAW_HELD)
             yaw_fixed = init[2]
-
-            def residual(p):
-                return (((euler_matrix(p[0], p[1], yaw_fixed) @ sj.T).T - tj) * wj[:, None]).ravel()
-
-            res = least_squares(residual, init[:2], method="lm")
+            residual, jacobian = _window_problem(sj, tj, wj, yaw_fixed)
+            res = least_squares(residual, init[:2], jac=jacobian, method="lm")
             solution = np.array([res.x[0], res.x[1], yaw_fixed])
         else:
-            def residual(p):
-                return (((euler_matrix(*p) @ sj.T).T - tj) * wj[:, None]).ravel()
-
-            res = least_squares(residual, init, method="lm")
+            residual, jacobian = _window_problem(sj, tj, wj, None)
+            res = least_squares(residual, init, jac=jacobian, method="lm")
             solution = res.x
         n = res.x.size
         dof = max(res.fun.size - n, 1)

@@ -230,4 +230,4 @@ def read_recording_folder(folder: Path) -> PostLog:
     else:
         imu = read_sf_imu(imu_sf[0])
         notes.append(f"IMU: {imu_sf[0].name} (already on GPS time)")
-    return PostLog(folder.name, imu, gps, notes=notes)
+    return PostLog(folder.name, imu, gps, notes=notes, time_scale="gpst")

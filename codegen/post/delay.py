@@ -1,0 +1,69 @@
+"""Delay between the IMU and GPS streams by cross-correlation (method step 1).
+
+For a trial lag tau, the IMU's velocity change over each GPS interval is the integral of the ENU acceleration over
+[t_k + tau, t_k+1 + tau]; the GPS's is v_k+1 - v_k. The lag that makes the two sequences agree best (least squares
+after removing each sequence's mean, which absorbs a constant bias) is the delay: IMU timestamps are late by tau,
+and t_imu - tau puts them on GPS time. A grid at the IMU sample period finds the peak, a bounded scalar search
+refines it (the zero-order-hold integral is continuous in tau).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from codegen.post.orientation import cumulative_integral
+
+
+@dataclass
+class DelayEstimate:
+    delay: float  # s, IMU timestamps late by this much
+    lags: np.ndarray  # s, grid
+    cost: np.ndarray  # normalised misfit on the grid (1 = no better than zero IMU signal)
+    correlation: float  # correlation coefficient at the delay
+    sigma: float  # s, 1-sigma from the curvature of the misfit
+
+
+def estimate_delay(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gps_vel: np.ndarray,
+                   max_lag: float = 1.0) -> DelayEstimate:
+    nodes, cum = cumulative_integral(imu_t, acc_enu)
+    step = float(np.median(np.diff(imu_t)))
+    t0, t1 = gps_t[:-1], gps_t[1:]
+    inside = (t0 - max_lag >= imu_t[0]) & (t1 + max_lag <= imu_t[-1]) & (t1 - t0 < 5 * np.median(t1 - t0))
+    if inside.sum() < 5:
+        inside = (t0 >= imu_t[0]) & (t1 <= imu_t[-1])
+        max_lag = 0.0
+    t0, t1 = t0[inside], t1[inside]
+    dv_gps = np.diff(gps_vel, axis=0)[inside]
+    dv_gps = dv_gps - dv_gps.mean(axis=0)
+    norm = float(np.sum(dv_gps**2))
+
+    def dv_imu(tau):
+        c0 = np.stack([np.interp(t0 + tau, nodes, cum[:, i]) for i in range(3)], axis=1)
+        c1 = np.stack([np.interp(t1 + tau, nodes, cum[:, i]) for i in range(3)], axis=1)
+        d = c1 - c0
+        return d - d.mean(axis=0)
+
+    def cost(tau):
+        return float(np.sum((dv_imu(tau) - dv_gps) ** 2)) / norm
+
+    lags = np.arange(-max_lag, max_lag + 0.5 * step, step) if max_lag > 0 else np.array([0.0])
+    costs = np.array([cost(tau) for tau in lags])
+    best = int(np.argmin(costs))
+    if 0 < best < len(lags) - 1:
+        refined = minimize_scalar(cost, bounds=(lags[best - 1], lags[best + 1]), method="bounded",
+                                  options={"xatol": step / 100})
+        delay = float(refined.x)
+    else:
+        delay = float(lags[best])
+    d = dv_imu(delay)
+    corr = float(np.sum(d * dv_gps) / np.sqrt(np.sum(d * d) * norm)) if norm > 0 else 0.0
+    # curvature of the misfit -> 1-sigma of the lag (misfit scaled so its minimum is a unit-variance chi-square)
+    h = step
+    c0, cp, cm = cost(delay), cost(delay + h), cost(delay - h)
+    curvature = (cp + cm - 2 * c0) / h**2
+    dof = max(d.size - 1, 1)
+    sigma = float(np.sqrt(2.0 * c0 / dof / curvature)) if curvature > 0 and c0 > 0 else float("inf")
+    return DelayEstimate(delay, lags, costs, corr, sigma)

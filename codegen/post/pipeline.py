@@ -1,0 +1,166 @@
+"""`deadreckon post`: the whole method on one `PostLog`, as a library call the CLI and the tests share."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+
+from codegen.board import STANDARD_GRAVITY
+from codegen.errors import UserError
+from codegen.post.delay import DelayEstimate, estimate_delay
+from codegen.post.geodesy import geodetic_to_enu
+from codegen.post.model import Calibration, PostLog
+from codegen.post.orientation import (
+    Intervals, OrientationOptions, OrientationResult, Track, build_intervals, cumulative_integral, euler_matrix,
+    fit_mounting, interval_means, solve_orientations, turn_compensated_means,
+)
+from codegen.post.smoother import SmootherOptions, SmootherResult, smooth
+
+Progress = Optional[Callable[[str, float], None]]
+MIN_IMU_SAMPLES = 10
+MIN_GPS_INTERVALS = 3
+
+
+@dataclass
+class PostOptions:
+    orientation: OrientationOptions = field(default_factory=OrientationOptions)
+    smoother: SmootherOptions = field(default_factory=SmootherOptions)
+    delay: Optional[float] = None  # s: use this delay instead of estimating it
+    max_lag: float = 1.0  # s, delay search range
+    calibration: Optional[Calibration] = None
+    output_rate: float = 10.0  # Hz, trajectory CSV/GPX rows
+    plots: bool = True
+
+
+@dataclass
+class PostResult:
+    log: PostLog
+    delay: float  # s, total; IMU timestamps were late by this much
+    delay_estimate: Optional[DelayEstimate]
+    orientation: OrientationResult
+    intervals: Intervals
+    imu_t: np.ndarray  # corrected IMU times (GPS time axis)
+    acc_enu: np.ndarray  # (N,3) rotated, bias- and gravity-free accelerations
+    track: SmootherResult
+    origin: tuple[float, float, float]
+    gps_enu: np.ndarray  # (M,3), U NaN when the log has no height
+    velocity_residual: np.ndarray  # (M,3) GPS - smoothed at GPS epochs (NaN outside)
+    imu_velocity_residual: np.ndarray  # (K,3) GPS - IMU velocity change per interval, m/s
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def velocity_residual_rms(self) -> float:
+        r = self.velocity_residual[np.isfinite(self.velocity_residual).all(axis=1)]
+        return float(np.sqrt(np.mean(r**2)))
+
+    @property
+    def imu_velocity_residual_rms(self) -> float:
+        r = self.imu_velocity_residual[np.isfinite(self.imu_velocity_residual).all(axis=1)]
+        return float(np.sqrt(np.mean(r**2)))
+
+
+def check_log(log: PostLog) -> None:
+    """A log the method cannot work on is a user error with the reason, never a traceback later."""
+    imu, gps = log.imu, log.gps
+    if len(imu) < MIN_IMU_SAMPLES:
+        raise UserError(f"{log.name}: only {len(imu)} IMU sample(s); the method needs accelerations over the GPS epochs",
+                        hint="is the IMU log empty or cut off?")
+    if len(gps) < MIN_GPS_INTERVALS + 1:
+        raise UserError(f"{log.name}: only {len(gps)} GPS epoch(s) with a fix; need at least {MIN_GPS_INTERVALS + 1}",
+                        hint="the receiver had no fix during the log, or the GPS log is cut off")
+    covered = np.sum((gps.t[:-1] >= imu.t[0]) & (gps.t[1:] <= imu.t[-1]))
+    if covered < MIN_GPS_INTERVALS:
+        raise UserError(
+            f"{log.name}: IMU ({imu.t[0]:.3f}..{imu.t[-1]:.3f} s) and GPS ({gps.t[0]:.3f}..{gps.t[-1]:.3f} s) "
+            f"share {covered} GPS interval(s); need at least {MIN_GPS_INTERVALS}",
+            hint="both logs must use the same time axis (device seconds or GPS time)",
+        )
+    if not np.all(np.isfinite(gps.vel)):
+        raise UserError(f"{log.name}: GPS velocities contain gaps (NaN)")
+
+
+def _rotate(orientation: OrientationResult, t: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    rot = orientation.slerp()(t)
+    return rot.apply(acc - orientation.bias) - np.array([0.0, 0.0, STANDARD_GRAVITY])
+
+
+def _orient(t, acc, log: PostLog, options: OrientationOptions, track: Optional[Track], progress: Progress):
+    """Mounting + bias over the run, per-interval LM, then again on turn-compensated interval means."""
+    gps = log.gps
+    iv = build_intervals(t, acc, gps.t, gps.vel, gps.sigma_vel, options.min_speed)
+    if track is not None:
+        iv.track = track
+        iv.track_yaw, iv.moving = track.yaw(iv.mid)
+    mounting = fit_mounting(iv, options.estimate_bias)
+    bias1 = mounting.bias if mounting is not None else np.zeros(3)
+    first = solve_orientations(iv, options, bias1, mounting)
+    if not first.valid.any():
+        raise UserError(f"{log.name}: no GPS interval has IMU samples; cannot find the orientation")
+    up = np.array([euler_matrix(*e).T[:, 2] if np.isfinite(e).all() else [0.0, 0.0, 1.0] for e in first.euler])
+    iv.acc_mean = turn_compensated_means(iv, t, acc - bias1, up)
+    mounting2 = fit_mounting(iv, options.estimate_bias)
+    bias2 = mounting2.bias if mounting2 is not None else np.zeros(3)
+    result = solve_orientations(iv, options, bias2, mounting2, progress=progress)
+    result.bias = bias1 + bias2
+    if mounting2 is not None:
+        mounting2.bias = result.bias
+    return result, iv
+
+
+def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progress = None) -> PostResult:
+    check_log(log)
+    notes = list(log.notes)
+    gps = log.gps
+    calibration = options.calibration or log.calibration
+    acc = calibration.apply(log.imu.acc) if calibration is not None else log.imu.acc
+    if calibration is not None:
+        notes.append(f"calibration applied: offset {np.round(calibration.offset, 4).tolist()} m/s^2, "
+                     f"scale {np.round(calibration.scale, 5).tolist()}")
+    origin_h = float(gps.h[0]) if np.isfinite(gps.h[0]) else 0.0
+    origin = (float(gps.lat[0]), float(gps.lon[0]), origin_h)
+    gps_enu = geodetic_to_enu(gps.lat, gps.lon, np.nan_to_num(gps.h, nan=origin_h), origin)
+    gps_enu[~np.isfinite(gps.h), 2] = np.nan
+    step = float(np.median(np.diff(log.imu.t)))
+
+    # 1. delay and orientation, alternately (the delay search needs ENU accelerations, the orientation the delay)
+    delay, estimate = (options.delay or 0.0), None
+    for attempt in range(4):
+        t = log.imu.t - delay
+        iv = build_intervals(t, acc, gps.t, gps.vel, gps.sigma_vel, options.orientation.min_speed)
+        mounting = fit_mounting(iv, options.orientation.estimate_bias)
+        orientation = solve_orientations(iv, options.orientation, mounting.bias if mounting else np.zeros(3), mounting)
+        if not orientation.valid.any():
+            raise UserError(f"{log.name}: no GPS interval has IMU samples; cannot find the orientation")
+        if options.delay is not None:
+            break
+        estimate = estimate_delay(t, _rotate(orientation, t, acc), gps.t, gps.vel,
+                                  options.max_lag if attempt == 0 else 4 * step)
+        delay += estimate.delay
+        if progress:
+            progress("delay", (attempt + 1) / 4)
+        if abs(estimate.delay) < 0.25 * step:
+            break
+    t = log.imu.t - delay
+    # 2. the smoothed velocity gives a quieter track direction than raw Doppler: orient again with it, and with the
+    #    interval means turned back for the device's own turning
+    pos_sigma = gps.sigma_pos
+    first = smooth(t, _rotate(orientation, t, acc), gps.t, gps.vel, gps.sigma_vel, gps_enu, pos_sigma,
+                   options.smoother)
+    track = Track(first.t, first.vel, options.orientation.min_speed)
+    orientation, iv = _orient(t, acc, log, options.orientation, track, progress)
+    a_enu = _rotate(orientation, t, acc)
+    # 3. final smoothing
+    result = smooth(t, a_enu, gps.t, gps.vel, gps.sigma_vel, gps_enu, pos_sigma, options.smoother, progress=progress)
+    residual = np.full((len(gps), 3), np.nan)
+    ok = result.gps_index >= 0
+    residual[ok] = gps.vel[ok] - result.vel[result.gps_index[ok]]
+    # IMU-only check: the velocity change the IMU integrates over each interval against the GPS's
+    bias_at = np.stack([np.interp(t, result.t, result.bias[:, i]) for i in range(3)], axis=1)
+    nodes, cum = cumulative_integral(t, a_enu - bias_at)
+    dv_imu = (interval_means(nodes, cum, iv.t0, iv.t1) * (iv.t1 - iv.t0)[:, None])
+    imu_residual = np.diff(gps.vel, axis=0) - dv_imu
+    imu_residual[~iv.usable] = np.nan
+    return PostResult(log, delay, estimate, orientation, iv, t, a_enu, result, origin, gps_enu, residual,
+                      imu_residual, notes)

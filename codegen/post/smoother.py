@@ -1,0 +1,148 @@
+"""Kalman filter + Rauch-Tung-Striebel smoother over position, velocity and accelerometer bias (method step 7).
+
+Each ENU axis is an independent three-state model driven by the rotated, gravity-free accelerations:
+
+    p' = v,   v' = a_enu - b + w_a,   b' = w_b        (w_a, w_b white, spectral densities q_a, q_b)
+
+Nodes are a regular grid (`rate`) merged with the GPS epochs (an epoch is processed at its own time, not at the
+nearest sample). Between nodes the IMU samples enter as their exact zero-order-hold velocity and position increments
+(codegen.reference.integrate_zoh), so the filter's cost does not grow with the IMU rate. GPS velocities, and
+positions where given, update the state with their own 1-sigma.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from codegen.post.orientation import sample_edges
+from codegen.reference import integrate_zoh
+
+
+@dataclass
+class SmootherOptions:
+    accel_noise: float = 0.05  # m/s^2/sqrt(Hz): accelerometer noise plus orientation error, on the velocity
+    bias_walk: float = 0.002  # m/s^2/sqrt(s): how fast the ENU accelerometer bias may wander
+    initial_bias_sigma: float = 0.2  # m/s^2
+    use_positions: bool = True
+    rate: float = 10.0  # Hz, filter nodes between GPS epochs (the trajectory's rows)
+
+
+@dataclass
+class SmootherResult:
+    t: np.ndarray  # (T,) node times, s
+    pos: np.ndarray  # (T,3) ENU m
+    vel: np.ndarray  # (T,3) ENU m/s
+    bias: np.ndarray  # (T,3) ENU m/s^2
+    sigma_pos: np.ndarray  # (T,3)
+    sigma_vel: np.ndarray  # (T,3)
+    gps_index: np.ndarray  # (M,) node index of each GPS epoch used (-1 when outside)
+    filtered_vel: np.ndarray  # (T,3) forward-filter velocity (before smoothing)
+
+
+def _transition(dt: float) -> tuple[np.ndarray, None]:
+    return np.array([[1.0, dt, -0.5 * dt * dt], [0.0, 1.0, -dt], [0.0, 0.0, 1.0]]), None
+
+
+def _process_noise(dt: float, qa: float, qb: float) -> np.ndarray:
+    d2, d3, d4, d5 = dt**2, dt**3, dt**4, dt**5
+    q_acc = qa * np.array([[d3 / 3, d2 / 2, 0.0], [d2 / 2, dt, 0.0], [0.0, 0.0, 0.0]])
+    q_bias = qb * np.array([[d5 / 20, d4 / 8, -d3 / 6], [d4 / 8, d3 / 3, -d2 / 2], [-d3 / 6, -d2 / 2, dt]])
+    return q_acc + q_bias
+
+
+def smooth(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gps_vel: np.ndarray, gps_sigma_vel: np.ndarray,
+           gps_pos: Optional[np.ndarray], gps_sigma_pos: Optional[np.ndarray], options: SmootherOptions = SmootherOptions(),
+           progress=None) -> SmootherResult:
+    start, end = max(imu_t[0], gps_t[0]), min(imu_t[-1], gps_t[-1])
+    inside = (gps_t >= start) & (gps_t <= end)
+    grid = np.arange(start, end, 1.0 / options.rate)
+    nodes = np.union1d(np.append(grid, end), gps_t[inside])
+    n = len(nodes)
+    # exact ZOH increments of the IMU input between consecutive nodes
+    edges = sample_edges(imu_t)
+    cum_v, cum_p = integrate_zoh(acc_enu, np.diff(edges), np.zeros(3))
+    seg = np.clip(np.searchsorted(edges, nodes, side="right") - 1, 0, len(acc_enu) - 1)
+    tau = (nodes - edges[seg])[:, None]
+    vel_at = cum_v[seg] + acc_enu[seg] * tau
+    pos_at = cum_p[seg] + cum_v[seg] * tau + 0.5 * acc_enu[seg] * tau**2
+    gps_index = np.full(len(gps_t), -1)
+    gps_index[inside] = np.searchsorted(nodes, gps_t[inside])
+    meas_at = np.full(n, -1)
+    meas_at[gps_index[inside]] = np.flatnonzero(inside)
+    use_pos = options.use_positions and gps_pos is not None
+
+    qa, qb = options.accel_noise**2, options.bias_walk**2
+    x = np.zeros((3, 3))  # axis, state
+    first = int(np.flatnonzero(inside)[0])
+    x[:, 1] = gps_vel[first]
+    if use_pos:
+        x[:, 0] = np.nan_to_num(gps_pos[first])
+    p0 = np.zeros((3, 3, 3))
+    p0[:, 0, 0] = 1.0 if not use_pos else np.nan_to_num(gps_sigma_pos[first], nan=1e3) ** 2
+    p0[:, 1, 1] = gps_sigma_vel[first] ** 2
+    p0[:, 2, 2] = options.initial_bias_sigma**2
+    xs_f = np.empty((n, 3, 3))
+    ps_f = np.empty((n, 3, 3, 3))
+    xs_p = np.empty((n, 3, 3))
+    ps_p = np.empty((n, 3, 3, 3))
+    fs = np.empty((n, 3, 3))
+    p = p0
+    cache: dict[float, tuple] = {}
+    report_every = max(1, n // 20)
+    for i in range(n):
+        if i > 0:
+            dt = nodes[i] - nodes[i - 1]
+            key = round(dt, 9)
+            if key not in cache:
+                f, g = _transition(dt)
+                cache[key] = (f, g, _process_noise(dt, qa, qb))
+            f, g, q = cache[key]
+            dv = vel_at[i] - vel_at[i - 1]
+            dp = pos_at[i] - pos_at[i - 1] - vel_at[i - 1] * dt
+            x = x @ f.T
+            x[:, 0] += dp
+            x[:, 1] += dv
+            p = f @ p @ f.T + q
+            fs[i] = f
+        else:
+            fs[i] = np.eye(3)
+        xs_p[i], ps_p[i] = x, p
+        m = meas_at[i]
+        if m >= 0:
+            x, p = _update(x, p, 1, gps_vel[m], gps_sigma_vel[m])
+            if use_pos:
+                x, p = _update(x, p, 0, gps_pos[m], gps_sigma_pos[m])
+        xs_f[i], ps_f[i] = x, p
+        if progress and i % report_every == 0:
+            progress("filter", i / n)
+    # RTS backwards
+    xs, ps = xs_f.copy(), ps_f.copy()
+    for i in range(n - 2, -1, -1):
+        f = fs[i + 1]
+        c = ps_f[i] @ f.T @ np.linalg.inv(ps_p[i + 1])
+        xs[i] = xs_f[i] + np.einsum("aij,aj->ai", c, xs[i + 1] - xs_p[i + 1])
+        ps[i] = ps_f[i] + c @ (ps[i + 1] - ps_p[i + 1]) @ np.transpose(c, (0, 2, 1))
+        if progress and i % report_every == 0:
+            progress("smoother", 1.0 - i / n)
+    if progress:
+        progress("smoother", 1.0)
+    sd = np.sqrt(np.maximum(np.diagonal(ps, axis1=2, axis2=3), 0.0))
+    return SmootherResult(nodes, xs[:, :, 0], xs[:, :, 1], xs[:, :, 2], sd[:, :, 0], sd[:, :, 1], gps_index, xs_f[:, :, 1])
+
+
+def _update(x, p, state: int, z: np.ndarray, sigma: np.ndarray):
+    """Scalar update of one state on each axis where z and sigma are finite."""
+    ok = np.isfinite(z) & np.isfinite(sigma)
+    if not ok.any():
+        return x, p
+    x, p = x.copy(), p.copy()
+    for axis in np.flatnonzero(ok):
+        h_p = p[axis, state, :]
+        s = h_p[state] + sigma[axis] ** 2
+        k = h_p / s
+        x[axis] = x[axis] + k * (z[axis] - x[axis, state])
+        p[axis] = p[axis] - np.outer(k, h_p)
+    return x, p
