@@ -109,3 +109,125 @@ def write_stream(path: Path, chunks: list[tuple[float, str]]) -> Path:
         for t, text in chunks:
             f.write(f"{int(round(t * 1e6))}\t{text.replace(chr(13), '').replace(chr(10), chr(92) + 'r' + chr(92) + 'n')}\n")
     return path
+
+
+# ---------------------------------------------------------------- scenario pieces
+
+GRAVITY = 9.80665
+
+
+def imu_counts(duration_s: float, rate_hz: float, seed: int = 0, accel_lsb_per_g: float = 16384.0,
+               noise_counts: float = 8.0, pushes: list[tuple[float, float, int, float]] = ()):
+    """Raw counts (N, 6) of a flat device at rest (+1 g on z) with white noise, plus `pushes`:
+    (t_start s, t_end s, axis 0..2, acceleration m/s^2) added to the accelerometer while t_start <= t < t_end."""
+    import numpy as np
+
+    n = int(round(duration_s * rate_hz))
+    rng = np.random.default_rng(seed)
+    counts = rng.normal(0.0, noise_counts, (n, 6))
+    counts[:, 2] += accel_lsb_per_g
+    t = np.arange(n) / rate_hz
+    for t0, t1, axis, accel in pushes:
+        counts[(t >= t0) & (t < t1), axis] += accel / GRAVITY * accel_lsb_per_g
+    return np.clip(np.round(counts), -32768, 32767).astype("<i2")
+
+
+def write_counts(path: Path, counts) -> Path:
+    counts.astype("<i2").tofile(path)
+    return path
+
+
+def nmea_epoch(t_s: float, lat: float, lon: float, speed_kn: float = 0.0, course: float | None = None,
+               alt: float = 183.8, date: str = "241013", day_offset_s: float = 43200.0) -> str:
+    """One NEO-6M style epoch (RMC, VTG, GGA, GSA) at receiver time day_offset_s + t_s."""
+    secs = day_offset_s + t_s
+    utc = f"{int(secs // 3600) % 24:02d}{int(secs // 60) % 60:02d}{secs % 60:05.2f}"
+
+    def ang(value, width):
+        deg = int(abs(value))
+        minutes = (abs(value) - deg) * 60
+        return f"{deg:0{width}d}{minutes:08.5f}"
+
+    ns = "N" if lat >= 0 else "S"
+    ew = "E" if lon >= 0 else "W"
+    cog = "" if course is None else f"{course:.2f}"
+    parts = [
+        sentence(f"GPRMC,{utc},A,{ang(lat, 2)},{ns},{ang(lon, 3)},{ew},{speed_kn:.3f},{cog},{date},,,A"),
+        sentence(f"GPVTG,{cog},T,,M,{speed_kn:.3f},N,{speed_kn * 1.852:.3f},K,A"),
+        sentence(f"GPGGA,{utc},{ang(lat, 2)},{ns},{ang(lon, 3)},{ew},1,07,1.72,{alt:.1f},M,-34.4,M,,"),
+        sentence("GPGSA,A,3,28,17,01,08,09,11,32,,,,,,2.94,1.72,2.39"),
+    ]
+    return "\r\n".join(parts) + "\r\n"
+
+
+def tbeam_scenario(work: Path, counts_path: Path, gps_path: Path | None, duration_s: float, rate_hz: float = 200.0,
+                   pins: dict | None = None, ticks_start_us: int = 0, fs_bytes: int = 2 * 1024 * 1024,
+                   imu: dict | None = None, display: str = "ssd1306", pmu: str | None = "axp192",
+                   rail: str | None = "ldo3", uart_id: int = 1) -> dict:
+    """A T-Beam-like world on I2C0: MPU-6050 0x68, OLED 0x3C, PMU 0x34; the GPS on `uart_id` behind `rail`."""
+    dump = work / "fs"
+    dump.mkdir(parents=True, exist_ok=True)
+    devices = [dict({"kind": "mpu6050", "address": 0x68, "counts": str(counts_path), "rate_hz": rate_hz}, **(imu or {}))]
+    if display:
+        devices.append({"kind": display, "address": 0x3C})
+    if pmu:
+        devices.append({"kind": pmu, "address": 0x34})
+    all_pins = {"38": [[0, 1]], "25": [[0, 1]], "39": [[0, 1]]}  # buttons idle high (external/internal pull-ups)
+    for pin, changes in (pins or {}).items():
+        all_pins[pin] = [[0, 1]] + list(changes)
+    return {
+        "duration_s": duration_s,
+        "ticks_start_us": ticks_start_us,
+        "i2c": {"0": devices},
+        "uart": {str(uart_id): {"stream": str(gps_path) if gps_path else None, "power": rail}},
+        "pins": all_pins,
+        "fs": {"mount": "/logs", "bytes": fs_bytes, "block": 4096, "dump": str(dump)},
+    }
+
+
+def press(t_s: float, hold_s: float = 0.3, active: int = 0) -> list[list[float]]:
+    """Level changes of a button pressed at t_s for hold_s (idle level restored)."""
+    return [[t_s, active], [t_s + hold_s, 1 - active]]
+
+
+# ---------------------------------------------------------------- the log format (docs/log-format.md)
+
+import struct as _struct
+
+LOG_RECORDS = {0x49: ("<BI6h", 17), 0x47: ("<BIIHBBiiiiHiBBBH", 40), 0x57: ("<BIBiiffffffiiI", 50)}
+
+
+def read_log(data: bytes, block: int = 4096) -> tuple[dict, list[tuple]]:
+    """(header key=values, records) of one log file; records are (type char, t_us unwrapped, fields...)."""
+    header: dict = {}
+    records = []
+    t_hi = 0
+    last = 0
+    for start in range(0, len(data), block):
+        blk = data[start : start + block]
+        i = 0
+        while i < len(blk):
+            kind = blk[i]
+            if kind == 0x00:
+                break
+            if kind == 0x48:
+                _, version, length = _struct.unpack_from("<BBH", blk, i)
+                text = blk[i + 4 : i + 4 + length].decode()
+                header = dict(item.split("=", 1) for item in text.split(";") if item)
+                header["version"] = version
+                i += 4 + length
+                continue
+            if kind == 0x45:
+                _, t, length = _struct.unpack_from("<BIB", blk, i)
+                fields = (blk[i + 6 : i + 6 + length].decode(),)
+                i += 6 + length
+            else:
+                fmt, size = LOG_RECORDS[kind]
+                _, t, *fields = _struct.unpack_from(fmt, blk, i)
+                fields = tuple(fields)
+                i += size
+            if t < last:
+                t_hi += 1 << 32
+            last = t
+            records.append((chr(kind), t + t_hi) + fields)
+    return header, records
