@@ -102,6 +102,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_post(args: argparse.Namespace) -> int:
+    from codegen.post.cli import run_from_args
+
+    return run_from_args(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="deadreckon",
@@ -161,6 +167,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", help="write a PNG: truth vs estimate, and error against time since GPS loss")
     p.add_argument("--on-micropython", action="store_true", help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("post", help="align a logged run to ENU from GPS Doppler; delay, angles, smoothed trajectory")
+    from codegen.post.cli import add_arguments as _post_arguments
+
+    _post_arguments(p)
+    p.set_defaults(func=cmd_post)
 
     return parser
 

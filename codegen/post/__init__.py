@@ -1,0 +1,26 @@
+"""`deadreckon post`: accelerations + GPS-Doppler velocities -> orientation, delay, smoothed trajectory (issue 7).
+
+    load_log(LOG, gps=None) -> PostLog          readers: CSV pair, RTKLIB recording folder, device log
+    process(log, PostOptions()) -> PostResult   the method: delay, LM orientation per interval, Slerp, KF + RTS
+    run_post(LOG, OUTDIR, gps=None, ...)        both, plus trajectory CSV/GPX, angles, report, plots
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+from codegen.post.loader import load_log
+from codegen.post.pipeline import PostOptions, PostResult, process
+
+__all__ = ["PostOptions", "PostResult", "load_log", "process", "run_post"]
+
+
+def run_post(log_path: Path, out_dir: Path, gps: Optional[Path] = None, options: PostOptions = PostOptions(),
+             progress=None) -> tuple[PostResult, dict[str, Path]]:
+    from codegen.post.outputs import write_outputs
+
+    log = load_log(Path(log_path), Path(gps) if gps is not None else None)
+    result = process(log, options, progress=progress)
+    files = write_outputs(result, Path(out_dir), plots=options.plots)
+    return result, files
