@@ -1,0 +1,52 @@
+"""Every bundled board's generated app runs on MicroPython with its own wiring: PMU or none, its UART, its buttons,
+its display, its IMU address, and shows the GPS fix."""
+
+from __future__ import annotations
+
+import pytest
+
+from codegen.board import pin_number
+from codegen.loader import bundled_boards, load_board
+from conftest import require_tool
+from mpsim.harness import generate_app, imu_counts, nmea_epoch, run_app, write_counts, write_stream
+
+LAT, LON = 51.4778, -0.0015
+
+
+def world(board, work, counts, gps, duration):
+    devices = [{"kind": "mpu6050", "address": board.imu.address, "counts": str(counts), "rate_hz": 200.0}]
+    if board.display:
+        devices.append({"kind": board.display.model, "address": board.display.address,
+                        "width": board.display.width, "height": board.display.height})
+    if board.power.chip != "none":
+        devices.append({"kind": board.power.chip, "address": board.power.address})
+    pins = {}
+    for button in (board.buttons.calibrate, board.buttons.test_mode):
+        if button is not None:
+            pins[str(pin_number(button.pin))] = [[0, 1 if button.active == "low" else 0]]
+    (work / "fs").mkdir(parents=True, exist_ok=True)
+    return {
+        "duration_s": duration,
+        "i2c": {str(board.i2c[board.imu.bus].id): devices},
+        "uart": {str(board.uart[board.gps.uart].id): {
+            "stream": str(gps), "power": None if board.gps.power == "always_on" else board.gps.power}},
+        "pins": pins,
+        "fs": {"mount": board.logging.directory, "bytes": 512 * 1024, "block": 4096, "dump": str(work / "fs")},
+    }
+
+
+@pytest.mark.parametrize("name", [name for name, _, _ in bundled_boards()])
+def test_board_app_runs(name, tmp_path):
+    micropython = require_tool("micropython")
+    board = load_board(name).board
+    out = generate_app(name, tmp_path / "out")
+    rate = board.imu.achieved_sample_rate_hz
+    counts = write_counts(tmp_path / "imu.bin", imu_counts(14, rate))
+    gps = write_stream(tmp_path / "gps.txt", [(t, nmea_epoch(t, LAT, LON)) for t in range(1, 14)])
+    run = run_app(micropython, out, world(board, tmp_path, counts, gps, 14), tmp_path / "w")
+    assert run.returncode == 0, run.stderr + run.stdout[-1500:]
+    assert "Traceback" not in run.stdout and "WARN" not in run.stdout, run.stdout[:1500]
+    assert any(line.startswith("CAL ok") for line in run.stdout.splitlines())
+    if board.display:
+        screen = run.screen_at(13.9)
+        assert screen[0].startswith("GPS fix") and screen[1] == "51.4778000 N" and screen[2] == "0.0015000 W"
