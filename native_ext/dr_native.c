@@ -83,6 +83,8 @@ static mp_obj_t dr_init_fn(size_t n_args, const mp_obj_t *args) {
     dr_config fresh;
     mp_int_t floats;
     (void)dr_unpack(args[0], &st, &cfg, &floats);
+    /* validated on a local copy first, so a rejected init leaves the state as it was; the second set writes the
+     * state's own config (a struct assignment would be a memcpy call, which a native module cannot link) */
     dr_config_init(&fresh);
     if (n_args == 7) {
         int code = dr_config_set(&fresh, mp_obj_get_int(args[1]), mp_obj_get_int(args[2]),
@@ -97,7 +99,12 @@ static mp_obj_t dr_init_fn(size_t n_args, const mp_obj_t *args) {
     if (floats < dr_state_len(fresh.block)) {
         mp_raise_ValueError(MP_ERROR_TEXT("state buffer shorter than state_len(block)"));
     }
-    *cfg = fresh;
+    dr_config_init(cfg);
+    if (n_args == 7) {
+        (void)dr_config_set(cfg, fresh.block, fresh.window, (float)mp_obj_get_float(args[3]),
+                            (float)mp_obj_get_float(args[4]), (float)mp_obj_get_float(args[5]),
+                            (float)mp_obj_get_float(args[6]));
+    }
     dr_state_init(st);
     return mp_const_none;
 }
