@@ -189,7 +189,7 @@ def main(argv=None) -> int:
     c_host = rows[0][1]
     print(f"deadreckon kernel benchmark: one window of {n} x 6 samples, block {board.algorithm.block} "
           f"(board {board.name}), best of runs")
-    print(f"{"implementation":52s} {'time/window':>14s} {'x slower than C':>16s}")
+    print(f"{'implementation':52s} {'time/window':>14s} {'x slower than C':>16s}")
     for label, seconds, why in rows:
         if seconds is None:
             print(f"{label:52s} {'-':>14s} {'':>16s}  ({why})")
