@@ -10,9 +10,9 @@ roundoff. It is derived from the operations, not fitted to the results:
     have), the one-step renormalisation (<= 6u), and the rate omega = (count - bias) * scale carries <= 6u relative,
     i.e. <= 6u |omega| dt of angle (the bias, rounded to float32, adds u |bias|):
     E_q,k+1 = E_q,k + 18u + 3u (|omega_k| + |bias|) dt_k + |h_k|^6/720 (quaternion norm).
-  acceleration (dr_quat_rotate - g): a rotation by a quaternion off by E_q is off by <= 4 E_q times |f|; the scale
+  acceleration (dr_quat_rotate - g): R(q) f = q f q*, so a quaternion off by E_q moves it by <= 2 E_q |f|; the scale
     (reciprocal + product, 5u), the 15-multiply rotation (<= 10u) and a non-unit q (<= 4u) give 19u|f|, and the
-    gravity subtraction u(g + |a|):  da_k = |f_k| (4 E_q,k + 19u) + u (g + |a_k|).
+    gravity subtraction u(g + |a|):  da_k = |f_k| (2 E_q,k + 19u) + u (g + |a_k|).
   median: 1-Lipschitz in the max norm, so dm_j <= max over the block of da_k; where the reference median lies within
     dm_j of the deadband l, one side may zero it and the other not: dm_j += l.
   integration over a block of T = block_us * 1e-6f (relative error 2u):
@@ -83,7 +83,7 @@ def window_bound(samples, dt_us, q0, v0, bias, cfg: ref.KernelConfig, theta0=0.0
     step = 18 * U + 3 * U * (omega + bias_rate) * dt + h**6 / 720
     e_q = theta0 + np.concatenate([[0.0], np.cumsum(step)])
     a, _ = ref.enu_acceleration(samples, dt, q0, bias, cfg)
-    da = f_norm * (4 * e_q[:-1] + 19 * U) + U * (ref.STANDARD_GRAVITY + np.abs(a).max(axis=1))
+    da = f_norm * (2 * e_q[:-1] + 19 * U) + U * (ref.STANDARD_GRAVITY + np.abs(a).max(axis=1))
     b = cfg.block
     e_v = 0.0
     e_p = 0.0
