@@ -142,8 +142,8 @@ int dr_calibrate(const dr_config *cfg, dr_state *st, const int16_t *samples, int
 
 /* q <- q (x) exp(omega dt / 2) for body rate omega (rad/s) held dt (s), then back to unit length.
  * With h = omega dt / 2 and x2 = |h|^2: exp = [cos|h|, sin|h| h/|h|], by the series
- * cos = 1 - x2/2 + x2^2/24 and sin/|h| = 1 - x2/6 + x2^2/120 (error below 1e-12 for |h| < 0.05 rad, i.e. any
- * MPU-6050 rate at 100 Hz or faster); no sqrt, no trigonometry. */
+ * cos = 1 - x2/2 + x2^2/24 and sin/|h| = 1 - x2/6 + x2^2/120 (truncation |h|^6/720: below 3e-11 for
+ * |h| < 0.05 rad, 6e-10 at 2000 degree/s and 5 ms, far under float32's 6e-8); no sqrt, no trigonometry. */
 static void dr_gyro_step(float q[4], const float omega[3], float dt) {
     float half = 0.5f * dt;
     float h[3];
