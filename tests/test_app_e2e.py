@@ -271,3 +271,19 @@ def test_log_rotation_on_a_small_filesystem(micropython, tmp_path):
             header, records = read_log(data, block=1024)
             assert header["board"] == "tbeam-smalllog"
     assert "LOG disabled" not in run.stdout
+
+
+def test_fifo_mode_keeps_the_rate(micropython, tmp_path):
+    board = tmp_path / "fifo.yaml"
+    board.write_text("extends: ttgo-tbeam-v1.1\nname: tbeam-fifo\nimu:\n  use_fifo: true\n")
+    out = generate_app(board, tmp_path / "out")
+    counts = write_counts(tmp_path / "imu.bin", imu_counts(16, RATE, pushes=[(12, 14, 0, 0.5)]))
+    gps = write_stream(tmp_path / "gps.txt", gps_chunks(1, 16))
+    run = run_app(micropython, out, tbeam_scenario(tmp_path, counts, gps, 16), tmp_path / "w")
+    assert run.returncode == 0, run.stderr
+    config = {(e["reg"], e["val"]) for e in run.events("mpu_config")}
+    assert (0x19, 4) in config
+    assert [e["on"] for e in run.events("mpu_fifo")] == [True]
+    for line in run.console("DIAG")[1:]:
+        assert "dropped=0" in line and abs(float(re.search(r"rate=([\d.]+)Hz", line).group(1)) - RATE) < 1.0, line
+    assert any(line.startswith("CAL ok") for line in run.stdout.splitlines())

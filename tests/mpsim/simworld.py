@@ -254,6 +254,8 @@ class Mpu6050:
         if reg == 0x6A and b & 0x04:
             self.fifo = bytearray()
             b &= ~0x04
+        if reg == 0x6A and (b ^ self.regs[0x6A]) & 0x40:
+            trace("mpu_fifo", on=bool(b & 0x40))
         if reg in (0x75, 0x3A) or 0x3B <= reg <= 0x48:
             return  # read-only
         self.regs[reg] = b
