@@ -48,6 +48,8 @@ class OrientationOptions:
     lm_wahba_tolerance_deg: float = 0.1
     poor_fit_chi2: float = 9.0  # reduced chi-square above which an interval is flagged
     estimate_bias: bool = True
+    bias_prior: float = 0.05 * STANDARD_GRAVITY  # m/s^2, 1-sigma prior of each bias component (MPU-6050: +-50 mg)
+    bias_max_chi2: float = 2.0  # a mounting fit worse than this cannot separate bias from tilt: bias not estimated
 
 
 def sample_edges(t: np.ndarray) -> np.ndarray:
@@ -219,10 +221,16 @@ class Mounting:
     sigma_bias: np.ndarray
     chi2: float  # reduced chi-square of the fit (1 when the device is rigidly mounted and sigmas are right)
     used: int
+    bias_rejected: bool = False  # a bias was sought but the fit was too poor to trust it (bias set to zero)
 
 
-def fit_mounting(iv: Intervals, estimate_bias: bool = True) -> Optional[Mounting]:
-    """Mounting M relative to the track and bias b: Rz(chi_k) M (a_k - b) = A_k + g z over all moving intervals."""
+def fit_mounting(iv: Intervals, estimate_bias: bool = True, bias_prior: float = 0.05 * STANDARD_GRAVITY,
+                 bias_max_chi2: float = float("inf")) -> Optional[Mounting]:
+    """Mounting M relative to the track and bias b: Rz(chi_k) M (a_k - b) = A_k + g z over all moving intervals.
+
+    The bias has a zero-mean prior of `bias_prior` per component: where the motion cannot tell a bias from a tilt
+    (no turns) it stays near zero instead of soaking up the misfit. The bias is only observable through the rigid
+    mounting; when that model fits worse than `bias_max_chi2` the bias is not estimated at all (set to zero)."""
     sel = iv.usable & iv.moving
     if sel.sum() < 6:
         return None
@@ -233,7 +241,8 @@ def fit_mounting(iv: Intervals, estimate_bias: bool = True) -> Optional[Mounting
         m = euler_matrix(*p[:3])
         b = p[3:] if estimate_bias else np.zeros(3)
         pred = np.einsum("kij,jl,kl->ki", rz, m, a - b)
-        return ((pred - target) * w[:, None]).ravel()
+        fit = ((pred - target) * w[:, None]).ravel()
+        return np.concatenate([fit, b / bias_prior]) if estimate_bias else fit
 
     # start from the tilt of the mean vector, yaw 0 (facing along the track)
     mean_a = a.mean(axis=0)
@@ -253,6 +262,10 @@ def fit_mounting(iv: Intervals, estimate_bias: bool = True) -> Optional[Mounting
         sig = np.sqrt(np.diag(cov))
     except np.linalg.LinAlgError:
         sig = np.full(n, np.inf)
+    if estimate_bias and chi2 > bias_max_chi2:
+        fixed = fit_mounting(iv, False)
+        fixed.bias_rejected = True
+        return fixed
     euler = np.array([wrap(best.x[0]), wrap(best.x[1]), wrap(best.x[2])])
     bias = best.x[3:] if estimate_bias else np.zeros(3)
     return Mounting(euler, bias, sig[:3], sig[3:] if estimate_bias else np.zeros(3), chi2, int(sel.sum()))

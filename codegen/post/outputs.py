@@ -104,6 +104,7 @@ def summary(result: PostResult) -> dict:
         "mounting_relative_to_track_deg": None if m is None else np.degrees(m.euler).tolist(),
         "mounting_sigma_deg": None if m is None else np.degrees(m.sigma_euler).tolist(),
         "mounting_fit_chi2": None if m is None else m.chi2,
+        "bias_rejected": None if m is None else m.bias_rejected,
         "angles_median_deg": np.median(e, axis=0).tolist() if len(e) else None,
         "angles_min_deg": e.min(axis=0).tolist() if len(e) else None,
         "angles_max_deg": e.max(axis=0).tolist() if len(e) else None,
@@ -134,7 +135,11 @@ def report_text(result: PostResult) -> str:
     else:
         lines.append(f"delay      {s['delay_s'] * 1e3:+.1f} ms (given)")
     b = np.array(s["accel_bias_sensor_mps2"]) / 9.80665e-3
-    lines.append(f"acc bias   x {b[0]:+.1f} mg, y {b[1]:+.1f} mg, z {b[2]:+.1f} mg (sensor frame, removed)")
+    if result.orientation.mounting is not None and result.orientation.mounting.bias_rejected:
+        lines.append("acc bias   not estimated: the device does not sit rigidly relative to the track (mounting fit "
+                     "chi2 too high), so a bias cannot be told from a tilt; give --accel-offset from a calibration")
+    else:
+        lines.append(f"acc bias   x {b[0]:+.1f} mg, y {b[1]:+.1f} mg, z {b[2]:+.1f} mg (sensor frame, removed)")
     if s["mounting_relative_to_track_deg"] is not None:
         m, ms = s["mounting_relative_to_track_deg"], s["mounting_sigma_deg"]
         lines.append(f"mounting   roll {m[0]:+.2f}+-{ms[0]:.2f}, pitch {m[1]:+.2f}+-{ms[1]:.2f}, yaw vs track {m[2]:+.2f}+-{ms[2]:.2f} deg "
@@ -225,5 +230,5 @@ def write_outputs(result: PostResult, folder: Path, plots: bool = True) -> dict[
     files["summary"].write_text(json.dumps(summary(result), indent=2) + "\n")
     if plots:
         for p in write_plots(result, folder):
-            files[p.stem] = p
+            files[f"plot_{p.stem}"] = p
     return files

@@ -93,14 +93,14 @@ def _orient(t, acc, log: PostLog, options: OrientationOptions, track: Optional[T
     if track is not None:
         iv.track = track
         iv.track_yaw, iv.moving = track.yaw(iv.mid)
-    mounting = fit_mounting(iv, options.estimate_bias)
+    mounting = fit_mounting(iv, options.estimate_bias, options.bias_prior, options.bias_max_chi2)
     bias1 = mounting.bias if mounting is not None else np.zeros(3)
     first = solve_orientations(iv, options, bias1, mounting)
     if not first.valid.any():
         raise UserError(f"{log.name}: no GPS interval has IMU samples; cannot find the orientation")
     up = np.array([euler_matrix(*e).T[:, 2] if np.isfinite(e).all() else [0.0, 0.0, 1.0] for e in first.euler])
     iv.acc_mean = turn_compensated_means(iv, t, acc - bias1, up)
-    mounting2 = fit_mounting(iv, options.estimate_bias)
+    mounting2 = fit_mounting(iv, options.estimate_bias, options.bias_prior, options.bias_max_chi2)
     bias2 = mounting2.bias if mounting2 is not None else np.zeros(3)
     result = solve_orientations(iv, options, bias2, mounting2, progress=progress)
     result.bias = bias1 + bias2
@@ -129,7 +129,8 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     for attempt in range(4):
         t = log.imu.t - delay
         iv = build_intervals(t, acc, gps.t, gps.vel, gps.sigma_vel, options.orientation.min_speed)
-        mounting = fit_mounting(iv, options.orientation.estimate_bias)
+        mounting = fit_mounting(iv, options.orientation.estimate_bias, options.orientation.bias_prior,
+                                options.orientation.bias_max_chi2)
         orientation = solve_orientations(iv, options.orientation, mounting.bias if mounting else np.zeros(3), mounting)
         if not orientation.valid.any():
             raise UserError(f"{log.name}: no GPS interval has IMU samples; cannot find the orientation")
