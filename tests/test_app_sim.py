@@ -1,0 +1,49 @@
+"""The app against the simulator's sensor models (codegen/sim, issue 6): a simulated car drive's MPU-6050 counts in
+the emulated chip, the NEO-6M model's NMEA in the UART, a GPS outage; the app follows the fixes, then dead-reckons.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from codegen.loader import load_board
+from conftest import require_tool
+from mpsim.harness import generate_app, run_app, tbeam_scenario, write_counts, write_stream
+
+
+def test_simulated_drive_with_outage(tmp_path):
+    micropython = require_tool("micropython")
+    sim_traj = pytest.importorskip("codegen.sim.trajectory")
+    from codegen.sim.mpu6050 import simulate_imu
+    from codegen.sim.neo6m import nmea_sentences, simulate_gps
+
+    board = load_board("ttgo-tbeam-v1.1").board
+    out = generate_app("ttgo-tbeam-v1.1", tmp_path / "out")
+    trajectory = sim_traj.make_scenario("car", seed=3, duration=50.0)
+    _, counts = simulate_imu(trajectory, board, seed=3)
+    track = simulate_gps(trajectory, seed=3, outages=[(32.0, 60.0)])
+    sentences = nmea_sentences(track)
+    per_epoch = len(sentences) // len(track.t)
+    chunks = [(float(track.t[i]) + 0.05, b"".join(sentences[per_epoch * i : per_epoch * (i + 1)]).decode())
+              for i in range(len(track.t))]
+    gps = write_stream(tmp_path / "gps.txt", chunks)
+    imu = write_counts(tmp_path / "imu.bin", counts)
+    scenario = tbeam_scenario(tmp_path, imu, gps, 48.0, rate_hz=board.imu.achieved_sample_rate_hz)
+    run = run_app(micropython, out, scenario, tmp_path / "w")
+    assert run.returncode == 0, run.stderr + run.stdout[-1500:]
+    assert "Traceback" not in run.stdout
+    # while fixes arrive the screen shows the receiver's position (to the 1e-7 degree of the NMEA's 5 decimals)
+    i = 25
+    screen = run.screen_at(track.t[i] + 0.9)
+    assert screen[0].startswith("GPS fix")
+    shown = float(screen[1].split()[0]) * (1 if screen[1].endswith("N") else -1)
+    assert abs(shown - track.lat[i]) < 2e-7
+    # the outage: IMU mode 3 s (fix_timeout_s) after the last fix, and the device keeps computing positions
+    modes = [line for line in run.stdout.splitlines() if line.startswith("MODE")]
+    assert modes == ["MODE GPS -> IMU"]
+    switch = [e for e in run.screens() if e["lines"][0].startswith("IMU")][0]["t_us"] / 1e6
+    assert 34.5 < switch < 36.5
+    imu_windows = [line for line in run.stdout.splitlines() if line.startswith("WIN") and "mode=IMU" in line]
+    assert len(imu_windows) >= 3
+    for line in run.console("DIAG")[1:]:
+        assert "dropped=0" in line, line
