@@ -62,6 +62,13 @@ def _head(lines):
     return lines[0].split()[0] if lines and lines[0] else ""
 
 
+def test_no_fix_yet_shows_no_position(modes_run):
+    run, _ = modes_run
+    screen = run.screen_at(0.9)  # before the first fix: no uninitialised GPS record on screen (the seed's bug)
+    assert screen[0] == "CAL 0s no fix" and screen[1] == "waiting for GPS" and screen[2] == ""
+    assert screen[6] == "calibrating"
+
+
 def test_gps_mode_screen(modes_run):
     run, _ = modes_run
     screen = run.screen_at(20)
