@@ -93,16 +93,17 @@ def geodetic_to_enu(lat, lon, h, origin) -> np.ndarray:
 
 
 def simulate_gps(trajectory, seed: int = 0, quality: str = "open-sky", rate_hz: float = 1.0,
-                 outages=(), origin=DEFAULT_ORIGIN, epoch=DEFAULT_EPOCH) -> GpsTrack:
+                 outages=(), origin=DEFAULT_ORIGIN, epoch=DEFAULT_EPOCH, times=None) -> GpsTrack:
     """NEO-6M fixes for `trajectory` (a codegen.sim.trajectory.Trajectory or anything with .at/.velocity_at/
-    .duration). outages: iterable of (start s, end s) with no fix."""
+    .duration). outages: iterable of (start s, end s) with no fix. times: the fix epochs (s), evenly spaced at
+    1/rate_hz, instead of whole seconds from 0 (the replay uses the recording's own epochs)."""
     if quality not in QUALITY:
         raise ValueError(f"unknown GPS quality {quality!r}; choose from {', '.join(QUALITY)}")
     if not 0 < rate_hz <= 5:
         raise ValueError(f"NEO-6M rate {rate_hz} Hz is outside 0..5 Hz")
     cep, vel_sigma, sats, hdop = QUALITY[quality]
     rng = np.random.default_rng(seed)
-    t = np.arange(0.0, trajectory.duration + 1e-9, 1.0 / rate_hz)
+    t = np.arange(0.0, trajectory.duration + 1e-9, 1.0 / rate_hz) if times is None else np.asarray(times, float)
     k = len(t)
     sigma = cep / CEP_PER_SIGMA
     pos_err = gauss_markov(rng, k, 1.0 / rate_hz, 1.0, POSITION_TAU_S) * [sigma, sigma, 1.5 * sigma]

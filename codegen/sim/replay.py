@@ -36,6 +36,12 @@ class RecordedTruth:
     rest_s: float
     name: str = "replay-walk"
 
+    def epochs(self, rate_hz: float) -> np.ndarray:
+        """The recording's own epochs decimated to rate_hz (4 Hz -> 1 Hz keeps every 4th), from t >= 0."""
+        step = max(1, int(round(1.0 / (rate_hz * np.median(np.diff(self.t))))))
+        first = int(np.searchsorted(self.t, 0.0))
+        return self.t[first::step]
+
     @property
     def duration(self) -> float:
         return float(self.t[-1])

@@ -56,7 +56,7 @@ def build_run(scenario: str, board, seed: int = 0, quality: str = "open-sky", du
         t_s, accel_g, gyro, truth = replay.load_walk(walk_dir)
         t_us, counts = mpu6050.degrade_recording(t_s, accel_g, gyro, board, seed=seed, errors=errors)
         gps = neo6m.simulate_gps(truth, seed=seed + 1000, quality=quality, rate_hz=board.gps.rate_hz,
-                                 origin=truth.origin)
+                                 origin=truth.origin, times=truth.epochs(board.gps.rate_hz))
         return RunData(scenario, board, seed, t_us, counts, gps, truth)
     if scenario not in trajectory.SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; choose from {', '.join(SCENARIOS)}")
