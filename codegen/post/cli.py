@@ -44,7 +44,7 @@ def _triple(text: str, what: str) -> np.ndarray:
 class Progress:
     """Stage and percentage on stderr, at most every half second (a long log keeps the user informed)."""
 
-    def __init__(self, stream=sys.stderr):
+    def __init__(self, stream=None):
         self.stream, self.last, self.stage = stream, 0.0, None
 
     def __call__(self, stage: str, fraction: float) -> None:
@@ -52,8 +52,9 @@ class Progress:
         if stage == self.stage and now - self.last < 0.5 and fraction < 1.0:
             return
         self.stage, self.last = stage, now
-        self.stream.write(f"post: {stage} {100 * fraction:3.0f}%\n")
-        self.stream.flush()
+        stream = self.stream or sys.stderr
+        stream.write(f"post: {stage} {100 * fraction:3.0f}%\n")
+        stream.flush()
 
 
 def run_from_args(args: argparse.Namespace) -> int:
