@@ -8,7 +8,9 @@ For every scenario (simulated static / push / walk / car, and the real walk repl
 seed, outages start every few seconds after calibration; each registered method (codegen.sim.methods: seed,
 const-velocity, hold-last-fix, and any plug-in such as the fused algorithm) estimates the position 10, 30 and 60 s
 into each outage. The table gives the horizontal error against truth, median and 90th percentile in metres, pooled
-over seeds and starts; "0 s" is the error of the last fix (every method starts there). The push scenario adds the
+over seeds and starts; "0 s" is the error of the last fix (every method starts there). A second table gives the
+drift: the error of the displacement since the last fix, which removes the NEO-6M's own error (a floor of ~2.5 m
+that no dead reckoning can remove, close to issue 8's 3 m goal at 10 s). The push scenario adds the
 seed's error E = |p_e - p| / |p_e| per push. A second table splits the seed method's error on the walk by MPU-6050
 error source (one at a time), to show what a better algorithm has to fight.
 """
@@ -61,20 +63,24 @@ def _pool(results):
 
 
 def goal_lines(pooled) -> list[str]:
-    """Per scenario: which methods reach issue 8's goals (medians, and below const-velocity at every horizon)."""
+    """Per scenario: which methods reach issue 8's goals (medians, and below const-velocity at every horizon),
+    on the absolute error and on the drift since the last fix."""
     lines = []
     for res in pooled:
         if res.scenario in ("static", "push"):
             continue
-        cv = res.errors.get("const-velocity")
-        for name, err in res.errors.items():
-            med = np.nanmedian(err[:, 1:], axis=0)
-            meets = all(m <= GOALS[h] for m, h in zip(med, res.horizons) if h in GOALS)
-            beats = cv is None or name == "const-velocity" or bool(np.all(med < np.nanmedian(cv[:, 1:], axis=0)))
-            if name not in ("const-velocity", "hold-last-fix"):
-                verdict = "meets" if meets and beats else "misses"
-                lines.append(f"  {res.scenario:12s} {name:15s} {verdict} the goals"
-                             + ("" if beats else " (not below const-velocity)"))
+        for name in res.errors:
+            if name in ("const-velocity", "hold-last-fix"):
+                continue
+            verdicts = []
+            for label, table in (("absolute", res.errors), ("drift", res.drift)):
+                med = np.nanmedian(table[name][:, 1:], axis=0)
+                meets = all(m <= GOALS[h] for m, h in zip(med, res.horizons) if h in GOALS)
+                cv = table.get("const-velocity")
+                beats = cv is None or bool(np.all(med < np.nanmedian(cv[:, 1:], axis=0)))
+                verdicts.append(f"{label}: {'meets' if meets and beats else 'misses'}"
+                                + ("" if beats else " (not below const-velocity)"))
+            lines.append(f"  {res.scenario:12s} {name:15s} " + "; ".join(verdicts))
     return lines
 
 
@@ -130,6 +136,8 @@ def main(argv=None) -> int:
     print(f"seeds: {args.seeds} per simulated scenario, {args.replay_seeds} for replay-walk; "
           "horizontal error (m) against truth, pooled over seeds and outage starts\n")
     print(format_table(pooled))
+    print("\ndrift: error of the displacement since the last fix (the fix's own error taken out), m\n")
+    print(format_table(pooled, drift=True))
     print("\ngoals of issue 8 (median <= 3 / 25 / 100 m at 10 / 30 / 60 s, below const-velocity):")
     for line in goal_lines(pooled):
         print(line)

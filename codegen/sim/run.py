@@ -6,7 +6,9 @@
 
 Metrics (issue 6): for outages starting every `step` seconds (fixed by the seed, never inside the calibration),
 the horizontal error |p_est - p_true| at each horizon after GPS loss; median and 90th percentile per method.
-The "0 s" column is the error of the last fix itself (where every method starts). For the push scenario also
+The "0 s" column is the error of the last fix itself (where every method starts). The drift variant measures
+the displacement since the last fix instead, |(p_est(t) - p_est(t_fix)) - (p(t) - p(t_fix))|, which takes the
+fix's own (metre-level, slowly varying) error out. For the push scenario also
 the seed's error E = |p_e - p| / |p_e| per push, p_e the true and p the estimated displacement over the push.
 """
 
@@ -81,14 +83,16 @@ class Result:
     scenario: str
     horizons: tuple[float, ...]
     errors: dict[str, np.ndarray]  # method -> (S, H+1) m: column 0 is at the moment of loss, NaN where untrusted
+    drift: dict[str, np.ndarray] = field(default_factory=dict)  # method -> (S, H+1) m: displacement error
     push_e: dict[str, np.ndarray] = field(default_factory=dict)  # method -> (P,) seed error E per push
     starts: np.ndarray | None = None
     seeds: int = 1
 
     def merge(self, other: "Result") -> "Result":
         errors = {m: np.vstack([self.errors[m], other.errors[m]]) for m in self.errors}
+        drift = {m: np.vstack([self.drift[m], other.drift[m]]) for m in self.drift}
         push_e = {m: np.concatenate([self.push_e.get(m, []), other.push_e.get(m, [])]) for m in self.errors}
-        return Result(self.scenario, self.horizons, errors, push_e, None, self.seeds + other.seeds)
+        return Result(self.scenario, self.horizons, errors, drift, push_e, None, self.seeds + other.seeds)
 
 
 def evaluate(run: RunData, horizons=DEFAULT_HORIZONS, methods=None, step: float = 5.0) -> Result:
@@ -101,12 +105,14 @@ def evaluate(run: RunData, horizons=DEFAULT_HORIZONS, methods=None, step: float 
     times = np.hstack([t_fix[:, None], starts[:, None] + np.array(horizons)[None, :]])
     truth = run.truth.at(times)[..., :2]
     ok = run.trusted(times)
-    errors = {}
+    errors, drift = {}, {}
     for name, fn in methods.items():
         est = fn(run, starts, times)
         err = np.linalg.norm(est - truth, axis=-1)
         errors[name] = np.where(ok, err, np.nan)
-    result = Result(run.scenario, horizons, errors, starts=starts)
+        moved = np.linalg.norm((est - est[:, :1]) - (truth - truth[:, :1]), axis=-1)
+        drift[name] = np.where(ok & ok[:, :1], moved, np.nan)
+    result = Result(run.scenario, horizons, errors, drift, starts=starts)
     pushes = run.events.get("pushes")
     if pushes:
         p_start = np.array([p[0] for p in pushes]) - 0.5
@@ -120,8 +126,9 @@ def evaluate(run: RunData, horizons=DEFAULT_HORIZONS, methods=None, step: float 
     return result
 
 
-def format_table(results: list[Result], file=None) -> str:
-    """The metrics table: one row per scenario x method; median / 90th percentile in metres per horizon."""
+def format_table(results: list[Result], file=None, drift: bool = False) -> str:
+    """The metrics table: one row per scenario x method; median / 90th percentile in metres per horizon.
+    drift=True tabulates the displacement error since the last fix instead (the fix's own error taken out)."""
     lines = []
     horizons = results[0].horizons
     head = f"{'scenario':12s} {'method':15s} {'outages':>7s} {'0 s':>6s}"
@@ -132,7 +139,7 @@ def format_table(results: list[Result], file=None) -> str:
     lines.append(head)
     lines.append("-" * len(head))
     for res in results:
-        for name, err in res.errors.items():
+        for name, err in (res.drift if drift else res.errors).items():
             n = int(np.sum(~np.isnan(err[:, -1])))
             row = f"{res.scenario:12s} {name:15s} {n:7d} {np.nanmedian(err[:, 0]):6.1f}"
             for j in range(1, len(horizons) + 1):
