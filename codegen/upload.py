@@ -1,0 +1,374 @@
+"""`deadreckon upload OUT --port PORT`: the built app onto a board already running MicroPython, by raw REPL.
+
+The raw REPL (MicroPython docs, "raw mode and raw-paste mode"): Ctrl-C stops the running program, Ctrl-A enters
+raw mode ("raw REPL; CTRL-B to exit" then ">"), the host sends code and Ctrl-D, the board answers "OK", the
+program's stdout, \\x04, its stderr (a traceback), \\x04 and ">" again. Raw-paste mode (\\x05A\\x01, answered
+"R\\x01" + a 16-bit window size) adds flow control: the host sends a window of bytes and waits for \\x01 before
+the next; it is used where the board offers it, and standard raw mode (written in small, paced chunks) otherwise.
+
+Only files whose SHA-256 differs from the board's copy are sent, each to a temporary name and renamed into place,
+so an interrupted upload never leaves half a module. A `.py` on the board that would shadow a new `.mpy` of the
+same module (MicroPython imports `.py` first) is removed, and the other way round. A soft reset ends the upload,
+which starts the app. Ports may be device paths or pyserial URLs (`socket://host:port`, `rfc2217://host:port`).
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import struct
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+from codegen.errors import UserError
+
+Progress = Callable[[str], None]
+
+RAW_BANNER = b"raw REPL; CTRL-B to exit\r\n"
+CHUNK = 2048  # file bytes per REPL command (base64 makes it ~2.7 kB of code), small for a board's heap
+PACED_WRITE = 256  # bytes per write in standard raw mode, with a pause, so a board's UART buffer keeps up
+PACE_SECONDS = 0.01
+KEEP_AS_SOURCE = ("main.py", "boot.py")
+
+
+class ReplError(Exception):
+    """The board answered, but not as a raw REPL should (or raised an exception running our code)."""
+
+
+@dataclass
+class UploadResult:
+    sent: list[str] = field(default_factory=list)
+    unchanged: list[str] = field(default_factory=list)
+    removed: list[str] = field(default_factory=list)
+    raw_paste: bool = False
+    seconds: float = 0.0
+
+
+def open_port(port: str, baud: int = 115200):
+    """Open a serial port or pyserial URL without resetting the board; UserError with the fix if it fails."""
+    import serial
+
+    try:
+        if "://" in port:
+            handle = serial.serial_for_url(port, baudrate=baud, timeout=0.05, do_not_open=True)
+        else:
+            handle = serial.Serial(baudrate=baud, timeout=0.05)
+            handle.port = port
+            handle.exclusive = True
+        handle.dtr = False  # with auto-reset circuits, DTR/RTS would reset or hold the ESP32 in its bootloader
+        handle.rts = False
+        handle.open()
+        sock = getattr(handle, "_socket", None)  # socket:// ports: no Nagle delay on our small REPL writes
+        if sock is not None:
+            import socket
+
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        return handle
+    except (serial.SerialException, OSError, ValueError) as exc:
+        from codegen.flash import _busy_hint, _ports_hint
+
+        text = str(exc)
+        lower = text.lower()
+        if "no such file" in lower or "could not open port" in lower and "errno 2]" in lower:
+            raise UserError(f"no such port {port}", hint=_ports_hint())
+        if "permission denied" in lower or "errno 13]" in lower:
+            raise UserError(
+                f"permission denied on {port}",
+                hint="add yourself to the port's group (`sudo usermod -aG dialout $USER`, then log in again)",
+            )
+        if "busy" in lower or "lock" in lower:
+            raise UserError(f"port {port} is busy", hint=_busy_hint())
+        if "refused" in lower:
+            raise UserError(f"nothing answers at {port}", hint="is the bridge or telnet server running?")
+        raise UserError(f"cannot open {port}: {text}")
+
+
+class RawRepl:
+    """A raw-REPL session on an open pyserial port."""
+
+    def __init__(self, serial, use_raw_paste: bool = True):
+        self.serial = serial
+        self.use_raw_paste = use_raw_paste
+        self.raw_paste_used = False
+
+    def read_until(self, ending: bytes, timeout: float) -> bytes:
+        data = b""
+        deadline = time.monotonic() + timeout
+        while not data.endswith(ending):
+            chunk = self.serial.read(max(1, min(self.serial.in_waiting, 4096)))
+            if chunk:
+                data += chunk
+                deadline = max(deadline, time.monotonic() + min(timeout, 1.0))  # still talking: keep waiting
+            elif time.monotonic() > deadline:
+                raise ReplError(f"timed out waiting for {ending!r}; got {data[-80:]!r}")
+        return data
+
+    def drain(self, quiet: float = 0.1) -> bytes:
+        """Read whatever the board prints until it has been quiet for `quiet` seconds."""
+        data = b""
+        last = time.monotonic()
+        while time.monotonic() - last < quiet:
+            chunk = self.serial.read(max(1, self.serial.in_waiting))
+            if chunk:
+                data += chunk
+                last = time.monotonic()
+        return data
+
+    def enter(self) -> None:
+        """Stop the running program and enter raw mode."""
+        for attempt in range(3):
+            self.serial.write(b"\r\x03\x03")  # interrupt main.py (twice: one may land inside a handler)
+            self.drain(0.1 + 0.2 * attempt)
+            self.serial.reset_input_buffer()
+            self.serial.write(b"\r\x01")
+            try:
+                self.read_until(RAW_BANNER + b">", timeout=2.0)
+                return
+            except ReplError:
+                continue
+        raise ReplError("the board did not enter the raw REPL (is MicroPython running on it?)")
+
+    def _send_raw_paste(self, code: bytes) -> bool:
+        """Send `code` in raw-paste mode; False if the board refuses (then nothing was consumed)."""
+        self.serial.write(b"\x05A\x01")
+        answer = self.serial.read(2)
+        if answer == b"R\x00":
+            self.use_raw_paste = False
+            return False
+        if answer != b"R\x01":
+            # a board older than raw-paste took the bytes as raw input; its Ctrl-A re-entered raw mode
+            self.use_raw_paste = False
+            if not (answer + self.drain(0.3)).endswith(RAW_BANNER + b">"):
+                raise ReplError(f"the board answered {answer!r} to the raw-paste request")
+            return False
+        window = struct.unpack("<H", self.read_exact(2, timeout=2.0))[0]
+        remaining = window
+        index = 0
+        while index < len(code):
+            while remaining == 0 or self.serial.in_waiting:
+                byte = self.read_exact(1, timeout=5.0)
+                if byte == b"\x01":
+                    remaining += window
+                elif byte == b"\x04":  # the board ended the paste early (a compile error is coming)
+                    self.serial.write(b"\x04")
+                    return True
+                else:
+                    raise ReplError(f"unexpected {byte!r} from the board during raw paste")
+            piece = code[index : index + remaining]
+            self.serial.write(piece)
+            index += len(piece)
+            remaining -= len(piece)
+        self.serial.write(b"\x04")
+        self.read_until(b"\x04", timeout=5.0)  # compiled: execution output follows
+        self.raw_paste_used = True
+        return True
+
+    def read_exact(self, count: int, timeout: float) -> bytes:
+        data = b""
+        deadline = time.monotonic() + timeout
+        while len(data) < count:
+            data += self.serial.read(count - len(data))
+            if len(data) < count and time.monotonic() > deadline:
+                raise ReplError(f"timed out reading {count} bytes from the board; got {data!r}")
+        return data
+
+    def exec(self, code: str | bytes, timeout: float = 10.0) -> bytes:
+        """Run `code` on the board; return its stdout; raise ReplError with the board's traceback on error."""
+        code = code.encode() if isinstance(code, str) else code
+        if not (self.use_raw_paste and self._send_raw_paste(code)):
+            code += b"\x04"
+            for index in range(0, len(code), PACED_WRITE):
+                self.serial.write(code[index : index + PACED_WRITE])
+                if len(code) > PACED_WRITE:
+                    time.sleep(PACE_SECONDS)
+            answer = self.read_exact(2, timeout=timeout)
+            if answer != b"OK":
+                raise ReplError(f"the board did not accept the code: {answer + self.drain(0.2)!r}")
+        out = self.read_until(b"\x04", timeout)[:-1]
+        err = self.read_until(b"\x04", timeout)[:-1]
+        self.read_until(b">", timeout)
+        if err:
+            raise ReplError(err.decode("utf-8", "replace").strip())
+        return out
+
+    def soft_reset(self) -> bytes:
+        """Leave raw mode and soft-reset, which runs boot.py and main.py."""
+        self.serial.write(b"\x02")
+        self.drain(0.1)
+        self.serial.write(b"\x04")
+        try:
+            return self.read_until(b"soft reboot\r\n", timeout=3.0)
+        except ReplError:
+            return b""
+
+
+HASH_SCRIPT = """
+import os
+try:
+    import hashlib
+except ImportError:
+    hashlib = None
+def _h(p):
+    try:
+        f = open(p, 'rb')
+    except OSError:
+        return '-'
+    if hashlib is None:
+        f.close()
+        return '?'
+    h = hashlib.sha256()
+    b = bytearray(512)
+    while True:
+        n = f.readinto(b)
+        if not n:
+            break
+        h.update(memoryview(b)[:n])
+    f.close()
+    return ''.join('%02x' % x for x in h.digest())
+for _p in {paths!r}:
+    print(_p, _h('/' + _p))
+"""
+
+
+def device_hashes(repl: RawRepl, paths: list[str]) -> dict[str, str]:
+    """SHA-256 hex of each path on the board: '-' where absent, '?' where the board has no hashlib."""
+    out = repl.exec(HASH_SCRIPT.format(paths=list(paths)), timeout=30.0).decode()
+    found = {}
+    for line in out.splitlines():
+        name, _, digest = line.strip().rpartition(" ")
+        if name:
+            found[name] = digest
+    return found
+
+
+def ensure_dirs(repl: RawRepl, paths: list[str]) -> None:
+    folders = sorted({"/".join(p.split("/")[:i]) for p in paths for i in range(1, p.count("/") + 1)},
+                     key=lambda d: (d.count("/"), d))
+    if not folders:
+        return
+    repl.exec(
+        "import os\n"
+        f"for _d in {folders!r}:\n"
+        "    try:\n"
+        "        os.mkdir('/' + _d)\n"
+        "    except OSError:\n"
+        "        pass\n"
+    )
+
+
+def send_file(repl: RawRepl, rel: str, data: bytes) -> None:
+    """Write `data` to /rel on the board through a temporary file renamed into place."""
+    target = "/" + rel
+    part = target + ".part"
+    repl.exec(f"import os, binascii\n_f = open({part!r}, 'wb')\n_w = _f.write\n_a = binascii.a2b_base64")
+    try:
+        for index in range(0, len(data), CHUNK):
+            encoded = base64.b64encode(data[index : index + CHUNK])  # bytes: some ports take no str here
+            repl.exec(f"_w(_a({encoded!r}))")
+    finally:
+        repl.exec("_f.close()")
+    repl.exec(
+        "try:\n"
+        f"    os.remove({target!r})\n"
+        "except OSError:\n"
+        "    pass\n"
+        f"os.rename({part!r}, {target!r})\n"
+    )
+
+
+def remove_files(repl: RawRepl, paths: list[str]) -> None:
+    if paths:
+        repl.exec(
+            "import os\n"
+            f"for _p in {paths!r}:\n"
+            "    try:\n"
+            "        os.remove('/' + _p)\n"
+            "    except OSError:\n"
+            "        pass\n"
+        )
+
+
+def shadows(rel: str) -> Optional[str]:
+    """The other form of a module (`x.py` for `x.mpy` and back) that must not stay beside it."""
+    if rel.endswith(".mpy"):
+        return rel[:-4] + ".py"
+    if rel.endswith(".py") and rel not in KEEP_AS_SOURCE:
+        return rel[:-3] + ".mpy"
+    return None
+
+
+def local_files(app_dir: Path) -> dict[str, bytes]:
+    return {
+        p.relative_to(app_dir).as_posix(): p.read_bytes()
+        for p in sorted(app_dir.rglob("*"))
+        if p.is_file() and not p.name.endswith(".part")
+    }
+
+
+def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: bool = True,
+                  reset: bool = True, progress: Progress = print) -> UploadResult:
+    """Make the board's filesystem root hold every file of `app_dir`; send only what differs."""
+    started = time.monotonic()
+    files = local_files(app_dir)
+    if not files:
+        raise UserError(f"{app_dir} is empty: nothing to upload", hint="run `deadreckon build OUT` first")
+    result = UploadResult()
+    handle = open_port(port)
+    try:
+        repl = RawRepl(handle, use_raw_paste=use_raw_paste)
+        try:
+            repl.enter()
+            others = sorted({s for s in map(shadows, files) if s and s not in files})
+            on_board = device_hashes(repl, sorted(files) + others)
+            stale = [p for p in others if on_board.get(p, "-") != "-"]
+            remove_files(repl, stale)
+            result.removed = stale
+            for rel in stale:
+                progress(f"  removed {rel} (it would shadow the new {shadows(rel)})")
+            ensure_dirs(repl, sorted(files))
+            for rel, data in files.items():
+                digest = hashlib.sha256(data).hexdigest()
+                if not force and on_board.get(rel) == digest:
+                    result.unchanged.append(rel)
+                    progress(f"  unchanged {rel}")
+                    continue
+                send_file(repl, rel, data)
+                result.sent.append(rel)
+                progress(f"  sent      {rel} ({len(data)} bytes)")
+            if result.sent:
+                check = device_hashes(repl, result.sent)
+                bad = [rel for rel in result.sent if check.get(rel) not in (hashlib.sha256(files[rel]).hexdigest(), "?")]
+                if bad:
+                    raise UserError(f"the board's copy of {', '.join(bad)} differs from what was sent",
+                                    hint="run the upload again; check the filesystem has room (`df` in the REPL)")
+            result.raw_paste = repl.raw_paste_used
+            if reset:
+                repl.soft_reset()
+        except ReplError as exc:
+            text = str(exc)
+            if "ENOSPC" in text or "28]" in text:
+                raise UserError("the board's filesystem is full", hint="remove files from the board, or flash a "
+                                "fresh filesystem image with `deadreckon flash`")
+            raise UserError(f"upload to {port} failed: {text.splitlines()[-1] if text else 'no answer'}",
+                            hint="is MicroPython running on the board (not its bootloader, not another program "
+                                 "holding the port)? Try again after pressing RESET")
+    finally:
+        handle.close()
+    result.seconds = time.monotonic() - started
+    progress(f"uploaded {len(result.sent)} file(s), {len(result.unchanged)} unchanged, in {result.seconds:.1f} s"
+             f"{' (raw-paste)' if result.raw_paste else ''}")
+    return result
+
+
+def upload(out: Path, port: str, force: bool = False, use_raw_paste: bool = True,
+           progress: Progress = print) -> UploadResult:
+    """Upload OUT/build/app (from `deadreckon build OUT`) to the board on `port`."""
+    from codegen.build import BUILD_DIR
+
+    app_dir = Path(out) / BUILD_DIR / "app"
+    if not app_dir.is_dir():
+        raise UserError(f"{app_dir} does not exist", hint=f"run `deadreckon build {out}` first")
+    progress(f"uploading {app_dir} to {port}")
+    return upload_folder(app_dir, port, force=force, use_raw_paste=use_raw_paste, progress=progress)

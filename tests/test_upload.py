@@ -1,0 +1,144 @@
+"""`deadreckon upload`: raw REPL onto real MicroPython (the WebAssembly port behind tests/peers/repl_bridge.mjs),
+first shown faithful with the real mpremote client, then driven by our uploader."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from codegen.build import build
+from codegen.errors import UserError
+from codegen.upload import upload, upload_folder
+from conftest import require
+from peers.repl_peer import ReplPeer, missing_reason
+from peers.trees import default_board, make_tree
+
+
+def quiet(_line: str) -> None:
+    pass
+
+
+@pytest.fixture
+def peer(tmp_path):
+    reason = missing_reason()
+    require(reason is None, reason or "")
+    with ReplPeer(tmp_path / "board") as p:
+        yield p
+
+
+@pytest.fixture
+def built(tmp_path):
+    tree = make_tree(tmp_path / "out")
+    return tree, build(tree, board=default_board(), progress=quiet, image=False)
+
+
+def mpremote(peer: ReplPeer, *args: str) -> subprocess.CompletedProcess:
+    result = subprocess.run([sys.executable, "-m", "mpremote", "connect", peer.url, *args], capture_output=True,
+                            text=True, timeout=60)
+    peer.wait_idle()
+    return result
+
+
+def test_mpremote_works_against_the_peer(peer, tmp_path):
+    require(subprocess.run([sys.executable, "-c", "import mpremote"]).returncode == 0, "mpremote is not installed")
+    (peer.root / "hello.py").write_text("GREETING = 'hi from the board'\n")
+    peer.stop()
+    with ReplPeer(peer.root) as board:  # files present at start are on the board's filesystem
+        listing = mpremote(board, "fs", "ls")
+        assert listing.returncode == 0, listing.stderr
+        assert "hello.py" in listing.stdout
+        source = tmp_path / "x.py"
+        source.write_text("X = 41\n")
+        copied = mpremote(board, "fs", "mkdir", "lib", "+", "fs", "cp", str(source), ":lib/x.py")
+        assert copied.returncode == 0, copied.stderr
+        assert board.files()["lib/x.py"] == b"X = 41\n"
+        ran = mpremote(board, "exec", "import hello; from lib import x; print(hello.GREETING, x.X + 1)")
+        assert ran.stdout.strip() == "hi from the board 42", ran.stderr
+        missing = mpremote(board, "fs", "cat", "nope.py")
+        assert missing.returncode != 0 and "No such file or directory" in missing.stderr  # errno mapped
+
+
+def test_upload_sends_only_what_differs(peer, built):
+    tree, result = built
+    first = upload(tree, peer.url, progress=quiet)
+    peer.wait_idle()
+    assert sorted(first.sent) == sorted(result.files) and not first.raw_paste
+    assert peer.files() == {rel: (result.app_dir / rel).read_bytes() for rel in result.files}
+
+    second = upload(tree, peer.url, progress=quiet)
+    peer.wait_idle()
+    assert second.sent == [] and sorted(second.unchanged) == sorted(result.files)
+
+    (result.app_dir / "lib" / "util.mpy").write_bytes(b"changed")
+    third = upload(tree, peer.url, progress=quiet)
+    peer.wait_idle()
+    assert third.sent == ["lib/util.mpy"]
+    assert peer.files()["lib/util.mpy"] == b"changed"
+
+    forced = upload(tree, peer.url, force=True, progress=quiet)
+    peer.wait_idle()
+    assert sorted(forced.sent) == sorted(result.files)
+
+
+def test_a_stale_py_that_would_shadow_the_new_mpy_is_removed(peer, built):
+    tree, result = built
+    (peer.root / "app.py").write_text("raise RuntimeError('old source')\n")
+    peer.stop()
+    with ReplPeer(peer.root) as board:
+        outcome = upload(tree, board.url, progress=quiet)
+        board.wait_idle()
+        assert outcome.removed == ["app.py"]
+        assert "app.py" not in board.files() and "app.mpy" in board.files()
+
+
+def test_uploaded_mpy_runs_on_micropython(peer, built):
+    require(subprocess.run([sys.executable, "-c", "import mpremote"]).returncode == 0, "mpremote is not installed")
+    tree, result = built
+    upload(tree, peer.url, progress=quiet)
+    peer.wait_idle()
+    ran = mpremote(peer, "exec", "import app; app.run()")
+    assert ran.stdout.strip() == "deadreckon 42", ran.stderr
+
+
+def test_upload_in_raw_paste_mode(tmp_path, built):
+    reason = missing_reason()
+    require(reason is None, reason or "")
+    tree, result = built
+    blob = bytes(range(256)) * 40  # 10 kB of every byte value, several chunks
+    (result.app_dir / "data.bin").write_bytes(blob)
+    with ReplPeer(tmp_path / "board", raw_paste=True) as board:
+        outcome = upload(tree, board.url, progress=quiet)
+        board.wait_idle()
+        assert outcome.raw_paste
+        assert board.files()["data.bin"] == blob
+        assert board.files() == {p.relative_to(result.app_dir).as_posix(): p.read_bytes()
+                                 for p in result.app_dir.rglob("*") if p.is_file()}
+
+
+def test_upload_needs_a_build(tmp_path):
+    tree = make_tree(tmp_path / "out")
+    with pytest.raises(UserError) as failure:
+        upload(tree, "socket://127.0.0.1:9", progress=quiet)
+    assert "build/app does not exist" in failure.value.message and "deadreckon build" in failure.value.hint
+
+
+def test_upload_errors_name_the_port(built):
+    tree, _ = built
+    with pytest.raises(UserError, match="no such port /dev/ttyDEADRECKON0"):
+        upload(tree, "/dev/ttyDEADRECKON0", progress=quiet)
+    with pytest.raises(UserError, match="nothing answers at socket://127.0.0.1:9"):
+        upload(tree, "socket://127.0.0.1:9", progress=quiet)
+
+
+def test_upload_cli(peer, built, capsys):
+    from codegen.cli import main
+
+    tree, result = built
+    assert main(["upload", str(tree), "--port", peer.url]) == 0
+    peer.wait_idle()
+    assert "uploaded" in capsys.readouterr().out
+    assert main(["upload", str(tree), "--port", "socket://127.0.0.1:9"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: nothing answers") and "Traceback" not in err
