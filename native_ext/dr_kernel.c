@@ -25,7 +25,7 @@ int dr_config_set(dr_config *cfg, int32_t block, int32_t window, float accel_lsb
     if (block < 1) {
         return DR_ERR_BLOCK;
     }
-    for (rest = window; rest >= block; rest -= block) {
+    for (rest = window; rest >= block; rest -= block) { /* no `%`: the Cortex-M0+ has no divide instruction */
     }
     if (window < 1 || rest != 0) {
         return DR_ERR_WINDOW;
@@ -54,6 +54,20 @@ void dr_state_init(dr_state *st) {
     }
 }
 
+/* Returns 1 if cfg can index samples and scratch safely (it may come from a caller's buffer), else 0. */
+static int dr_config_usable(const dr_config *cfg) {
+    int i;
+    if (cfg->block < 1) {
+        return 0;
+    }
+    for (i = 0; i < 3; i++) {
+        if (cfg->axis_source[i] < 0 || cfg->axis_source[i] > 2) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
 /* body[0..5] = sample s (sensor frame, counts) remapped to the body frame, as floats. */
 static void dr_remap(const dr_config *cfg, const int16_t *s, float body[6]) {
     int i;
@@ -75,6 +89,9 @@ int dr_calibrate(const dr_config *cfg, dr_state *st, const int16_t *samples, int
     float inv_count, norm, w;
     int32_t k, chunk;
     int i, moved = 0;
+    if (!dr_config_usable(cfg)) {
+        return DR_ERR_RANGE;
+    }
     if (count < 1) {
         return DR_ERR_COUNT;
     }
@@ -178,7 +195,10 @@ int dr_process(const dr_config *cfg, dr_state *st, float *scratch, const int16_t
     float body[6], omega[3], a[3];
     int32_t start, rest, k, blocks = 0;
     int i;
-    if (count < 1 || b < 1) {
+    if (!dr_config_usable(cfg)) {
+        return DR_ERR_RANGE;
+    }
+    if (count < 1) {
         return DR_ERR_COUNT;
     }
     for (rest = count; rest >= b; rest -= b) {

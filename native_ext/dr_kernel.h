@@ -22,7 +22,8 @@
 #define DR_ERR_BLOCK (-1)     /* block < 1 */
 #define DR_ERR_WINDOW (-2)    /* window < 1 or not a multiple of block */
 #define DR_ERR_COUNT (-3)     /* sample count < 1 or not a multiple of block */
-#define DR_ERR_RANGE (-4)     /* a scale or threshold is not positive, or the deadband is negative */
+#define DR_ERR_RANGE (-4)     /* a scale or threshold is not positive, the deadband negative, or (dr_calibrate,
+                                 * dr_process) the config is unusable: block < 1 or an axis source outside 0..2 */
 
 /* Floats of scratch dr_process needs for block size b: one block of ENU accelerations per axis. */
 #define DR_SCRATCH_FLOATS(block) (3 * (block))
@@ -59,7 +60,7 @@ void dr_state_init(dr_state *st);
 
 /* Calibrates st from count >= 1 raw samples at rest, interleaved [ax, ay, az, gx, gy, gz] in the sensor frame:
  * tilt from the mean specific force (yaw 0), gyro bias = mean gyro counts, velocity 0.
- * Returns DR_OK, DR_MOVED (st is updated all the same) or DR_ERR_COUNT (st unchanged). */
+ * Returns DR_OK, DR_MOVED (st is updated all the same), DR_ERR_COUNT or DR_ERR_RANGE (st unchanged). */
 int dr_calibrate(const dr_config *cfg, dr_state *st, const int16_t *samples, int32_t count);
 
 /* Processes count raw samples (a multiple of cfg->block), interleaved [ax, ay, az, gx, gy, gz] in the sensor frame,
@@ -67,7 +68,7 @@ int dr_calibrate(const dr_config *cfg, dr_state *st, const int16_t *samples, int
  * scratch: DR_SCRATCH_FLOATS(cfg->block) floats. out: displacement East, North, Up (m) over the samples, then the
  * velocity East, North, Up (m/s) at their end. medians: NULL, or 3 * count / block floats receiving the block
  * medians after the deadband (m/s^2, block-major: E, N, U of block 0, then block 1, ...).
- * Returns DR_OK or DR_ERR_COUNT (nothing changed). */
+ * Returns DR_OK, DR_ERR_COUNT or DR_ERR_RANGE (nothing changed). */
 int dr_process(const dr_config *cfg, dr_state *st, float *scratch, const int16_t *samples, const int32_t *dt_us,
                int32_t count, float out[6], float *medians);
 

@@ -43,6 +43,11 @@ static mp_int_t dr_state_len(mp_int_t block) {
     return DR_HEADER_FLOATS + 3 * block;
 }
 
+/* 1 if a state buffer of `floats` floats holds the scratch of `block` (compared without overflowing 3 * block). */
+static int dr_fits(mp_int_t floats, mp_int_t block) {
+    return block >= 1 && block <= (floats - DR_HEADER_FLOATS) / 3;
+}
+
 /* The kernel structs inside a state buffer; checks its size against the block stored in it. */
 static float *dr_unpack(mp_obj_t state_obj, dr_state **st, dr_config **cfg, mp_int_t *floats) {
     mp_buffer_info_t info;
@@ -66,6 +71,7 @@ static void dr_raise(int code) {
             mp_raise_ValueError(MP_ERROR_TEXT("window must be a positive multiple of block"));
         case DR_ERR_COUNT:
             mp_raise_ValueError(MP_ERROR_TEXT("sample count must be a positive multiple of block"));
+        case DR_ERR_RANGE:
         default:
             mp_raise_ValueError(MP_ERROR_TEXT("ranges and threshold must be > 0, deadband >= 0"));
     }
@@ -96,7 +102,7 @@ static mp_obj_t dr_init_fn(size_t n_args, const mp_obj_t *args) {
     } else if (n_args != 1) {
         mp_raise_TypeError(MP_ERROR_TEXT("init takes state, or state and 6 parameters"));
     }
-    if (floats < dr_state_len(fresh.block)) {
+    if (!dr_fits(floats, fresh.block)) {
         mp_raise_ValueError(MP_ERROR_TEXT("state buffer shorter than state_len(block)"));
     }
     dr_config_init(cfg);
@@ -118,6 +124,9 @@ static mp_obj_t dr_calibrate_fn(mp_obj_t state_obj, mp_obj_t samples_obj) {
     int code;
     (void)dr_unpack(state_obj, &st, &cfg, &floats);
     dr_get_array(samples_obj, &samples, MP_BUFFER_READ, 'h');
+    if (!dr_fits(floats, cfg->block)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("state not initialised by init() or shorter than state_len(block)"));
+    }
     code = dr_calibrate(cfg, st, (const int16_t *)samples.buf, (int32_t)(samples.len / (6 * sizeof(int16_t))));
     if (code < 0) {
         dr_raise(code);
@@ -138,7 +147,7 @@ static mp_obj_t dr_process_fn(size_t n_args, const mp_obj_t *args) {
     dr_get_array(args[1], &samples, MP_BUFFER_READ, 'h');
     dr_get_array(args[2], &dt, MP_BUFFER_READ, 'i');
     dr_get_array(args[3], &out, MP_BUFFER_RW, 'f');
-    if (cfg->block < 1 || floats < dr_state_len(cfg->block)) {
+    if (!dr_fits(floats, cfg->block)) {
         mp_raise_ValueError(MP_ERROR_TEXT("state not initialised by init() or shorter than state_len(block)"));
     }
     count = (mp_int_t)(samples.len / (6 * sizeof(int16_t)));

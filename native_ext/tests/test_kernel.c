@@ -86,6 +86,17 @@ static void test_config(void) {
     CHECK(dr_config_set(&cfg, 16, 512, -1.0f, 131.0f, 0.03f, 0.02f) == DR_ERR_RANGE);
     CHECK(dr_config_set(&cfg, 16, 512, 16384.0f, 131.0f, 0.03f, 0.02f) == DR_OK);
     CHECK(cfg.accel_ms2_per_lsb * 16384.0f == DR_GRAVITY_MS2);
+    {
+        dr_state st;
+        float out[6];
+        dr_config bad = cfg;
+        bad.axis_source[1] = 7; /* a config read from a corrupted buffer must not index outside a sample */
+        CHECK(dr_process(&bad, &st, scratch, samples, dt_us, 16, out, 0) == DR_ERR_RANGE);
+        CHECK(dr_calibrate(&bad, &st, samples, 16) == DR_ERR_RANGE);
+        bad = cfg;
+        bad.block = 0;
+        CHECK(dr_process(&bad, &st, scratch, samples, dt_us, 16, out, 0) == DR_ERR_RANGE);
+    }
 }
 
 static void test_constant_acceleration(void) {
