@@ -1,0 +1,163 @@
+"""Accuracy of `deadreckon post` (issue 7): the synthetic acceptance table and the real walk recording.
+
+    python3 benchmarks/post.py            # both (about two minutes on one core)
+    python3 benchmarks/post.py synthetic  # only the acceptance table
+    python3 benchmarks/post.py walk       # only ../shared/data/gnss-imu-walk
+
+Synthetic: a vehicle with the device at a known mounting, 0.1 m/s Doppler noise per ENU component, a 50 mg
+accelerometer bias, MPU-6050 noise and int16 quantisation, and an injected IMU delay. Walk: rtklibexplorer's handheld
+walk (RTKLIB .pos at 4 Hz + a raw IMU CSV stamped through its .tag file); the RTK-fixed epochs (~1 cm) are the
+reference for the path.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from codegen.board import ACCEL_LSB_PER_G, STANDARD_GRAVITY  # noqa: E402
+from codegen.post import PostOptions, load_log, process  # noqa: E402
+from codegen.post.model import ImuSeries, PostLog  # noqa: E402
+from codegen.post.orientation import wrap  # noqa: E402
+from codegen.post.smoother import SmootherOptions, smooth  # noqa: E402
+from codegen.post.synthetic import MPU6050_NOISE_DENSITY, Scenario, make_run  # noqa: E402
+
+WALK = ROOT.parent / "shared" / "data" / "gnss-imu-walk"
+
+
+def synthetic() -> None:
+    scenarios = [
+        ("A mount (4,-3,25) deg, delay 137 ms", Scenario(delay=0.137)),
+        ("B mount (-6,8,-130) deg, delay -53 ms", Scenario(mounting_deg=(-6.0, 8.0, -130.0), bias_mg=(-20.0, 40.0, -23.0),
+                                                          delay=-0.053, seed=7)),
+        ("C mount (2,1,90) deg, delay 0, seed 11", Scenario(mounting_deg=(2.0, 1.0, 90.0), bias_mg=(45.0, 10.0, -20.0),
+                                                            seed=11)),
+    ]
+    print("## Synthetic acceptance (issue 7): 600 s, 50 Hz IMU, 1 Hz GPS, 0.1 m/s Doppler noise, |bias| >= 50 mg")
+    print()
+    print("| run | max roll err | max pitch err | max yaw err (|A_h|>=0.5) | max LM-Wahba | vel resid RMS | delay err | bias err | time |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    print("| bound | 0.5 deg | 0.5 deg | 2 deg | 0.1 deg | 0.15 m/s | 20 ms (1 sample) | - | - |")
+    for name, sc in scenarios:
+        log, truth = make_run(sc)
+        t0 = time.perf_counter()
+        r = process(log, PostOptions())
+        elapsed = time.perf_counter() - t0
+        o = r.orientation
+        err = np.degrees(wrap(o.euler[o.valid] - truth.euler(o.t[o.valid])))
+        horizontal = np.hypot(*truth.acceleration(o.t[o.valid])[:, :2].T)
+        bias_err = np.abs(o.bias / (STANDARD_GRAVITY * 1e-3) - np.array(sc.bias_mg)).max()
+        print(f"| {name} | {np.abs(err[:, 0]).max():.3f} | {np.abs(err[:, 1]).max():.3f} | "
+              f"{np.abs(err[horizontal >= 0.5, 2]).max():.3f} | {np.nanmax(o.lm_vs_wahba_deg):.1e} | "
+              f"{r.velocity_residual_rms:.3f} | {(r.delay - sc.delay) * 1e3:+.1f} ms | {bias_err:.1f} mg | {elapsed:.1f} s |")
+    print()
+
+
+def _path_errors(r, gps_enu, fixed):
+    at = r.track.gps_index
+    ok = (at >= 0) & fixed
+    d = r.track.pos[at[ok], :2] - gps_enu[ok, :2]
+    e = np.hypot(d[:, 0], d[:, 1])
+    return e, r.log.gps.t[ok]
+
+
+def _device_like(log: PostLog, seed: int = 0) -> PostLog:
+    """The walk as the T-Beam would log it: NEO-6M 1 Hz epochs, MPU-6050 noise and +-2 g int16 counts, 50 Hz."""
+    rng = np.random.default_rng(seed)
+    imu = log.imu
+    keep = np.arange(0, len(imu), max(1, int(round(imu.rate_hz / 50.0))))
+    t = imu.t[keep]
+    acc = imu.acc[keep] + rng.normal(0.0, MPU6050_NOISE_DENSITY * np.sqrt(25.0), (len(keep), 3))
+    lsb = STANDARD_GRAVITY / ACCEL_LSB_PER_G[2]
+    acc = np.clip(np.round(acc / lsb), -32768, 32767) * lsb
+    gps = log.gps
+    on_second = np.abs(gps.t - np.round(gps.t)) < 0.13
+    one_hz = gps.select(on_second)
+    one_hz.sigma_vel = np.maximum(one_hz.sigma_vel, 0.1)
+    return PostLog(log.name + " (1 Hz GPS, MPU-6050-like IMU)", ImuSeries(t, acc), one_hz, notes=[], time_scale=log.time_scale)
+
+
+def walk() -> None:
+    if not WALK.exists():
+        print(f"walk recording not found at {WALK}")
+        return
+    log = load_log(WALK)
+    fixed = log.gps.quality == 1
+    print(f"## Walk recording ({WALK.name}): {len(log.imu)} IMU samples at {log.imu.rate_hz:.1f} Hz, "
+          f"{len(log.gps)} GPS epochs ({fixed.sum()} RTK fixed)")
+    print()
+    for note in log.notes:
+        print(f"- {note}")
+    print()
+    t0 = time.perf_counter()
+    r = process(log, PostOptions())
+    o = r.orientation
+    m = o.mounting
+    e = np.degrees(o.euler[o.valid])
+    s = np.degrees(o.sigma[o.valid])
+    print(f"default run ({time.perf_counter() - t0:.1f} s):")
+    print(f"- delay: {r.delay * 1e3:+.1f} ms +- {r.delay_estimate.sigma * 1e3:.1f} ms (IMU stamps late by this; "
+          f"correlation {r.delay_estimate.correlation:.3f})")
+    print(f"- mounting vs track: roll {np.degrees(m.euler[0]):+.2f}, pitch {np.degrees(m.euler[1]):+.2f}, "
+          f"yaw {np.degrees(m.euler[2]):+.2f} deg (chi2 {m.chi2:.2f}; bias {'not estimated' if m.bias_rejected else 'estimated'})")
+    for i, name in enumerate(("roll", "pitch", "yaw")):
+        print(f"- {name}: median {np.median(e[:, i]):+.2f} deg, 5..95% {np.percentile(e[:, i], 5):+.2f}..{np.percentile(e[:, i], 95):+.2f}, "
+              f"median 1-sigma {np.nanmedian(s[:, i]):.2f} deg")
+    flags = {}
+    for f in o.flags:
+        for name in f:
+            flags[name] = flags.get(name, 0) + 1
+    print(f"- intervals: {o.valid.sum()} of {len(o.t)} solved, flags {flags}, LM-Wahba max {np.nanmax(o.lm_vs_wahba_deg):.2e} deg")
+    res = r.velocity_residual[np.isfinite(r.velocity_residual).all(axis=1)]
+    print(f"- velocity residual GPS - smoothed: RMS {r.velocity_residual_rms:.3f} m/s "
+          f"(E/N/U {np.sqrt(np.mean(res ** 2, axis=0)).round(3).tolist()}); GPS - IMU per interval RMS {r.imu_velocity_residual_rms:.3f} m/s")
+    e_all, _ = _path_errors(r, r.gps_enu, fixed)
+    print(f"- path (GPS positions used) vs RTK fixed: RMS {np.sqrt(np.mean(e_all ** 2)):.3f} m, max {e_all.max():.3f} m")
+    print()
+    # velocity only: IMU + Doppler, positions never used (start at the first fix)
+    rv = process(log, PostOptions(smoother=SmootherOptions(use_positions=False), delay=r.delay))
+    first = r.gps_enu[0, :2]
+    ev, tv = _path_errors(rv, r.gps_enu - np.array([*first, 0.0]), fixed)
+    print(f"velocity-only path (IMU + Doppler, no GPS positions) vs RTK fixed over {tv[-1] - tv[0]:.0f} s, "
+          f"{np.sum(np.hypot(*np.diff(r.gps_enu[fixed, :2], axis=0).T)):.0f} m: RMS {np.sqrt(np.mean(ev ** 2)):.2f} m, "
+          f"max {ev.max():.2f} m, end {ev[-1]:.2f} m")
+    # GPS outages: the same orientation and accelerations, the smoother without any GPS for `gap` seconds
+    for gap in (5.0, 10.0):
+        errors = []
+        for start in np.arange(log.gps.t[0] + 20.0, log.gps.t[-1] - gap - 5.0, 5.0):
+            keep = (log.gps.t < start) | (log.gps.t > start + gap)
+            inside = ~keep & fixed
+            if not inside.any():
+                continue
+            g = log.gps.select(keep)
+            tr = smooth(r.imu_t, r.acc_enu, g.t, g.vel, g.sigma_vel, r.gps_enu[keep], g.sigma_pos, SmootherOptions())
+            p = np.stack([np.interp(log.gps.t[inside], tr.t, tr.pos[:, i]) for i in range(2)], axis=1)
+            errors.append(np.hypot(*(p - r.gps_enu[inside, :2]).T).max())
+        errors = np.array(errors)
+        print(f"GPS outage of {gap:.0f} s, smoothed across ({len(errors)} outages, RTK-fixed epochs inside): "
+              f"largest error inside: median {np.median(errors):.2f} m, worst {errors.max():.2f} m")
+    print()
+    # the device's own data: 1 Hz GPS, MPU-6050 noise
+    dl = _device_like(log)
+    rd = process(dl, PostOptions())
+    od = rd.orientation
+    ed = np.degrees(od.euler[od.valid])
+    print(f"device-like ({dl.name}): delay {rd.delay * 1e3:+.1f} ms +- {rd.delay_estimate.sigma * 1e3:.1f}, "
+          f"median roll {np.median(ed[:, 0]):+.2f} pitch {np.median(ed[:, 1]):+.2f} deg, "
+          f"velocity residual RMS {rd.velocity_residual_rms:.3f} m/s, flagged {sum(1 for f in od.flags if f)} of {len(od.t)}")
+    print()
+
+
+if __name__ == "__main__":
+    which = sys.argv[1:] or ["synthetic", "walk"]
+    if "synthetic" in which:
+        synthetic()
+    if "walk" in which:
+        walk()
