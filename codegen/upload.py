@@ -88,8 +88,9 @@ def open_port(port: str, baud: int = 115200):
 class RawRepl:
     """A raw-REPL session on an open pyserial port."""
 
-    def __init__(self, serial, use_raw_paste: bool = True):
+    def __init__(self, serial, use_raw_paste: bool = True, paced: bool = True):
         self.serial = serial
+        self.paced = paced  # a TCP link has its own flow control; a UART into a small buffer does not
         self.use_raw_paste = use_raw_paste
         self.raw_paste_used = False
 
@@ -181,7 +182,7 @@ class RawRepl:
             code += b"\x04"
             for index in range(0, len(code), PACED_WRITE):
                 self.serial.write(code[index : index + PACED_WRITE])
-                if len(code) > PACED_WRITE:
+                if self.paced and len(code) > PACED_WRITE:
                     time.sleep(PACE_SECONDS)
             answer = self.read_exact(2, timeout=timeout)
             if answer != b"OK":
@@ -317,7 +318,7 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
     result = UploadResult()
     handle = open_port(port)
     try:
-        repl = RawRepl(handle, use_raw_paste=use_raw_paste)
+        repl = RawRepl(handle, use_raw_paste=use_raw_paste, paced=not port.startswith("socket://"))
         try:
             repl.enter()
             others = sorted({s for s in map(shadows, files) if s and s not in files})

@@ -184,3 +184,23 @@ def test_flash_cli_and_its_error_path(built, peer, capsys, monkeypatch):
     assert cli.main(["flash", str(tree), "--port", peer.url]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: the chip on socket://") and "hint:" in err and "Traceback" not in err
+
+
+def test_default_board_generate_build_flash(tmp_path, peer):
+    """The whole path a user takes: generate -> build -> flash, on the bundled default board."""
+    require(_have_esptool(), "esptool is not installed (pip install esptool)")
+    from codegen.generate import generate
+    from codegen.loader import load_board
+
+    loaded = load_board(None)
+    out = tmp_path / "out"
+    generate(loaded, out)
+    result = build(out, progress=quiet)  # the board comes from OUT/MANIFEST.json
+    assert "main.py" in result.files and any(f.endswith(".mpy") for f in result.files)
+    flash(out, peer.url, progress=quiet)
+    fs = loaded.board.micropython.filesystem
+    region = bytes(peer.flash[fs.offset : fs.offset + fs.size])
+    assert region == result.image.read_bytes()
+    assert read_tree(mount_image(region, block_size=fs.block_size)) == {
+        rel: (result.app_dir / rel).read_bytes() for rel in result.files
+    }

@@ -142,3 +142,17 @@ def test_upload_cli(peer, built, capsys):
     assert main(["upload", str(tree), "--port", "socket://127.0.0.1:9"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: nothing answers") and "Traceback" not in err
+
+
+def test_default_board_generate_build_upload(peer, tmp_path):
+    """The whole path a user takes: generate -> build -> upload, on the bundled default board."""
+    from codegen.generate import generate
+    from codegen.loader import load_board
+
+    out = tmp_path / "out"
+    generate(load_board(None), out)
+    result = build(out, progress=quiet, image=False)
+    outcome = upload(out, peer.url, progress=quiet)
+    peer.wait_idle()
+    assert sorted(outcome.sent) == sorted(result.files)
+    assert peer.files() == {rel: (result.app_dir / rel).read_bytes() for rel in result.files}
