@@ -29,6 +29,7 @@ def plot_run(run: RunData, outage_s: float, path: Path, methods=None, step: floa
     whole = run.truth.at(np.arange(0.0, run.duration, 0.5))
     plane.plot(whole[:, 0], whole[:, 1], color="0.8", lw=1, label="truth (whole run)")
     plane.plot(truth[shown, :, 0], truth[shown, :, 1], color="k", lw=2.5, label="truth during the outage")
+    plane.plot(truth[shown, -1, 0], truth[shown, -1, 1], "o", ms=6, color="k")
     fixes = run.gps.enu[run.gps.valid & (run.gps.t < starts[shown])]
     plane.plot(fixes[:, 0], fixes[:, 1], ".", color="0.5", ms=2, label="GPS fixes before the loss")
     for name, fn in methods.items():
@@ -38,6 +39,7 @@ def plot_run(run: RunData, outage_s: float, path: Path, methods=None, step: floa
         curve.fill_between(since, np.nanpercentile(err, 10, axis=0), np.nanpercentile(err, 90, axis=0),
                            color=line.get_color(), alpha=0.15)
         plane.plot(est[shown, :, 0], est[shown, :, 1], lw=1.5, color=line.get_color(), label=name)
+        plane.plot(est[shown, -1, 0], est[shown, -1, 1], "o", ms=5, color=line.get_color())  # where it ends
     plane.set_aspect("equal", adjustable="datalim")
     plane.set_xlabel("East (m)")
     plane.set_ylabel("North (m)")
