@@ -54,7 +54,8 @@ def test_at_rest_with_perfect_gps_every_method_stays_put(board):
     run = build_run("static", board, seed=1, quality="rtk", duration=90.0, errors=MpuErrors.ideal())
     result = evaluate(run, horizons=(10.0, 30.0))
     for name, err in result.errors.items():
-        assert np.nanmax(err) < 1e-6, name
+        # the baselines are exact at rest; a plug-in (a filter) may wobble, but not wander off
+        assert np.nanmax(err) < (1e-6 if name in ("seed", "const-velocity", "hold-last-fix") else 1.0), name
 
 
 def test_seed_method_from_its_own_pipeline(board):
