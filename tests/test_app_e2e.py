@@ -180,6 +180,28 @@ def test_imu_missing_keeps_gps(micropython, tbeam, tmp_path):
     assert "IMU missing" in screen
 
 
+def test_imu_lost_mid_run_keeps_gps(micropython, tbeam, tmp_path):
+    counts = write_counts(tmp_path / "imu.bin", imu_counts(20, RATE))
+    gps = write_stream(tmp_path / "gps.txt", gps_chunks(1, 20))
+    scenario = tbeam_scenario(tmp_path, counts, gps, 20, imu={"nack_after_s": 14.0})
+    run = run_app(micropython, tbeam, scenario, tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert "WARN IMU lost" in run.stdout
+    screen = run.screen_at(19.9)
+    assert _head(screen) == "GPS" and screen[1] == "40.0350855 N" and "IMU missing" in screen
+
+
+def test_display_unplugged_keeps_running(micropython, tbeam, tmp_path):
+    counts = write_counts(tmp_path / "imu.bin", imu_counts(16, RATE))
+    gps = write_stream(tmp_path / "gps.txt", gps_chunks(1, 16))
+    scenario = tbeam_scenario(tmp_path, counts, gps, 16)
+    scenario["i2c"]["0"][1]["nack_after_s"] = 5.0
+    run = run_app(micropython, tbeam, scenario, tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert "DISPLAY lost" in run.stdout
+    assert len(run.console("DIAG")) == 3 and any(line.startswith("WIN") for line in run.stdout.splitlines())
+
+
 def test_clone_who_am_i_is_a_warning(micropython, tbeam, tmp_path):
     counts = write_counts(tmp_path / "imu.bin", imu_counts(6, RATE))
     scenario = tbeam_scenario(tmp_path, counts, None, 6, imu={"who_am_i": 0x70})

@@ -121,6 +121,8 @@ class I2C:
         dev = self.devices.get(addr)
         if dev is None or getattr(dev, "nack", False):
             raise OSError(errno.ENODEV)
+        if time.now() >= getattr(dev, "nack_after_us", 1 << 62):  # unplugged mid-run
+            raise OSError(errno.ENODEV)
         return dev
 
     def scan(self):

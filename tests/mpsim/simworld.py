@@ -450,7 +450,10 @@ KINDS = {"mpu6050": Mpu6050, "ssd1306": Oled, "ssd1315": Oled, "sh1106": Oled, "
 def make_device(opts):
     if opts.get("nack"):
         return Nacker()
-    return KINDS[opts["kind"]](opts)
+    dev = KINDS[opts["kind"]](opts)
+    if "nack_after_s" in opts:
+        dev.nack_after_us = int(opts["nack_after_s"] * 1000000)
+    return dev
 
 
 # ---------------------------------------------------------------- UART streams
