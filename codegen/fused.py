@@ -1,0 +1,371 @@
+"""The fused real-time algorithm (`algorithm: fused`, issue 8): the executable specification, float64.
+
+The seed integrated gravity-removed ENU accelerations twice from a gyro-only orientation that never knew North. The
+fused method keeps the same front end (calibration, gyro bias, quaternion body -> kernel ENU) and adds, per sample:
+
+1. tilt kept honest by gravity: a Mahony-type correction of the gyro rate towards the measured specific force,
+       omega_c = omega + Kp (f_c/|f_c| x up_body),   up_body = R(q)^T [0, 0, 1],   Kp = 1 / tilt_tau_s
+   where f_c = f - R^T [acc_e, acc_n, 0] subtracts the motion acceleration the last two GPS fixes showed, applied
+   only while | |f_c| - g | < accel_reject_g g and that acceleration is steady (changed by less than
+   steady_accel_ms2 between fixes): acceleration rejection. Without GPS (gps_timeout_s after the last fix) the
+   gain is 1 / tilt_tau_dark_s, 0 by default: a car's sustained accelerations would pull the tilt away;
+2. motion statistics as exponential moving averages over stat_tau_s: the mean and variance of |f| and the mean of
+   |omega|^2. Rest = variance below rest_accel_g^2 and rate below rest_gyro_dps for rest_time_s: zero-velocity
+   update (speed 0) and the gyro bias re-estimated towards the raw gyro counts (time constant bias_tau_s).
+   Walking = the |f| variance above walk_accel_g^2 (the steps shake the device);
+3. a travel direction u (unit, horizontal, in the kernel's earth frame) turned by the gyro's rate about Up,
+       r = up_body . omega,   u <- u + r dt [-u_N, u_E],  renormalised
+   and a speed s >= 0 along it: at rest s = 0; walking s = the learned walking speed; otherwise (a vehicle)
+       s <- s + (u . a_h - b + (s_gps - s) / speed_tau_s) dt,   a = R(q) f - [0, 0, g],
+   b the along-track accelerometer bias, s_gps the last GPS speed (a weak prior: vehicles mostly cruise);
+4. position in true ENU: p += s (A u) dt, with A the rotation by theta from the kernel's frame to true ENU
+   (the kernel's yaw after calibration is arbitrary).
+
+And at each GPS fix with Doppler velocity g (true ENU, m/s), `gps_update`:
+- heading alignment (a running 2-D Wahba problem): with dv_imu = the integral of a_h since the previous fix and
+  dv_gps = the change of the GPS velocity, accumulate C <- lambda C + dv_imu . dv_gps, S <- lambda S + dv_imu x dv_gps;
+  (cos theta, sin theta) = (C, S) / |(C, S)|;
+- travel direction: u <- normalise(u + heading_gain (A^T g/|g| - u)) while |g| >= min_speed_ms;
+- speed and along-track bias: a steady-state two-state Kalman filter (alpha-beta form) on e = |g| - s:
+  s <- s + speed_gain e, b <- b - bias_gain e / T (T: seconds since the previous fix);
+- walking speed: while walking, s_walk <- s_walk + walk_speed_gain (|g| - s_walk).
+
+The state is a flat vector of floats (the C kernel's caller-owned buffer holds the same fields in the same order);
+FusedState below names them. One GPS-free pass over the IMU and the GPS updates at their epochs is exactly what the
+device does; `estimate` runs it for the simulator's benchmark and registers the method as "fused".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from codegen.reference import STANDARD_GRAVITY, KernelConfig, remap_axes, tilt_from_gravity
+
+
+@dataclass(frozen=True)
+class FusedConfig:
+    """The fused method's parameters (board `algorithm.fused_*`, the C `dr_fused_config`), with units."""
+
+    tilt_tau_s: float = 20.0  # s, time constant of the tilt correction towards gravity (Kp = 1/tau)
+    accel_reject_g: float = 0.1  # g, no tilt correction while | |f| - g | exceeds this
+    tilt_tau_dark_s: float = 0.0  # s, the same without GPS (no motion acceleration to subtract); 0: none
+    steady_accel_ms2: float = 0.3  # m/s^2, the tilt is corrected only while the GPS acceleration changes less
+    speed_tau_s: float = 15.0  # s, a vehicle's speed relaxes towards the last GPS speed (0: never)
+    gps_timeout_s: float = 2.0  # s, the GPS counts as lost this long after its last fix
+    stat_tau_s: float = 0.5  # s, time constant of the motion statistics
+    rest_accel_g: float = 0.01  # g, standard deviation of |f| below which the device may be at rest
+    rest_gyro_dps: float = 0.5  # degree/s, rate below which the device may be at rest
+    rest_time_s: float = 0.4  # s, both below their limits this long = at rest
+    bias_tau_s: float = 30.0  # s, time constant of the gyro bias re-estimation at rest
+    walk_accel_g: float = 0.08  # g, standard deviation of |f| above which the device is carried by a walker
+    min_speed_ms: float = 0.5  # m/s, GPS speeds below this carry no course
+    heading_gain: float = 0.3  # per fix, pull of the travel direction towards the GPS course
+    align_forget: float = 0.98  # per fix, forgetting factor of the heading alignment sums
+    speed_gain: float = 0.5  # per fix, pull of the speed towards the GPS speed
+    bias_gain: float = 0.05  # per fix, along-track bias correction per m/s of speed error (times 1/T)
+    walk_speed_gain: float = 0.2  # per fix, pull of the walking speed towards the GPS speed
+
+    @classmethod
+    def from_board(cls, board) -> "FusedConfig":
+        alg = board.algorithm
+        values = {}
+        for f in fields(cls):
+            name = "fused_" + f.name
+            if hasattr(alg, name):
+                values[f.name] = float(getattr(alg, name))
+        return cls(**values)
+
+
+# The state vector: name -> offset (the C struct dr_fused_state has the same fields in this order).
+STATE_FIELDS = (
+    "qw", "qx", "qy", "qz",  # orientation body -> kernel ENU
+    "bgx", "bgy", "bgz",  # gyro bias, counts (body frame)
+    "mean_f", "var_f", "w2",  # motion statistics: |f| m/s^2, its variance (m/s^2)^2, |omega|^2 (rad/s)^2
+    "acc_e", "acc_n",  # motion acceleration from the GPS, kernel frame m/s^2 (the tilt reference subtracts it)
+    "steady",  # 1 while that acceleration changed less than steady_accel_ms2 since the previous fix
+    "rest_s",  # s the device has looked at rest
+    "ux", "uy",  # travel direction, kernel frame (unit)
+    "speed", "bias",  # speed along u m/s, along-track accel bias m/s^2
+    "walk_speed",  # m/s, learned walking speed
+    "cos_t", "sin_t",  # rotation kernel frame -> true ENU
+    "align_c", "align_s",  # heading alignment sums, (m/s)^2
+    "dvx", "dvy",  # integral of the kernel-frame horizontal acceleration since the last fix, m/s
+    "since_fix",  # s since the last GPS update
+    "gps_ve", "gps_vn",  # previous fix's velocity, m/s (true ENU)
+    "gps_speed",  # m/s, the last fix's speed (a vehicle's speed relaxes towards it)
+    "gps_ok",  # 1 if the previous fix's velocity is usable for the alignment
+    "pe", "pn",  # position accumulated since the last reset, true ENU m
+    "flags",  # 1 at rest, 2 walking (bit field, last sample)
+)
+IDX = {name: i for i, name in enumerate(STATE_FIELDS)}
+STATE_LEN = len(STATE_FIELDS)
+OUT_LEN = 6
+
+
+class FusedState:
+    """The fused state as named floats (float64 here; float32 in the C kernel and the fallback)."""
+
+    __slots__ = STATE_FIELDS
+
+    def __init__(self):
+        for name in STATE_FIELDS:
+            setattr(self, name, 0.0)
+        self.qw = 1.0
+        self.ux = 1.0
+        self.cos_t = 1.0
+
+    def copy(self) -> "FusedState":
+        other = FusedState.__new__(FusedState)
+        for name in STATE_FIELDS:
+            setattr(other, name, getattr(self, name))
+        return other
+
+    def vector(self) -> np.ndarray:
+        return np.array([getattr(self, name) for name in STATE_FIELDS])
+
+
+def calibrate(st: FusedState, samples, kcfg: KernelConfig) -> bool:
+    """As the seed's calibration (tilt from the mean specific force, yaw 0; gyro bias = mean counts), and the
+    motion statistics started at rest. Returns True when the device moved (kernel threshold)."""
+    body = remap_axes(samples, kcfg.axis_map)
+    mean = body.mean(axis=0)
+    q = tilt_from_gravity(mean[:3])
+    st.qw, st.qx, st.qy, st.qz = (float(v) for v in q)
+    st.bgx, st.bgy, st.bgz = (float(v) for v in mean[3:])
+    st.mean_f = float(np.linalg.norm(mean[:3])) * kcfg.accel_ms2_per_lsb
+    st.var_f = 0.0
+    st.w2 = 0.0
+    st.rest_s = 0.0
+    st.speed = 0.0
+    std_g = body[:, :3].std(axis=0) / kcfg.accel_lsb_per_g
+    return bool(np.any(std_g > kcfg.motion_threshold_g))
+
+
+def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfig):
+    """Steps 1-4 over raw samples (m, 6) held dt_us[k] us each. Returns (out (6,), flags (m,)): out = the
+    displacement East, North, Up over the samples (true ENU m, Up 0) and the velocity E, N, U at their end."""
+    body = remap_axes(samples, kcfg.axis_map)
+    acc = (body[:, :3] * kcfg.accel_ms2_per_lsb).tolist()
+    gyr = body[:, 3:].tolist()
+    dts = (np.asarray(dt_us, dtype=np.float64) * 1e-6).tolist()
+    g = STANDARD_GRAVITY
+    gscale = kcfg.gyro_rads_per_lsb
+    kp = 1.0 / fcfg.tilt_tau_s
+    reject = fcfg.accel_reject_g * g
+    kp_dark = 1.0 / fcfg.tilt_tau_dark_s if fcfg.tilt_tau_dark_s > 0.0 else 0.0
+    rest_var = (fcfg.rest_accel_g * g) ** 2
+    rest_w2 = math.radians(fcfg.rest_gyro_dps) ** 2
+    walk_var = (fcfg.walk_accel_g * g) ** 2
+    inv_stat = 1.0 / fcfg.stat_tau_s
+    inv_bias = 1.0 / fcfg.bias_tau_s
+    inv_speed = 1.0 / fcfg.speed_tau_s if fcfg.speed_tau_s > 0.0 else 0.0
+    flags = np.zeros(len(dts), dtype=np.int8)
+    pe0, pn0 = st.pe, st.pn
+    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
+    for k, dt in enumerate(dts):
+        fx, fy, fz = acc[k]
+        cx, cy, cz = gyr[k]
+        wx = (cx - st.bgx) * gscale
+        wy = (cy - st.bgy) * gscale
+        wz = (cz - st.bgz) * gscale
+        # motion statistics
+        nf = math.sqrt(fx * fx + fy * fy + fz * fz)
+        alpha = dt * inv_stat
+        if alpha > 1.0:
+            alpha = 1.0
+        st.mean_f += alpha * (nf - st.mean_f)
+        d = nf - st.mean_f
+        st.var_f += alpha * (d * d - st.var_f)
+        st.w2 += alpha * (wx * wx + wy * wy + wz * wz - st.w2)
+        if st.var_f < rest_var and st.w2 < rest_w2:
+            st.rest_s += dt
+        else:
+            st.rest_s = 0.0
+        rest = st.rest_s >= fcfg.rest_time_s
+        walking = st.var_f > walk_var
+        flags[k] = (1 if rest else 0) | (2 if walking else 0)
+        # rotation matrix rows of q (body -> kernel ENU)
+        r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
+        r01 = 2.0 * (qx * qy - qw * qz)
+        r02 = 2.0 * (qx * qz + qw * qy)
+        r10 = 2.0 * (qx * qy + qw * qz)
+        r11 = 1.0 - 2.0 * (qx * qx + qz * qz)
+        r12 = 2.0 * (qy * qz - qw * qx)
+        r20 = 2.0 * (qx * qz - qw * qy)
+        r21 = 2.0 * (qy * qz + qw * qx)
+        r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
+        ae = r00 * fx + r01 * fy + r02 * fz
+        an = r10 * fx + r11 * fy + r12 * fz
+        # travel direction turned by the rate about Up (uncorrected gyro: the tilt correction is not a turn)
+        r = r20 * wx + r21 * wy + r22 * wz
+        ux = st.ux - r * dt * st.uy
+        uy = st.uy + r * dt * st.ux
+        inv = 1.0 / math.sqrt(ux * ux + uy * uy)
+        st.ux = ux * inv
+        st.uy = uy * inv
+        # speed along u
+        if rest:
+            st.speed = 0.0
+            st.bgx += dt * inv_bias * (cx - st.bgx)
+            st.bgy += dt * inv_bias * (cy - st.bgy)
+            st.bgz += dt * inv_bias * (cz - st.bgz)
+        elif walking:
+            st.speed = st.walk_speed
+        else:
+            st.speed += (ae * st.ux + an * st.uy - st.bias + (st.gps_speed - st.speed) * inv_speed) * dt
+            if st.speed < 0.0:
+                st.speed = 0.0
+        st.dvx += ae * dt
+        st.dvy += an * dt
+        st.since_fix += dt
+        # position, true ENU
+        ve = st.speed * (st.cos_t * st.ux - st.sin_t * st.uy)
+        vn = st.speed * (st.sin_t * st.ux + st.cos_t * st.uy)
+        st.pe += ve * dt
+        st.pn += vn * dt
+        # tilt correction towards gravity: e = f/|f| x up_body
+        # (while fixes arrive, minus the motion acceleration they show: f_c = f - R^T [acc_e, acc_n, 0])
+        if st.since_fix < fcfg.gps_timeout_s:
+            gain = kp if st.steady > 0.5 else 0.0
+            cx = fx - (r00 * st.acc_e + r10 * st.acc_n)
+            cy = fy - (r01 * st.acc_e + r11 * st.acc_n)
+            cz = fz - (r02 * st.acc_e + r12 * st.acc_n)
+            nc = math.sqrt(cx * cx + cy * cy + cz * cz)
+        else:
+            cx, cy, cz, nc = fx, fy, fz, nf
+            gain = kp_dark
+        if nc > 0.0 and abs(nc - g) < reject:
+            inf = gain / nc
+            ex = (cy * r22 - cz * r21) * inf
+            ey = (cz * r20 - cx * r22) * inf
+            ez = (cx * r21 - cy * r20) * inf
+            wx += ex
+            wy += ey
+            wz += ez
+        # q <- q (x) [1, omega dt / 2], renormalised
+        hx = 0.5 * wx * dt
+        hy = 0.5 * wy * dt
+        hz = 0.5 * wz * dt
+        nw = qw - qx * hx - qy * hy - qz * hz
+        nx = qx + qw * hx + qy * hz - qz * hy
+        ny = qy + qw * hy - qx * hz + qz * hx
+        nz = qz + qw * hz + qx * hy - qy * hx
+        inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+        qw, qx, qy, qz = nw * inv, nx * inv, ny * inv, nz * inv
+    st.qw, st.qx, st.qy, st.qz = qw, qx, qy, qz
+    st.flags = float(flags[-1]) if len(flags) else st.flags
+    ve = st.speed * (st.cos_t * st.ux - st.sin_t * st.uy)
+    vn = st.speed * (st.sin_t * st.ux + st.cos_t * st.uy)
+    out = np.array([st.pe - pe0, st.pn - pn0, 0.0, ve, vn, 0.0])
+    return out, flags
+
+
+def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
+    """One GPS fix's Doppler velocity (true ENU East, North, m/s; 0, 0 when the course is undefined)."""
+    speed = math.sqrt(ve * ve + vn * vn)
+    moving = speed >= fcfg.min_speed_ms
+    t = st.since_fix
+    # heading alignment from velocity changes (previous fix within 2 s and both fixes with a course)
+    if st.gps_ok > 0.5 and moving and 0.0 < t < fcfg.gps_timeout_s:
+        gx = ve - st.gps_ve
+        gy = vn - st.gps_vn
+        lam = fcfg.align_forget
+        st.align_c = lam * st.align_c + st.dvx * gx + st.dvy * gy
+        st.align_s = lam * st.align_s + st.dvx * gy - st.dvy * gx
+        norm = math.sqrt(st.align_c * st.align_c + st.align_s * st.align_s)
+        if norm > 0.0:
+            st.cos_t = st.align_c / norm
+            st.sin_t = st.align_s / norm
+    if moving:
+        # GPS course in the kernel frame: A^T g / |g|
+        gx = (st.cos_t * ve + st.sin_t * vn) / speed
+        gy = (-st.sin_t * ve + st.cos_t * vn) / speed
+        ux = st.ux + fcfg.heading_gain * (gx - st.ux)
+        uy = st.uy + fcfg.heading_gain * (gy - st.uy)
+        norm = math.sqrt(ux * ux + uy * uy)
+        if norm > 0.0:
+            st.ux, st.uy = ux / norm, uy / norm
+        if int(st.flags) & 2:
+            st.walk_speed += fcfg.walk_speed_gain * (speed - st.walk_speed)
+    e = speed - st.speed
+    st.speed += fcfg.speed_gain * e
+    if t > 0.0 and not int(st.flags) & 3:
+        st.bias -= fcfg.bias_gain * e / t
+    if st.gps_ok > 0.5 and moving and 0.0 < t < fcfg.gps_timeout_s:
+        # the motion acceleration over the last interval, into the kernel frame (A^T)
+        me = (ve - st.gps_ve) / t
+        mn = (vn - st.gps_vn) / t
+        ae = st.cos_t * me + st.sin_t * mn
+        an = -st.sin_t * me + st.cos_t * mn
+    else:
+        ae = an = 0.0
+    de = ae - st.acc_e
+    dn = an - st.acc_n
+    st.steady = 1.0 if de * de + dn * dn < fcfg.steady_accel_ms2 * fcfg.steady_accel_ms2 else 0.0
+    st.acc_e, st.acc_n = ae, an
+    st.gps_ve, st.gps_vn = ve, vn
+    st.gps_speed = speed
+    st.gps_ok = 1.0 if moving else 0.0
+    st.dvx = st.dvy = 0.0
+    st.since_fix = 0.0
+
+
+# --------------------------------------------------------------------------------------------- the benchmark method
+def _fused_pass(run, fcfg: FusedConfig | None = None):
+    """The device's stream over the whole run: calibration, then the IMU with the GPS updates at their epochs.
+    Returns (t_imu (N,) s, n_cal, snapshots: fix index -> (sample index, state after the update))."""
+    kcfg = KernelConfig.from_board(run.board)
+    fcfg = FusedConfig.from_board(run.board) if fcfg is None else fcfg
+    t = run.t_us * 1e-6
+    dt_us = np.diff(run.t_us)
+    n_cal = int(np.searchsorted(t, run.board.algorithm.calibration_s))
+    st = FusedState()
+    calibrate(st, run.counts[:n_cal], kcfg)
+    gps = run.gps
+    snaps = {}
+    k = n_cal
+    for j in np.flatnonzero(gps.valid & (gps.t >= t[n_cal])):
+        stop = int(np.searchsorted(t, gps.t[j], side="left"))  # samples before the fix
+        stop = min(stop, len(dt_us))
+        if stop > k:
+            process(st, run.counts[k:stop], dt_us[k:stop], kcfg, fcfg)
+            k = stop
+        v = gps.device_velocity()[j]
+        gps_update(st, float(v[0]), float(v[1]), fcfg)
+        snaps[int(j)] = (k, st.copy())
+    return t, dt_us, snaps, kcfg, fcfg
+
+
+def estimate(run, starts, times, fcfg: FusedConfig | None = None):
+    """The registry's method contract (codegen.sim.methods): positions at `times` for outages from `starts`, using
+    only the GPS fixes before each start (the state right after the last of them)."""
+    key = ("fused_pass", fcfg)
+    if key not in run.cache:
+        run.cache[key] = _fused_pass(run, fcfg)
+    t, dt_us, snaps, kcfg, fcfg = run.cache[key]
+    idx = run.gps.last_valid_before(starts)
+    out = np.empty(times.shape + (2,))
+    for i, j in enumerate(idx):
+        k, snap = snaps[int(j)]
+        st = snap.copy()
+        st.pe = st.pn = 0.0
+        base = run.gps.enu[j, :2]
+        ends = np.searchsorted(t, times[i], side="right") - 1  # last sample at or before each time
+        for h, end in enumerate(ends):
+            end = min(int(end), len(dt_us))
+            if end > k:
+                process(st, run.counts[k:end], dt_us[k:end], kcfg, fcfg)
+                k = end
+            out[i, h] = base + (st.pe, st.pn)
+    return out
+
+
+try:  # join the simulator's benchmark table
+    from codegen.sim.methods import register
+
+    register("fused")(estimate)
+except ImportError:  # pragma: no cover - the simulator is optional for the kernel itself
+    pass
