@@ -44,8 +44,8 @@ def quiet(_line: str) -> None:
     pass
 
 
-def assert_flashed(peer: RomLoaderPeer, result, firmware) -> None:
-    board = default_board()
+def assert_flashed(peer: RomLoaderPeer, result, firmware, board=None) -> None:
+    board = board or default_board()
     fw = firmware.read_bytes()
     start = board.micropython.partitions.bootloader
     assert peer.flash[start : start + len(fw)] == fw
@@ -56,16 +56,19 @@ def assert_flashed(peer: RomLoaderPeer, result, firmware) -> None:
     assert mounted == {rel: (result.app_dir / rel).read_bytes() for rel in result.files}
 
 
-def test_flash_over_the_rom_loader(built, peer):
-    """The ROM path alone (--no-stub --no-compress): 0x400-byte blocks, 4-word FLASH_BEGIN, hex MD5 verification."""
-    tree, result, firmware = built
+def test_flash_over_the_rom_loader(built, peer, tmp_path):
+    """The ROM path alone (--no-stub --no-compress): 0x400-byte blocks, 4-word FLASH_BEGIN, hex MD5 verification.
+    A 256 KiB filesystem keeps it quick (the full 2 MiB image this way: tests/peers/bench_flash.py)."""
+    _, _, firmware = built
+    board = default_board(**{"micropython.filesystem.size": 0x40000})
+    tree = make_tree(tmp_path / "out")
+    result = build(tree, board=board, progress=quiet)
     started = time.monotonic()
-    outcome = flash(tree, peer.url, firmware=firmware, board=default_board(), stub=False, compress=False,
-                    progress=quiet)
-    print(f"ROM path: 2 MiB image + {firmware.stat().st_size} byte firmware in {time.monotonic() - started:.1f} s")
-    assert_flashed(peer, result, firmware)
+    outcome = flash(tree, peer.url, firmware=firmware, board=board, stub=False, compress=False, progress=quiet)
+    print(f"ROM path: 256 KiB image + {firmware.stat().st_size} byte firmware in {time.monotonic() - started:.1f} s")
+    assert_flashed(peer, result, firmware, board)
     assert peer.stats.stub_runs == 0
-    assert peer.stats.commands.get(0x03, 0) >= 2048  # every 0x400 block of the 2 MiB image went over the wire
+    assert peer.stats.commands.get(0x03, 0) >= 256 + 192  # every 0x400 block went over the wire, uncompressed
     assert peer.stats.commands.get(0x13) == 2  # one MD5 verification per region
     assert [r.offset for r in outcome.regions] == [0x1000, 0x200000]
 
@@ -88,13 +91,6 @@ def test_flash_with_the_stub(built, peer):
     assert_flashed(peer, result, firmware)
     assert peer.stats.stub_runs == 1
     assert peer.stats.commands.get(0x11, 0) > 0  # compressed writes
-
-
-def test_erase_clears_what_the_layout_does_not_cover(built, peer):
-    tree, result, firmware = built
-    peer.flash[0x100000:0x100010] = b"\0" * 16
-    flash(tree, peer.url, board=default_board(), erase=True, progress=quiet)
-    assert peer.flash[0x100000:0x100010] == b"\xff" * 16
 
 
 def test_dropped_connection_fails_clearly_then_a_retry_succeeds(built, peer):
@@ -172,35 +168,35 @@ def test_no_such_port(built):
         flash(tree, "/dev/ttyDEADRECKON0", board=default_board(), progress=quiet)
 
 
-def test_flash_cli_and_its_error_path(built, peer, capsys, monkeypatch):
+def test_flash_cli_error_path(built, peer, capsys, monkeypatch):
     from codegen import cli
 
     tree, result, firmware = built
     monkeypatch.setattr("codegen.build._manifest_board", lambda out: default_board())
-    assert cli.main(["flash", str(tree), "--port", peer.url, "--firmware", str(firmware)]) == 0
-    assert_flashed(peer, result, firmware)
-    assert "flashed and verified 2 region(s)" in capsys.readouterr().out
     peer.chip_magic = 0x000007C6
     assert cli.main(["flash", str(tree), "--port", peer.url]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: the chip on socket://") and "hint:" in err and "Traceback" not in err
 
 
-def test_default_board_generate_build_flash(tmp_path, peer):
-    """The whole path a user takes: generate -> build -> flash, on the bundled default board."""
+def test_default_board_generate_build_flash(tmp_path, peer, capsys):
+    """The whole path a user takes, through the CLI: generate -> build -> flash --erase, on the default board."""
     require(_have_esptool(), "esptool is not installed (pip install esptool)")
-    from codegen.generate import generate
+    from codegen.cli import main
     from codegen.loader import load_board
 
-    loaded = load_board(None)
+    board = load_board(None).board
     out = tmp_path / "out"
-    generate(loaded, out)
-    result = build(out, progress=quiet)  # the board comes from OUT/MANIFEST.json
-    assert "main.py" in result.files and any(f.endswith(".mpy") for f in result.files)
-    flash(out, peer.url, progress=quiet)
-    fs = loaded.board.micropython.filesystem
+    peer.flash[0x100000:0x100010] = b"\0" * 16  # something the layout does not cover
+    assert main(["generate", "-o", str(out)]) == 0
+    assert main(["build", str(out)]) == 0  # the board comes from OUT/MANIFEST.json
+    assert main(["flash", str(out), "--port", peer.url, "--erase"]) == 0
+    assert "flashed and verified 1 region(s)" in capsys.readouterr().out
+    assert peer.flash[0x100000:0x100010] == b"\xff" * 16
+    app_dir = out / "build" / "app"
+    files = {p.relative_to(app_dir).as_posix(): p.read_bytes() for p in app_dir.rglob("*") if p.is_file()}
+    assert "main.py" in files and any(name.endswith(".mpy") for name in files)
+    fs = board.micropython.filesystem
     region = bytes(peer.flash[fs.offset : fs.offset + fs.size])
-    assert region == result.image.read_bytes()
-    assert read_tree(mount_image(region, block_size=fs.block_size)) == {
-        rel: (result.app_dir / rel).read_bytes() for rel in result.files
-    }
+    assert region == (out / "build" / "fs.img").read_bytes()
+    assert read_tree(mount_image(region, block_size=fs.block_size)) == files

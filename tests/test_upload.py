@@ -10,7 +10,7 @@ import pytest
 
 from codegen.build import build
 from codegen.errors import UserError
-from codegen.upload import upload, upload_folder
+from codegen.upload import RawRepl, open_port, upload
 from conftest import require
 from peers.repl_peer import ReplPeer, missing_reason
 from peers.trees import default_board, make_tree
@@ -46,16 +46,13 @@ def test_mpremote_works_against_the_peer(peer, tmp_path):
     (peer.root / "hello.py").write_text("GREETING = 'hi from the board'\n")
     peer.stop()
     with ReplPeer(peer.root) as board:  # files present at start are on the board's filesystem
-        listing = mpremote(board, "fs", "ls")
-        assert listing.returncode == 0, listing.stderr
-        assert "hello.py" in listing.stdout
         source = tmp_path / "x.py"
         source.write_text("X = 41\n")
-        copied = mpremote(board, "fs", "mkdir", "lib", "+", "fs", "cp", str(source), ":lib/x.py")
-        assert copied.returncode == 0, copied.stderr
+        ran = mpremote(board, "fs", "ls", "+", "fs", "mkdir", "lib", "+", "fs", "cp", str(source), ":lib/x.py",
+                       "+", "exec", "import hello; from lib import x; print(hello.GREETING, x.X + 1)")
+        assert ran.returncode == 0, ran.stderr
+        assert "hello.py" in ran.stdout and ran.stdout.strip().endswith("hi from the board 42")
         assert board.files()["lib/x.py"] == b"X = 41\n"
-        ran = mpremote(board, "exec", "import hello; from lib import x; print(hello.GREETING, x.X + 1)")
-        assert ran.stdout.strip() == "hi from the board 42", ran.stderr
         missing = mpremote(board, "fs", "cat", "nope.py")
         assert missing.returncode != 0 and "No such file or directory" in missing.stderr  # errno mapped
 
@@ -66,6 +63,16 @@ def test_upload_sends_only_what_differs(peer, built):
     peer.wait_idle()
     assert sorted(first.sent) == sorted(result.files) and not first.raw_paste
     assert peer.files() == {rel: (result.app_dir / rel).read_bytes() for rel in result.files}
+
+    # the uploaded .mpy modules run on MicroPython (ours compiled for 1.24, the peer runs 1.27)
+    handle = open_port(peer.url)
+    try:
+        repl = RawRepl(handle)
+        repl.enter()
+        assert repl.exec("import app; app.run()").strip() == b"deadreckon 42"
+    finally:
+        handle.close()
+    peer.wait_idle()
 
     second = upload(tree, peer.url, progress=quiet)
     peer.wait_idle()
@@ -91,15 +98,6 @@ def test_a_stale_py_that_would_shadow_the_new_mpy_is_removed(peer, built):
         board.wait_idle()
         assert outcome.removed == ["app.py"]
         assert "app.py" not in board.files() and "app.mpy" in board.files()
-
-
-def test_uploaded_mpy_runs_on_micropython(peer, built):
-    require(subprocess.run([sys.executable, "-c", "import mpremote"]).returncode == 0, "mpremote is not installed")
-    tree, result = built
-    upload(tree, peer.url, progress=quiet)
-    peer.wait_idle()
-    ran = mpremote(peer, "exec", "import app; app.run()")
-    assert ran.stdout.strip() == "deadreckon 42", ran.stderr
 
 
 def test_upload_in_raw_paste_mode(tmp_path, built):
@@ -132,27 +130,25 @@ def test_upload_errors_name_the_port(built):
         upload(tree, "socket://127.0.0.1:9", progress=quiet)
 
 
-def test_upload_cli(peer, built, capsys):
+def test_upload_cli_error_path(built, capsys):
     from codegen.cli import main
 
     tree, result = built
-    assert main(["upload", str(tree), "--port", peer.url]) == 0
-    peer.wait_idle()
-    assert "uploaded" in capsys.readouterr().out
     assert main(["upload", str(tree), "--port", "socket://127.0.0.1:9"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: nothing answers") and "Traceback" not in err
 
 
-def test_default_board_generate_build_upload(peer, tmp_path):
-    """The whole path a user takes: generate -> build -> upload, on the bundled default board."""
-    from codegen.generate import generate
-    from codegen.loader import load_board
+def test_default_board_generate_build_upload(peer, tmp_path, capsys):
+    """The whole path a user takes, through the CLI: generate -> build -> upload, on the default board."""
+    from codegen.cli import main
 
     out = tmp_path / "out"
-    generate(load_board(None), out)
-    result = build(out, progress=quiet, image=False)
-    outcome = upload(out, peer.url, progress=quiet)
+    assert main(["generate", "-o", str(out)]) == 0
+    assert main(["build", str(out)]) == 0
+    assert main(["upload", str(out), "--port", peer.url]) == 0
     peer.wait_idle()
-    assert sorted(outcome.sent) == sorted(result.files)
-    assert peer.files() == {rel: (result.app_dir / rel).read_bytes() for rel in result.files}
+    app_dir = out / "build" / "app"
+    files = {p.relative_to(app_dir).as_posix(): p.read_bytes() for p in app_dir.rglob("*") if p.is_file()}
+    assert "main.py" in files and peer.files() == files
+    assert f"uploaded {len(files)} file(s), 0 unchanged" in capsys.readouterr().out
