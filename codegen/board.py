@@ -228,6 +228,25 @@ class Algorithm(Part):
     motion_threshold_g: float = Field(
         0.02, gt=0, description="accel standard deviation above this during calibration means 'moved'"
     )
+    # mode "fused" (codegen/fused.py, native_ext/dr_fused.c): defaults tuned on the simulator's walk/car scenarios
+    fused_tilt_tau_s: float = Field(20.0, gt=0, description="s: tilt correction time constant while GPS fixes arrive")
+    fused_accel_reject_g: float = Field(0.1, gt=0, description="g: no tilt correction while ||f| - g| exceeds this")
+    fused_tilt_tau_dark_s: float = Field(0.0, ge=0, description="s: tilt correction time constant without GPS (0: none)")
+    fused_steady_accel_ms2: float = Field(0.3, gt=0, description="m/s^2: tilt corrected only while the GPS acceleration changes less between fixes")
+    fused_speed_tau_s: float = Field(15.0, ge=0, description="s: a vehicle's speed relaxes towards the last GPS speed (0: never)")
+    fused_gps_timeout_s: float = Field(2.0, gt=0, description="s: GPS counts as lost this long after its last fix")
+    fused_stat_tau_s: float = Field(0.5, gt=0, description="s: time constant of the motion statistics")
+    fused_rest_accel_g: float = Field(0.01, gt=0, description="g: |f| standard deviation below which the device may be at rest")
+    fused_rest_gyro_dps: float = Field(0.5, gt=0, description="degree/s: rate below which the device may be at rest")
+    fused_rest_time_s: float = Field(0.4, ge=0, description="s: both below their limits this long means at rest")
+    fused_bias_tau_s: float = Field(30.0, ge=0, description="s: gyro bias re-estimation time constant at rest (0: off)")
+    fused_walk_accel_g: float = Field(0.08, gt=0, description="g: |f| standard deviation above which a walker carries the device")
+    fused_min_speed_ms: float = Field(0.5, ge=0, description="m/s: GPS speeds below this carry no course")
+    fused_heading_gain: float = Field(0.3, ge=0, le=1, description="per fix: pull of the travel direction towards the GPS course")
+    fused_align_forget: float = Field(0.98, ge=0, le=1, description="per fix: forgetting factor of the heading alignment")
+    fused_speed_gain: float = Field(0.5, ge=0, le=1, description="per fix: pull of the speed towards the GPS speed")
+    fused_bias_gain: float = Field(0.05, ge=0, le=1, description="per fix: along-track accel bias correction gain")
+    fused_walk_speed_gain: float = Field(0.2, ge=0, le=1, description="per fix: pull of the walking speed towards the GPS speed")
 
 
 class Logging(Part):

@@ -1,0 +1,317 @@
+/*
+ * dr_fused.c: the fused real-time algorithm; see dr_fused.h and codegen/fused.py (the specification).
+ */
+#include "dr_fused.h"
+
+#include "dr_board.h"
+#include "dr_math.h"
+
+#define DR_FUSED_SUM_CHUNK (1024) /* samples summed in int32 before moving to float (1024 * 32768 < 2^31) */
+
+/* Returns 1/x for x > 0, else 0 (a time constant of 0 switches its term off). */
+static float dr_fused_rate(float tau) {
+    return tau > 0.0f ? dr_recip(tau) : 0.0f;
+}
+
+void dr_fused_config_init(dr_fused_config *cfg) {
+    float p[DR_FUSED_PARAMS];
+    p[0] = DR_FUSED_TILT_TAU_S;
+    p[1] = DR_FUSED_ACCEL_REJECT_G;
+    p[2] = DR_FUSED_TILT_TAU_DARK_S;
+    p[3] = DR_FUSED_STEADY_ACCEL_MS2;
+    p[4] = DR_FUSED_SPEED_TAU_S;
+    p[5] = DR_FUSED_GPS_TIMEOUT_S;
+    p[6] = DR_FUSED_STAT_TAU_S;
+    p[7] = DR_FUSED_REST_ACCEL_G;
+    p[8] = DR_FUSED_REST_GYRO_DPS;
+    p[9] = DR_FUSED_REST_TIME_S;
+    p[10] = DR_FUSED_BIAS_TAU_S;
+    p[11] = DR_FUSED_WALK_ACCEL_G;
+    p[12] = DR_FUSED_MIN_SPEED_MS;
+    p[13] = DR_FUSED_HEADING_GAIN;
+    p[14] = DR_FUSED_ALIGN_FORGET;
+    p[15] = DR_FUSED_SPEED_GAIN;
+    p[16] = DR_FUSED_BIAS_GAIN;
+    p[17] = DR_FUSED_WALK_SPEED_GAIN;
+    (void)dr_fused_config_set(cfg, p);
+}
+
+int dr_fused_config_set(dr_fused_config *cfg, const float p[DR_FUSED_PARAMS]) {
+    float rest_a, rest_w, walk_a;
+    if (!(p[0] > 0.0f) || !(p[6] > 0.0f) || p[2] < 0.0f || p[4] < 0.0f || p[10] < 0.0f) {
+        return DR_ERR_RANGE;
+    }
+    rest_a = p[7] * DR_GRAVITY_MS2;
+    rest_w = p[8] * DR_RAD_PER_DEG;
+    walk_a = p[11] * DR_GRAVITY_MS2;
+    cfg->kp = dr_recip(p[0]);
+    cfg->reject_ms2 = p[1] * DR_GRAVITY_MS2;
+    cfg->kp_dark = dr_fused_rate(p[2]);
+    cfg->steady_ms2 = p[3];
+    cfg->inv_speed_tau = dr_fused_rate(p[4]);
+    cfg->gps_timeout_s = p[5];
+    cfg->inv_stat_tau = dr_recip(p[6]);
+    cfg->rest_var = rest_a * rest_a;
+    cfg->rest_w2 = rest_w * rest_w;
+    cfg->rest_time_s = p[9];
+    cfg->inv_bias_tau = dr_fused_rate(p[10]);
+    cfg->walk_var = walk_a * walk_a;
+    cfg->min_speed_ms = p[12];
+    cfg->heading_gain = p[13];
+    cfg->align_forget = p[14];
+    cfg->speed_gain = p[15];
+    cfg->bias_gain = p[16];
+    cfg->walk_speed_gain = p[17];
+    return DR_OK;
+}
+
+void dr_fused_state_init(dr_fused_state *st) {
+    float *f = (float *)st;
+    uint32_t i;
+    for (i = 0; i < sizeof(dr_fused_state) / sizeof(float); i++) {
+        f[i] = 0.0f;
+    }
+    st->q[0] = 1.0f;
+    st->ux = 1.0f;
+    st->cos_t = 1.0f;
+}
+
+int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t *samples, int32_t count) {
+    dr_state seed;
+    float total[3];
+    float inv_count, m2;
+    int32_t k, chunk;
+    int i, code;
+    dr_state_init(&seed);
+    code = dr_calibrate(kcfg, &seed, samples, count);
+    if (code < 0) {
+        return code;
+    }
+    for (i = 0; i < 3; i++) {
+        total[i] = 0.0f;
+    }
+    for (k = 0; k < count; k += chunk) {
+        int32_t sum[3];
+        int32_t j;
+        for (i = 0; i < 3; i++) {
+            sum[i] = 0;
+        }
+        chunk = count - k < DR_FUSED_SUM_CHUNK ? count - k : DR_FUSED_SUM_CHUNK;
+        for (j = k; j < k + chunk; j++) {
+            for (i = 0; i < 3; i++) {
+                sum[i] += samples[6 * j + i];
+            }
+        }
+        for (i = 0; i < 3; i++) {
+            total[i] += (float)sum[i];
+        }
+    }
+    inv_count = dr_recip((float)count);
+    m2 = 0.0f;
+    for (i = 0; i < 3; i++) {
+        float m = total[i] * inv_count;
+        m2 += m * m;
+    }
+    for (i = 0; i < 4; i++) {
+        st->q[i] = seed.q[i];
+    }
+    for (i = 0; i < 3; i++) {
+        st->gyro_bias_lsb[i] = seed.gyro_bias_lsb[i];
+    }
+    st->mean_f = dr_sqrt(m2) * kcfg->accel_ms2_per_lsb;
+    st->var_f = 0.0f;
+    st->w2 = 0.0f;
+    st->rest_s = 0.0f;
+    st->speed = 0.0f;
+    return code;
+}
+
+int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
+                     const int32_t *dt_us, int32_t count, float out[6]) {
+    const float g = DR_GRAVITY_MS2;
+    float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
+    float pe0 = st->pe, pn0 = st->pn;
+    float ve, vn;
+    int32_t k;
+    int flags = (int)st->flags;
+    if (count < 1) {
+        return DR_ERR_COUNT;
+    }
+    for (k = 0; k < count; k++) {
+        const int16_t *s = samples + 6 * k;
+        float dt = (float)dt_us[k] * DR_S_PER_US;
+        float f[3], c[3], w[3];
+        float nf, alpha, d, r00, r01, r02, r10, r11, r12, r20, r21, r22, ae, an, r, ux, uy, inv, gain, cx, cy, cz, nc2;
+        int i, rest, walking;
+        for (i = 0; i < 3; i++) {
+            int32_t src = kcfg->axis_source[i];
+            f[i] = kcfg->axis_sign[i] * (float)s[src] * kcfg->accel_ms2_per_lsb;
+            c[i] = kcfg->axis_sign[i] * (float)s[3 + src];
+            w[i] = (c[i] - st->gyro_bias_lsb[i]) * kcfg->gyro_rads_per_lsb;
+        }
+        /* motion statistics */
+        nf = dr_sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+        alpha = dt * cfg->inv_stat_tau;
+        if (alpha > 1.0f) {
+            alpha = 1.0f;
+        }
+        st->mean_f += alpha * (nf - st->mean_f);
+        d = nf - st->mean_f;
+        st->var_f += alpha * (d * d - st->var_f);
+        st->w2 += alpha * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] - st->w2);
+        if (st->var_f < cfg->rest_var && st->w2 < cfg->rest_w2) {
+            st->rest_s += dt;
+        } else {
+            st->rest_s = 0.0f;
+        }
+        rest = st->rest_s >= cfg->rest_time_s;
+        walking = st->var_f > cfg->walk_var;
+        flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0);
+        /* rotation matrix of q */
+        r00 = 1.0f - 2.0f * (qy * qy + qz * qz);
+        r01 = 2.0f * (qx * qy - qw * qz);
+        r02 = 2.0f * (qx * qz + qw * qy);
+        r10 = 2.0f * (qx * qy + qw * qz);
+        r11 = 1.0f - 2.0f * (qx * qx + qz * qz);
+        r12 = 2.0f * (qy * qz - qw * qx);
+        r20 = 2.0f * (qx * qz - qw * qy);
+        r21 = 2.0f * (qy * qz + qw * qx);
+        r22 = 1.0f - 2.0f * (qx * qx + qy * qy);
+        ae = r00 * f[0] + r01 * f[1] + r02 * f[2];
+        an = r10 * f[0] + r11 * f[1] + r12 * f[2];
+        /* travel direction turned by the rate about Up */
+        r = r20 * w[0] + r21 * w[1] + r22 * w[2];
+        ux = st->ux - r * dt * st->uy;
+        uy = st->uy + r * dt * st->ux;
+        inv = dr_inv_sqrt(ux * ux + uy * uy);
+        st->ux = ux * inv;
+        st->uy = uy * inv;
+        /* speed along u */
+        if (rest) {
+            st->speed = 0.0f;
+            for (i = 0; i < 3; i++) {
+                st->gyro_bias_lsb[i] += dt * cfg->inv_bias_tau * (c[i] - st->gyro_bias_lsb[i]);
+            }
+        } else if (walking) {
+            st->speed = st->walk_speed;
+        } else {
+            st->speed += (ae * st->ux + an * st->uy - st->bias + (st->gps_speed - st->speed) * cfg->inv_speed_tau) * dt;
+            if (st->speed < 0.0f) {
+                st->speed = 0.0f;
+            }
+        }
+        st->dvx += ae * dt;
+        st->dvy += an * dt;
+        st->since_fix += dt;
+        /* position, true ENU */
+        ve = st->speed * (st->cos_t * st->ux - st->sin_t * st->uy);
+        vn = st->speed * (st->sin_t * st->ux + st->cos_t * st->uy);
+        st->pe += ve * dt;
+        st->pn += vn * dt;
+        /* tilt correction towards gravity (minus the GPS motion acceleration while fixes arrive) */
+        if (st->since_fix < cfg->gps_timeout_s) {
+            gain = st->steady > 0.5f ? cfg->kp : 0.0f;
+            cx = f[0] - (r00 * st->acc_e + r10 * st->acc_n);
+            cy = f[1] - (r01 * st->acc_e + r11 * st->acc_n);
+            cz = f[2] - (r02 * st->acc_e + r12 * st->acc_n);
+        } else {
+            gain = cfg->kp_dark;
+            cx = f[0];
+            cy = f[1];
+            cz = f[2];
+        }
+        nc2 = cx * cx + cy * cy + cz * cz;
+        inv = dr_inv_sqrt(nc2);
+        if (nc2 > 0.0f && dr_absf(nc2 * inv - g) < cfg->reject_ms2) {
+            inv *= gain;
+            w[0] += (cy * r22 - cz * r21) * inv;
+            w[1] += (cz * r20 - cx * r22) * inv;
+            w[2] += (cx * r21 - cy * r20) * inv;
+        }
+        /* q <- q (x) [1, omega dt / 2], renormalised */
+        {
+            float hx = 0.5f * w[0] * dt, hy = 0.5f * w[1] * dt, hz = 0.5f * w[2] * dt;
+            float nw = qw - qx * hx - qy * hy - qz * hz;
+            float nx = qx + qw * hx + qy * hz - qz * hy;
+            float ny = qy + qw * hy - qx * hz + qz * hx;
+            float nz = qz + qw * hz + qx * hy - qy * hx;
+            inv = dr_inv_sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
+            qw = nw * inv;
+            qx = nx * inv;
+            qy = ny * inv;
+            qz = nz * inv;
+        }
+    }
+    st->q[0] = qw;
+    st->q[1] = qx;
+    st->q[2] = qy;
+    st->q[3] = qz;
+    st->flags = (float)flags;
+    ve = st->speed * (st->cos_t * st->ux - st->sin_t * st->uy);
+    vn = st->speed * (st->sin_t * st->ux + st->cos_t * st->uy);
+    out[0] = st->pe - pe0;
+    out[1] = st->pn - pn0;
+    out[2] = 0.0f;
+    out[3] = ve;
+    out[4] = vn;
+    out[5] = 0.0f;
+    return DR_OK;
+}
+
+void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn) {
+    float s2 = ve * ve + vn * vn;
+    float inv_speed = dr_inv_sqrt(s2);
+    float speed = s2 * inv_speed;
+    float t = st->since_fix;
+    int moving = speed >= cfg->min_speed_ms;
+    int flags = (int)st->flags;
+    float ae = 0.0f, an = 0.0f, de, dn, e;
+    if (st->gps_ok > 0.5f && moving && t > 0.0f && t < cfg->gps_timeout_s) {
+        /* heading alignment from the velocity changes */
+        float gx = ve - st->gps_ve, gy = vn - st->gps_vn, inv_t, me, mn, norm;
+        st->align_c = cfg->align_forget * st->align_c + st->dvx * gx + st->dvy * gy;
+        st->align_s = cfg->align_forget * st->align_s + st->dvx * gy - st->dvy * gx;
+        norm = dr_inv_sqrt(st->align_c * st->align_c + st->align_s * st->align_s);
+        if (norm > 0.0f) {
+            st->cos_t = st->align_c * norm;
+            st->sin_t = st->align_s * norm;
+        }
+        /* the motion acceleration over the interval, into the kernel frame */
+        inv_t = dr_recip(t);
+        me = gx * inv_t;
+        mn = gy * inv_t;
+        ae = st->cos_t * me + st->sin_t * mn;
+        an = -st->sin_t * me + st->cos_t * mn;
+    }
+    de = ae - st->acc_e;
+    dn = an - st->acc_n;
+    st->steady = de * de + dn * dn < cfg->steady_ms2 * cfg->steady_ms2 ? 1.0f : 0.0f;
+    st->acc_e = ae;
+    st->acc_n = an;
+    if (moving) {
+        float gx = (st->cos_t * ve + st->sin_t * vn) * inv_speed;
+        float gy = (-st->sin_t * ve + st->cos_t * vn) * inv_speed;
+        float ux = st->ux + cfg->heading_gain * (gx - st->ux);
+        float uy = st->uy + cfg->heading_gain * (gy - st->uy);
+        float norm = dr_inv_sqrt(ux * ux + uy * uy);
+        if (norm > 0.0f) {
+            st->ux = ux * norm;
+            st->uy = uy * norm;
+        }
+        if (flags & DR_FUSED_WALKING) {
+            st->walk_speed += cfg->walk_speed_gain * (speed - st->walk_speed);
+        }
+    }
+    e = speed - st->speed;
+    st->speed += cfg->speed_gain * e;
+    if (t > 0.0f && !(flags & (DR_FUSED_AT_REST | DR_FUSED_WALKING))) {
+        st->bias -= cfg->bias_gain * e * dr_recip(t);
+    }
+    st->gps_ve = ve;
+    st->gps_vn = vn;
+    st->gps_speed = speed;
+    st->gps_ok = moving ? 1.0f : 0.0f;
+    st->dvx = 0.0f;
+    st->dvy = 0.0f;
+    st->since_fix = 0.0f;
+}
