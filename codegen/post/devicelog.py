@@ -1,18 +1,34 @@
-"""The device's own run log (written by the generated app's logger), read into a `PostLog`.
+"""The device's own run log (docs/log-format.md, version 1: blocks of H/I/G/W/E records), read into a `PostLog`.
 
-Kept apart from the other readers so the format the app documents can be wired here without touching the method.
-Until then a device log is recognised and refused with a clear message.
+Kept apart from the other readers so a new log version only touches this module. A file's clock is the device's
+microseconds since the file was opened; GPS records also carry the fix's UTC time. When they do, both streams go
+onto UTC: GPS epochs at their fix times, IMU samples through a straight-line map of the device clock fitted to the
+epochs (the fixed part of the NMEA latency is left to the delay estimate). Without UTC the device clock is used.
 """
 
 from __future__ import annotations
 
+import calendar
+import struct
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
+from codegen.board import STANDARD_GRAVITY
 from codegen.errors import Location, UserError
-from codegen.post.model import PostLog
+from codegen.post.model import GpsSeries, ImuSeries, PostLog
 
 DEVICE_LOG_SUFFIXES = (".bin",)
-REC_HEADER = 0x48  # first byte of a device log file ('H' record)
+REC_PAD, REC_HEADER, REC_IMU, REC_GPS, REC_WINDOW, REC_EVENT = 0x00, 0x48, 0x49, 0x47, 0x57, 0x45
+RECORDS = {REC_IMU: ("<BI6h", 17), REC_GPS: ("<BIIHBBiiiiHiBBBH", 40), REC_WINDOW: ("<BIBiiffffffiiI", 50)}
+DEFAULT_BLOCK = 4096  # bytes, logging.block_bytes default
+UNKNOWN_I32 = -(2**31)
+UNKNOWN_U16 = 0xFFFF
+UNKNOWN_U32 = 0xFFFFFFFF
+DOPPLER_SIGMA = 0.1  # m/s, NEO-6M velocity accuracy
+UERE = 2.5  # m, horizontal 1-sigma per unit HDOP
+CLIMB_UNKNOWN_SIGMA = 1.0  # m/s, vertical velocity when the log has no climb rate
 
 
 def is_device_log(path: Path) -> bool:
@@ -27,9 +43,168 @@ def is_device_log(path: Path) -> bool:
         return False
 
 
+@dataclass
+class RawDeviceLog:
+    path: Path
+    header: dict[str, str] = field(default_factory=dict)
+    imu: list[tuple] = field(default_factory=list)  # (t_us unwrapped, ax, ay, az, gx, gy, gz)
+    gps: list[tuple] = field(default_factory=list)  # (t_us unwrapped, *fields of the G record after t_us)
+    events: list[tuple[int, str]] = field(default_factory=list)
+    truncated: bool = False
+
+
+def _block_size(data: bytes, path: Path) -> int:
+    if len(data) < 4 or data[0] != REC_HEADER:
+        raise UserError(f"{path}: not a deadreckon device log (no header record)", location=Location(str(path), 1, 1),
+                        hint="device logs are the dr00001.bin files from the board's /logs folder")
+    _, version, n = struct.unpack_from("<BBH", data, 0)
+    if version != 1:
+        raise UserError(f"{path}: device log version {version}; this reader knows version 1",
+                        location=Location(str(path), 1, 1))
+    text = data[4:4 + n].decode("ascii", "replace")
+    header = dict(kv.split("=", 1) for kv in text.split(";") if "=" in kv)
+    return int(header.get("block_bytes", DEFAULT_BLOCK))
+
+
+def parse_device_log(path: Path, block: int | None = None) -> RawDeviceLog:
+    data = path.read_bytes()
+    if not data:
+        raise UserError(f"device log {path} is empty", location=Location(str(path), 1, 1),
+                        hint="the device wrote no complete block: the run was shorter than one block or logging was off")
+    block = block or _block_size(data, path)
+    log = RawDeviceLog(path)
+    if len(data) % block:
+        log.truncated = True
+    t_hi, last = 0, 0
+    for start in range(0, len(data), block):
+        blk = data[start:start + block]
+        i = 0
+        while i < len(blk) and blk[i] != REC_PAD:
+            kind = blk[i]
+            where = f"byte {start + i}"
+            try:
+                if kind == REC_HEADER:
+                    _, _, n = struct.unpack_from("<BBH", blk, i)
+                    log.header.update(dict(kv.split("=", 1) for kv in blk[i + 4:i + 4 + n].decode("ascii", "replace")
+                                           .split(";") if "=" in kv))
+                    i += 4 + n
+                    continue
+                if kind == REC_EVENT:
+                    _, t, n = struct.unpack_from("<BIB", blk, i)
+                    fields = (blk[i + 6:i + 6 + n].decode("ascii", "replace"),)
+                    i += 6 + n
+                elif kind in RECORDS:
+                    fmt, size = RECORDS[kind]
+                    _, t, *fields = struct.unpack_from(fmt, blk, i)
+                    i += size
+                else:
+                    raise UserError(f"{path}: unknown record type 0x{kind:02x} at {where}",
+                                    location=Location(str(path), 1, 1), hint="the log is damaged here")
+            except struct.error:
+                if start + block >= len(data):  # the last, partial block of a cut-off file
+                    log.truncated = True
+                    break
+                raise UserError(f"{path}: record cut short at {where}", location=Location(str(path), 1, 1)) from None
+            t_hi += (1 << 32) if t < last else 0
+            last = t
+            stamp = t + t_hi
+            if kind == REC_IMU:
+                log.imu.append((stamp, *fields))
+            elif kind == REC_GPS:
+                log.gps.append((stamp, *fields))
+            elif kind == REC_EVENT:
+                log.events.append((stamp, fields[0]))
+    return log
+
+
+def _axes(spec: str) -> list[tuple[int, int]]:
+    """'+0+1+2' -> [(+1, 0), (+1, 1), (+1, 2)]: body axis k = sign * sensor axis index."""
+    out = []
+    for i in range(0, len(spec), 2):
+        out.append((-1 if spec[i] == "-" else 1, int(spec[i + 1])))
+    if len(out) != 3 or sorted(a for _, a in out) != [0, 1, 2]:
+        raise ValueError(spec)
+    return out
+
+
+def to_post_log(raw: RawDeviceLog) -> PostLog:
+    path = raw.path
+    notes = [f"{path.name}: device log, board {raw.header.get('board', '?')}, kernel {raw.header.get('kernel', '?')}"]
+    if raw.truncated:
+        notes.append(f"{path.name}: the last block is incomplete (power cut?); its records were kept as far as whole")
+    if len(raw.imu) < 2:
+        raise UserError(f"{path}: {len(raw.imu)} IMU record(s)", location=Location(str(path), 1, 1),
+                        hint="logging.imu must be on to post-process a run")
+    try:
+        lsb = float(raw.header.get("accel_lsb_per_g", 16384))
+        axes = _axes(raw.header.get("axes", "+0+1+2"))
+    except ValueError:
+        raise UserError(f"{path}: header has a bad accel_lsb_per_g or axes value", location=Location(str(path), 1, 1)) from None
+    imu = np.array(raw.imu, dtype=float)
+    t_dev = imu[:, 0] * 1e-6
+    counts = imu[:, 1:4]
+    body = np.stack([sign * counts[:, index] for sign, index in axes], axis=1)
+    acc = body / lsb * STANDARD_GRAVITY
+    keep = np.concatenate([[True], np.diff(t_dev) > 0])
+    if not keep.all():
+        notes.append(f"{path.name}: dropped {np.sum(~keep)} IMU record(s) with a repeated time stamp")
+    t_dev, acc = t_dev[keep], acc[keep]
+    if not raw.gps:
+        raise UserError(f"{path}: no GPS fix in the log", location=Location(str(path), 1, 1),
+                        hint="the receiver never had a fix during this run; post-processing needs GPS velocities")
+    g = np.array(raw.gps, dtype=float)
+    (t_g, utc_ms, year, month, day, lat, lon, alt, sog, cog, climb, mode, quality, sats, hdop) = g.T
+    valid = (mode >= 2) & (sog != UNKNOWN_I32) & ((cog != UNKNOWN_U16) | (sog < 100))
+    if valid.sum() < 2:
+        raise UserError(f"{path}: {int(valid.sum())} GPS record(s) with a fix and a speed", location=Location(str(path), 1, 1))
+    g_dev = t_g[valid] * 1e-6
+    has_utc = (utc_ms[valid] != UNKNOWN_U32) & (year[valid] > 0)
+    time_scale = "relative"
+    t_gps, t_imu = g_dev, t_dev
+    if has_utc.all():
+        utc = np.array([calendar.timegm((int(y), int(m), int(d), 0, 0, 0)) for y, m, d in
+                        zip(year[valid], month[valid], day[valid])], dtype=float) + utc_ms[valid] / 1000.0
+        if len(np.unique(utc)) >= 2:
+            # fixes are received after they happen: fit the early edge (least squares, then the earliest fifth)
+            rate, offset = np.polyfit(g_dev, utc, 1)
+            for _ in range(3):
+                resid = utc - (rate * g_dev + offset)
+                edge = resid >= np.percentile(resid, 80)
+                if edge.sum() >= 2 and np.ptp(g_dev[edge]) > 0:
+                    rate, offset = np.polyfit(g_dev[edge], utc[edge], 1)
+            offset += np.percentile(utc - (rate * g_dev + offset), 99)
+            t_gps, t_imu = utc, rate * t_dev + offset
+            time_scale = "utc"
+            notes.append(f"{path.name}: device clock mapped to UTC through {len(utc)} fixes (rate {rate:.6f} s/s)")
+    sog_ms, cog_deg = sog[valid] / 1000.0, np.where(cog[valid] == UNKNOWN_U16, 0.0, cog[valid] / 100.0)
+    climb_known = climb[valid] != UNKNOWN_I32
+    v_up = np.where(climb_known, climb[valid] / 1000.0, 0.0)
+    cog_rad = np.radians(cog_deg)
+    vel = np.stack([sog_ms * np.sin(cog_rad), sog_ms * np.cos(cog_rad), v_up], axis=1)
+    m = len(t_gps)
+    sigma_vel = np.full((m, 3), DOPPLER_SIGMA)
+    sigma_vel[~climb_known, 2] = CLIMB_UNKNOWN_SIGMA
+    h_dop = np.where(hdop[valid] == UNKNOWN_U16, 200.0, hdop[valid]) / 100.0
+    sigma_h = UERE * np.maximum(h_dop, 1.0)
+    alt_m = np.where(alt[valid] == UNKNOWN_I32, np.nan, alt[valid] / 1000.0)
+    sigma_pos = np.stack([sigma_h, sigma_h, 2 * sigma_h], axis=1)
+    order = np.argsort(t_gps, kind="stable")
+    t_gps = t_gps[order]
+    if np.any(np.diff(t_gps) <= 0):
+        keep_g = np.concatenate([[True], np.diff(t_gps) > 0])
+        notes.append(f"{path.name}: dropped {np.sum(~keep_g)} repeated GPS epoch(s)")
+        order, t_gps = order[keep_g], t_gps[keep_g]
+    gps = GpsSeries(t_gps, lat[valid][order] * 1e-7, lon[valid][order] * 1e-7, alt_m[order], vel[order],
+                    sigma_vel[order], sigma_pos[order], quality[valid][order].astype(int))
+    return PostLog(path.stem, ImuSeries(t_imu, acc), gps, notes=notes, time_scale=time_scale)
+
+
 def read_device_log(path: Path) -> PostLog:
-    raise UserError(
-        f"{path}: device logs are not readable by this version of `deadreckon post` yet",
-        location=Location(str(path), 1, 1),
-        hint="export the run as the CSV pair (imu.csv: t,ax,ay,az; gps.csv: t,lat,lon,sog,cog,climb) and pass --gps",
-    )
+    """One dr*.bin file, or a folder of them (the newest file of the folder: each boot starts a new clock)."""
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix in DEVICE_LOG_SUFFIXES)
+        if len(files) > 1:
+            raise UserError(f"{path}: {len(files)} device logs in the folder; pass one file",
+                            hint="each dr*.bin is one boot (or one size-limited part) with its own clock")
+        path = files[0]
+    return to_post_log(parse_device_log(path))

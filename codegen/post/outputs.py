@@ -53,7 +53,8 @@ def write_trajectory_csv(result: PostResult, path: Path) -> None:
 
 def write_gpx(result: PostResult, path: Path) -> None:
     rows = trajectory_rows(result)
-    stamp = result.log.time_scale == "gpst"
+    stamp = result.log.time_scale in ("gpst", "utc")
+    leap = GPS_UTC_LEAP_SECONDS if result.log.time_scale == "gpst" else 0
     out = ['<?xml version="1.0" encoding="UTF-8"?>',
            '<gpx version="1.1" creator="deadreckon post" xmlns="http://www.topografix.com/GPX/1/1">',
            f"<trk><name>{escape(result.log.name)}</name><trkseg>"]
@@ -62,7 +63,7 @@ def write_gpx(result: PostResult, path: Path) -> None:
         if np.isfinite(rows["h"][i]):
             point += f"<ele>{rows['h'][i]:.3f}</ele>"
         if stamp:
-            utc = datetime.fromtimestamp(rows["t"][i] - GPS_UTC_LEAP_SECONDS, tz=timezone.utc)
+            utc = datetime.fromtimestamp(rows["t"][i] - leap, tz=timezone.utc)
             point += f"<time>{utc.strftime('%Y-%m-%dT%H:%M:%S.%f')[:-3]}Z</time>"
         out.append(point + "</trkpt>")
     out.append("</trkseg></trk></gpx>")

@@ -1,0 +1,143 @@
+"""`deadreckon post` on the device's own log format (docs/log-format.md v1), written here from a synthetic run."""
+
+from __future__ import annotations
+
+import calendar
+import struct
+
+import numpy as np
+import pytest
+
+from codegen.board import STANDARD_GRAVITY
+from codegen.cli import main
+from codegen.post import PostOptions, load_log, process
+from codegen.post.orientation import wrap
+from codegen.post.synthetic import Scenario, make_run
+
+BLOCK = 4096
+START_UTC = calendar.timegm((2026, 11, 21, 23, 59, 30))  # crosses midnight during the run
+
+
+class Blocks:
+    def __init__(self):
+        self.out, self.block = bytearray(), bytearray()
+
+    def add(self, record: bytes):
+        if len(self.block) + len(record) > BLOCK:
+            self.flush()
+        self.block += record
+
+    def flush(self):
+        if self.block:
+            self.out += self.block + bytes(BLOCK - len(self.block))
+            self.block = bytearray()
+
+
+def write_device_log(path, log, latency=0.25, seed=0, axes="+0+1+2"):
+    """IMU counts at their device time; each fix logged when its NMEA would have arrived (time + latency)."""
+    rng = np.random.default_rng(seed)
+    header = f"deadreckon=1;board=synthetic;imu_rate_hz=200;log_every=4;accel_lsb_per_g=16384;gyro_lsb_per_dps=131;axes={axes};kernel=python"
+    b = Blocks()
+    b.add(struct.pack("<BBH", 0x48, 1, len(header)) + header.encode())
+    t0 = log.imu.t[0]
+    counts = np.round(log.imu.acc / STANDARD_GRAVITY * 16384).astype(int)
+    events = [(t, "I", i) for i, t in enumerate(log.imu.t)]
+    arrival = log.gps.t + latency + rng.uniform(0.0, 0.15, len(log.gps))
+    events += [(t, "G", i) for i, t in enumerate(arrival)]
+    events.sort()
+    v = log.gps.vel
+    for t, kind, i in events:
+        t_us = int(round((t - t0 + 5.0) * 1e6)) & 0xFFFFFFFF
+        if kind == "I":
+            ax, ay, az = counts[i]
+            b.add(struct.pack("<BI6h", 0x49, t_us, ax, ay, az, 0, 0, 0))
+        else:
+            utc = START_UTC + log.gps.t[i]
+            day = utc - utc % 86400
+            y, mo, d = __import__("time").gmtime(day)[:3]
+            sog = np.hypot(v[i, 0], v[i, 1])
+            cog = np.degrees(np.arctan2(v[i, 0], v[i, 1])) % 360.0
+            b.add(struct.pack("<BIIHBBiiiiHiBBBH", 0x47, t_us, int(round((utc % 86400) * 1000)), y, mo, d,
+                              int(round(log.gps.lat[i] * 1e7)), int(round(log.gps.lon[i] * 1e7)), 400000,
+                              int(sog * 1000 + 0.5), int(cog * 100 + 0.5) % 36000, int(round(v[i, 2] * 1000)),
+                              3, 1, 8, 120))
+    b.flush()
+    path.write_bytes(bytes(b.out))
+    return path
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    log, truth = make_run(Scenario(duration=300.0, seed=5))
+    path = write_device_log(tmp_path_factory.mktemp("dev") / "dr00001.bin", log)
+    return path, log, truth
+
+
+def test_device_log_reads_onto_utc(run):
+    path, log, _ = run
+    dev = load_log(path)
+    assert dev.time_scale == "utc"
+    assert len(dev.imu) == len(log.imu) and len(dev.gps) == len(log.gps)
+    assert np.allclose(dev.imu.acc, log.imu.acc, atol=2 * STANDARD_GRAVITY / 16384)
+    # UTC fix times exact; the IMU clock mapped through the early edge of arrivals that jitter by 0..150 ms: the
+    # rate is known to ~1e-5, so the map drifts by a few ms over the 300 s, under half an IMU sample
+    assert np.allclose(np.diff(dev.gps.t), 1.0)
+    offset = (dev.imu.t - dev.imu.t[0]) - (log.imu.t - log.imu.t[0])
+    assert np.ptp(offset) < 0.01
+
+
+def test_device_log_end_to_end(run, tmp_path, capsys):
+    path, log, truth = run
+    assert main(["post", str(path), "-o", str(tmp_path / "out"), "--no-plots"]) == 0
+    dev = load_log(path)
+    result = process(dev, PostOptions())
+    o = result.orientation
+    # the IMU was mapped to the fixes' early edge, which is 250 ms after the fix: the delay search finds that
+    # fixed NMEA latency (IMU stamps early by it), within one IMU sample
+    assert abs(result.delay - (-0.25)) <= 0.02
+    err = np.degrees(wrap(o.euler[o.valid] - truth.euler(o.t[o.valid] - START_UTC)))
+    assert np.abs(err[:, :2]).max() < 0.5
+    assert result.velocity_residual_rms < 0.15
+    assert "<time>2026-11-2" in (tmp_path / "out" / "trajectory.gpx").read_text()
+
+
+def test_axis_remap_from_the_header(tmp_path):
+    log, _ = make_run(Scenario(duration=30.0, seed=2))
+    swapped = log.imu.acc[:, [1, 0, 2]] * np.array([1.0, -1.0, 1.0])  # sensor axes as mounted
+    log.imu.acc = swapped
+    path = write_device_log(tmp_path / "dr00002.bin", log, axes="-1+0+2")
+    dev = load_log(path)  # body x = -sensor y, body y = sensor x
+    assert np.allclose(dev.imu.acc[:, 0], -swapped[:, 1], atol=1e-2)
+    assert np.allclose(dev.imu.acc[:, 1], swapped[:, 0], atol=1e-2)
+
+
+def test_cut_off_device_log_keeps_whole_records(run, tmp_path):
+    path, _, _ = run
+    data = path.read_bytes()
+    cut = tmp_path / "dr00003.bin"
+    cut.write_bytes(data[: len(data) - BLOCK // 2 - 5])
+    dev = load_log(cut)
+    assert any("incomplete" in n for n in dev.notes)
+    assert len(dev.imu) > 1000
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"", "is empty"),
+    (b"\x00" * 100, "not a deadreckon device log"),
+    (struct.pack("<BBH", 0x48, 7, 0), "version 7"),
+])
+def test_bad_device_logs(tmp_path, capsys, content, message):
+    path = tmp_path / "dr00009.bin"
+    path.write_bytes(content)
+    code = main(["post", str(path), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and "Traceback" not in err
+
+
+def test_device_log_without_fix(tmp_path, capsys):
+    log, _ = make_run(Scenario(duration=20.0))
+    log.gps = log.gps.select(np.zeros(len(log.gps), dtype=bool))
+    path = write_device_log(tmp_path / "dr00004.bin", log)
+    code = main(["post", str(path), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "no GPS fix" in err
