@@ -158,10 +158,14 @@ def report_text(result: PostResult) -> str:
     lines.append(f"           GPS - IMU velocity change per interval RMS {s['imu_interval_velocity_residual_rms_mps']:.3f} m/s")
     flagged = [(o.t[k], o.flags[k]) for k in range(len(o.t)) if o.flags[k]]
     if flagged:
+        t0 = result.log.gps.t[0]
         lines.append("")
-        lines.append("flagged intervals (midpoint time s: flags), first 40:")
+        lines.append(f"flagged intervals (midpoint, s after the first GPS epoch at {t0:.3f} s), first 40:")
+        lines.append("  yaw-held: too little horizontal acceleration, yaw carried over; stationary: no track direction;")
+        lines.append("  poor-fit: the window's vectors disagree with one rotation; lm-wahba: LM and closed form differ")
+        lines.append("  (on a yaw-held interval: the tilt differs, i.e. the held yaw does not suit the window)")
         for t, f in flagged[:40]:
-            lines.append(f"  {t:.3f}: {' '.join(f)}")
+            lines.append(f"  {t - t0:8.3f}: {' '.join(f)}")
     return "\n".join(lines) + "\n"
 
 
