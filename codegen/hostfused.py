@@ -1,0 +1,183 @@
+"""The fused C kernel (native_ext/dr_fused.c) on the host: compiled with cffi (API mode) from the board's rendered
+sources, cached by source hash like codegen.hostkernel, with a session class the equivalence tests drive exactly as
+the app drives dr_native (calibrate, process windows, a GPS update per fix).
+
+    fk = load_fused()                      # default board
+    s = fk.session()                       # dr_config + dr_fused_config + dr_fused_state, owned here
+    s.calibrate(rest_samples); s.process(samples, dt_us); s.gps(ve, vn); s.state_vector()
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+import numpy as np
+
+from codegen import hostkernel
+from codegen.errors import UserError
+
+SOURCES = ("dr_kernel.c", "dr_median.c", "dr_geo.c", "dr_fused.c")
+HEADERS = ("dr_fused.h",)
+PARAM_ORDER = ("tilt_tau_s", "accel_reject_g", "tilt_tau_dark_s", "steady_accel_ms2", "speed_tau_s",
+               "gps_timeout_s", "stat_tau_s", "rest_accel_g", "rest_gyro_dps", "rest_time_s", "bias_tau_s",
+               "walk_accel_g", "min_speed_ms", "heading_gain", "align_forget", "speed_gain", "bias_gain",
+               "walk_speed_gain")
+
+CDEF = """
+typedef struct {
+    int32_t block;
+    int32_t window;
+    int32_t axis_source[3];
+    float axis_sign[3];
+    float accel_ms2_per_lsb;
+    float gyro_rads_per_lsb;
+    float deadband_ms2;
+    float motion_limit_lsb2;
+} dr_config;
+typedef struct { ...; } dr_fused_config;
+typedef struct { ...; } dr_fused_state;
+void dr_config_init(dr_config *cfg);
+void dr_fused_config_init(dr_fused_config *cfg);
+int dr_fused_config_set(dr_fused_config *cfg, const float p[18]);
+void dr_fused_state_init(dr_fused_state *st);
+int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t *samples, int32_t count);
+int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
+                     const int32_t *dt_us, int32_t count, float out[6]);
+void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn);
+"""
+
+C_SOURCE = """
+#include "dr_fused.h"
+typedef char dr_fused_state_is_33_floats[sizeof(dr_fused_state) == 33 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_18_floats[sizeof(dr_fused_config) == 18 * sizeof(float) ? 1 : -1];
+"""
+
+
+class FusedSession:
+    """A dr_config, a dr_fused_config and a dr_fused_state, owned here as the app owns them on the device."""
+
+    def __init__(self, fk: "HostFused", params=None):
+        self.fk = fk
+        ffi, lib = fk.ffi, fk.lib
+        self.kcfg = ffi.new("dr_config *")
+        lib.dr_config_init(self.kcfg)
+        self.cfg = ffi.new("dr_fused_config *")
+        if params is None:
+            lib.dr_fused_config_init(self.cfg)
+        else:
+            p = ffi.new("float[18]", [float(getattr(params, name)) for name in PARAM_ORDER])
+            if lib.dr_fused_config_set(self.cfg, p):
+                raise ValueError("a fused time constant is out of range")
+        self.st = ffi.new("dr_fused_state *")
+        lib.dr_fused_state_init(self.st)
+        self.out = ffi.new("float[6]")
+
+    def calibrate(self, samples) -> bool:
+        raw = np.ascontiguousarray(np.asarray(samples).reshape(-1, 6), dtype=np.int16)
+        code = self.fk.lib.dr_fused_calibrate(self.kcfg, self.st, self.fk.ffi.from_buffer("int16_t[]", raw), len(raw))
+        if code < 0:
+            raise ValueError(f"fused calibration error {code}")
+        return code == 1
+
+    def process(self, samples, dt_us) -> np.ndarray:
+        ffi = self.fk.ffi
+        raw = np.ascontiguousarray(np.asarray(samples).reshape(-1, 6), dtype=np.int16)
+        dt = np.ascontiguousarray(np.asarray(dt_us).ravel(), dtype=np.int32)
+        if len(dt) != len(raw):
+            raise ValueError(f"{len(raw)} samples but {len(dt)} time steps")
+        code = self.fk.lib.dr_fused_process(self.kcfg, self.cfg, self.st, ffi.from_buffer("int16_t[]", raw),
+                                            ffi.from_buffer("int32_t[]", dt), len(raw), self.out)
+        if code:
+            raise ValueError(f"fused process error {code}")
+        return np.array(list(self.out), dtype=np.float32)
+
+    def gps(self, ve: float, vn: float) -> None:
+        self.fk.lib.dr_fused_gps(self.cfg, self.st, float(ve), float(vn))
+
+    def state_vector(self) -> np.ndarray:
+        """The 33 state floats in the order of codegen.fused.STATE_FIELDS."""
+        return np.array(list(self.fk.ffi.cast("float *", self.st)[0:33]), dtype=np.float32)
+
+    def set_state_vector(self, values) -> None:
+        f = self.fk.ffi.cast("float *", self.st)
+        for i, x in enumerate(np.asarray(values, dtype=np.float64).ravel()):
+            f[i] = float(x)
+
+
+class HostFused:
+    def __init__(self, module):
+        self.ffi = module.ffi
+        self.lib = module.lib
+
+    def session(self, params=None) -> FusedSession:
+        return FusedSession(self, params)
+
+
+_LOADED: dict[str, HostFused] = {}
+
+
+def fused_sources(loaded=None) -> dict[str, bytes]:
+    files = hostkernel.kernel_sources(loaded)
+    from codegen.generate import render_tree
+    from codegen.loader import load_board
+
+    tree = render_tree(loaded if loaded is not None else load_board())
+    for name in ("dr_fused.c",) + HEADERS:
+        files[name] = tree[f"native/{name}"].content
+    return files
+
+
+def load_fused(loaded=None) -> HostFused:
+    """Compile (or find in the cache) the fused kernel for a board (None = the default board)."""
+    import cffi
+
+    files = fused_sources(loaded)
+    digest = hashlib.sha256()
+    for name in sorted(files):
+        digest.update(name.encode() + b"\0" + files[name] + b"\0")
+    digest.update((CDEF + " ".join(hostkernel.C_FLAGS) + sys.version).encode())
+    digest.update(Path(__file__).read_bytes())
+    key = digest.hexdigest()[:20]
+    if key in _LOADED:
+        return _LOADED[key]
+    name = f"_drfused_{key}"
+    home = hostkernel.cache_dir() / "hostfused" / key
+    built = list(home.glob(f"{name}*.so")) if home.is_dir() else []
+    if not built:
+        hostkernel.cache_dir().mkdir(parents=True, exist_ok=True)
+        work = Path(tempfile.mkdtemp(prefix=f"fused-{key}-", dir=hostkernel.cache_dir()))
+        try:
+            for file_name, content in files.items():
+                (work / file_name).write_bytes(content)
+            objects = []
+            for source in SOURCES:
+                obj = work / (source[:-2] + ".o")
+                cmd = [*hostkernel._compiler(), *hostkernel.C_FLAGS, "-I", str(work), "-c", source, "-o", obj.name]
+                done = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
+                if done.returncode:
+                    raise UserError(f"the fused C kernel does not compile: {done.stderr.strip()}")
+                objects.append(obj)
+            ffi = cffi.FFI()
+            ffi.cdef(CDEF)
+            ffi.set_source(name, C_SOURCE, include_dirs=[str(work)], extra_objects=[str(o) for o in objects])
+            library = Path(ffi.compile(tmpdir=str(work), verbose=False))
+            home.parent.mkdir(parents=True, exist_ok=True)
+            staging = Path(tempfile.mkdtemp(prefix=f"stage-{key}-", dir=home.parent))
+            shutil.copy2(library, staging / library.name)
+            try:
+                os.replace(staging, home)
+            except OSError:
+                shutil.rmtree(staging, ignore_errors=True)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        built = list(home.glob(f"{name}*.so"))
+    module = hostkernel._import(built[0], name)
+    result = HostFused(module)
+    _LOADED[key] = result
+    return result
+

@@ -1,0 +1,170 @@
+"""The fused algorithm (issue 8): reference (codegen/fused.py, float64) vs the C kernel (native_ext/dr_fused.c,
+float32, through cffi), on simulated streams driven exactly as the app drives the kernel (calibrate, windows of
+samples, one GPS update per fix), plus analytic cases.
+
+Tolerances, derived rather than picked: the C kernel rounds every operation to float32 (relative eps 2^-24 ~ 6e-8).
+The orientation and the filters are contracting (tilt correction, renormalisation, gains < 1), so their rounding
+stays at a few hundred eps of the value; the position is a running sum of N steps, whose rounding error is at most
+N eps |p| (each addition rounds once). A threshold decision (rest, walking) taken differently by the two would show
+as a difference far above these bounds, and the flags are compared exactly as well.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from codegen import fused as F
+from codegen.loader import default_board
+from codegen.reference import KernelConfig, quat_from_rotvec, quat_to_matrix
+
+EPS32 = 2.0**-24
+BOARD = default_board()
+KCFG = KernelConfig.from_board(BOARD)
+FCFG = F.FusedConfig.from_board(BOARD)
+Q = slice(0, 4)
+
+
+@pytest.fixture(scope="module")
+def fk():
+    pytest.importorskip("cffi")
+    from codegen.hostfused import load_fused
+
+    return load_fused()
+
+
+def _stream(scenario, seed, duration):
+    from codegen.sim.run import build_run
+
+    run = build_run(scenario, BOARD, seed=seed, duration=duration)
+    return run
+
+
+def _drive(run, ref, c, start_s, stop_s):
+    """Samples from start_s to stop_s in the windows between GPS fixes, a GPS update at each fix; yields after
+    each fix (the app's order)."""
+    t = run.t_us * 1e-6
+    dt = np.diff(run.t_us)
+    k = int(np.searchsorted(t, start_s))
+    vel = run.gps.device_velocity()
+    for j in range(int(math.ceil(start_s)), int(stop_s)):
+        stop = int(np.searchsorted(t, float(j)))
+        if stop > k:
+            out_r, flags = F.process(ref, run.counts[k:stop], dt[k:stop], KCFG, FCFG)
+            out_c = c.process(run.counts[k:stop], dt[k:stop])
+            k = stop
+            yield out_r, out_c
+        F.gps_update(ref, float(vel[j, 0]), float(vel[j, 1]), FCFG)
+        c.gps(float(vel[j, 0]), float(vel[j, 1]))
+
+
+@pytest.mark.parametrize("scenario,seed", [("walk", 11), ("car", 12)])
+def test_c_matches_reference_on_a_simulated_run(fk, scenario, seed):
+    run = _stream(scenario, seed, 50.0)
+    t = run.t_us * 1e-6
+    n_cal = int(np.searchsorted(t, 10.0))
+    ref = F.FusedState()
+    moved_r = F.calibrate(ref, run.counts[:n_cal], KCFG)
+    c = fk.session()
+    moved_c = c.calibrate(run.counts[:n_cal])
+    assert moved_r == moved_c
+    # calibration means: sums of up to 2000 counts in float32, relative error ~ eps per addition of the float sum
+    np.testing.assert_allclose(c.state_vector(), ref.vector(), rtol=0, atol=2000 * EPS32 * 2 * 32768 / 2000 + 1e-6)
+    n = 0
+    path = 0.0
+    for out_r, out_c in _drive(run, ref, c, 10.0, 49.0):
+        n += 200
+        path += float(np.hypot(out_r[0], out_r[1]))
+        sv = c.state_vector()
+        rv = ref.vector()
+        assert int(sv[F.IDX["flags"]]) == int(rv[F.IDX["flags"]])
+        np.testing.assert_allclose(sv[Q], rv[Q], atol=500 * EPS32 * 4)
+        bound = n * EPS32 * max(path, 1.0) + 1e-4
+        assert abs(sv[F.IDX["pe"]] - rv[F.IDX["pe"]]) < bound
+        assert abs(sv[F.IDX["pn"]] - rv[F.IDX["pn"]]) < bound
+        np.testing.assert_allclose(out_c[3:5], out_r[3:5], atol=1e-3 * (1 + np.abs(out_r[3:5]).max()))
+    assert path > 20.0  # the run really moved
+
+
+def _rest_samples(n, tilt=(0.0, 0.0, 0.0), gyro=(0, 0, 0)):
+    """n raw samples at rest with the body tilted by the rotation vector `tilt` (rad), accel 1 g."""
+    r = quat_to_matrix(quat_from_rotvec(np.array(tilt)))
+    f = r.T @ np.array([0.0, 0.0, KCFG.accel_lsb_per_g])
+    return np.tile(np.concatenate([np.round(f), gyro]).astype(np.int16), (n, 1))
+
+
+def test_at_rest_nothing_moves(fk):
+    samples = _rest_samples(2000, tilt=(0.1, -0.05, 0.0), gyro=(12, -7, 3))
+    dt = np.full(len(samples), 5000, dtype=np.int32)
+    ref = F.FusedState()
+    F.calibrate(ref, samples, KCFG)
+    out_r, flags = F.process(ref, samples, dt, KCFG, FCFG)
+    c = fk.session()
+    c.calibrate(samples)
+    out_c = c.process(samples, dt)
+    # float32 rounding of the calibrated tilt leaves ~1e-7 m/s^2 until rest is declared (rest_time_s): nanometres
+    assert np.all(np.abs(out_r) < 1e-9) and np.all(np.abs(out_c) < 1e-6)
+    assert flags[-1] == 1 and int(c.state_vector()[F.IDX["flags"]]) == 1
+
+
+def test_tilt_converges_to_gravity_with_gps(fk):
+    """Start 5 degrees off; at rest with GPS fixes arriving, the tilt correction removes the error."""
+    samples = _rest_samples(200)
+    dt = np.full(200, 5000, dtype=np.int32)
+    q0 = quat_from_rotvec(np.radians([5.0, -3.0, 0.0]))
+    ref = F.FusedState()
+    ref.qw, ref.qx, ref.qy, ref.qz = q0
+    ref.mean_f = 9.80665
+    ref.steady = 1.0
+    c = fk.session()
+    c.set_state_vector(ref.vector())
+    for _ in range(120):  # 120 s, six time constants of the default 20 s
+        F.process(ref, samples, dt, KCFG, FCFG)
+        F.gps_update(ref, 0.0, 0.0, FCFG)
+        c.process(samples, dt)
+        c.gps(0.0, 0.0)
+    for q in (ref.vector()[Q], c.state_vector()[Q]):
+        up = quat_to_matrix(q)[2]
+        assert math.degrees(math.acos(min(1.0, up[2]))) < 5.0 * math.exp(-5)
+
+
+def test_turn_rotates_the_travel_direction(fk):
+    """A turn of 90 degrees (counter-clockwise) about Up at 0.5 rad/s turns the travel direction with it."""
+    rate_counts = round(math.degrees(0.5) * KCFG.gyro_lsb_per_dps)
+    rate = rate_counts / KCFG.gyro_lsb_per_dps * math.pi / 180
+    steps = round(math.pi / 2 / rate / 0.005)
+    samples = _rest_samples(steps, gyro=(0, 0, rate_counts))
+    dt = np.full(steps, 5000, dtype=np.int32)
+    ref = F.FusedState()
+    ref.mean_f = 9.80665
+    c = fk.session()
+    c.set_state_vector(ref.vector())
+    F.process(ref, samples, dt, KCFG, FCFG)
+    c.process(samples, dt)
+    turned = rate * steps * 0.005
+    for ux, uy in ((ref.ux, ref.uy), tuple(c.state_vector()[[F.IDX["ux"], F.IDX["uy"]]])):
+        assert math.atan2(uy, ux) == pytest.approx(turned, abs=1e-3)
+
+
+def test_gps_sets_speed_and_course(fk):
+    """Fixes at a steady 1.4 m/s heading North-East: the speed and the true-frame velocity follow them."""
+    ref = F.FusedState()
+    c = fk.session()
+    c.set_state_vector(ref.vector())
+    ve = vn = 1.4 / math.sqrt(2)
+    for _ in range(40):
+        F.gps_update(ref, ve, vn, FCFG)
+        c.gps(ve, vn)
+    for st in (ref.vector(), c.state_vector()):
+        assert st[F.IDX["speed"]] == pytest.approx(1.4, rel=1e-5)
+        ux, uy, ct, stt = st[F.IDX["ux"]], st[F.IDX["uy"]], st[F.IDX["cos_t"]], st[F.IDX["sin_t"]]
+        assert math.atan2(stt * ux + ct * uy, ct * ux - stt * uy) == pytest.approx(math.pi / 4, abs=1e-4)
+
+
+def test_config_rejects_a_zero_time_constant(fk):
+    from dataclasses import replace
+
+    with pytest.raises(ValueError):
+        fk.session(replace(FCFG, tilt_tau_s=0.0))
