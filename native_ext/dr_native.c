@@ -15,6 +15,7 @@
 #endif
 
 #include "dr_board.h"
+#include "dr_fused.h"
 #include "dr_geo.h"
 #include "dr_kernel.h"
 #include "dr_median.h"
@@ -217,6 +218,87 @@ static mp_obj_t dr_block_median_fn(mp_obj_t values_obj, mp_obj_t block_obj, mp_o
 }
 static MP_DEFINE_CONST_FUN_OBJ_3(dr_block_median_obj, dr_block_median_fn);
 
+/* ---- algorithm: fused (dr_fused.h). Its own state buffer: dr_fused_state | dr_fused_config | dr_config. ---- */
+#define DR_FUSED_STATE_FLOATS ((mp_int_t)(sizeof(dr_fused_state) / sizeof(float)))
+#define DR_FUSED_CONFIG_FLOATS ((mp_int_t)(sizeof(dr_fused_config) / sizeof(float)))
+#define DR_FUSED_LEN (DR_FUSED_STATE_FLOATS + DR_FUSED_CONFIG_FLOATS + DR_CONFIG_FLOATS)
+
+static void dr_fused_unpack(mp_obj_t obj, dr_fused_state **st, dr_fused_config **cfg, dr_config **kcfg) {
+    mp_buffer_info_t info;
+    float *base;
+    dr_get_array(obj, &info, MP_BUFFER_RW, 'f');
+    if ((mp_int_t)(info.len / sizeof(float)) < DR_FUSED_LEN) {
+        mp_raise_ValueError(MP_ERROR_TEXT("fused state buffer shorter than FUSED_STATE_LEN"));
+    }
+    base = (float *)info.buf;
+    *st = (dr_fused_state *)base;
+    *cfg = (dr_fused_config *)(base + DR_FUSED_STATE_FLOATS);
+    *kcfg = (dr_config *)(base + DR_FUSED_STATE_FLOATS + DR_FUSED_CONFIG_FLOATS);
+}
+
+/* fused_init(fstate): the board's configuration, a fresh state */
+static mp_obj_t dr_fused_init_fn(mp_obj_t state_obj) {
+    dr_fused_state *st;
+    dr_fused_config *cfg;
+    dr_config *kcfg;
+    dr_fused_unpack(state_obj, &st, &cfg, &kcfg);
+    dr_config_init(kcfg);
+    dr_fused_config_init(cfg);
+    dr_fused_state_init(st);
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_1(dr_fused_init_obj, dr_fused_init_fn);
+
+static mp_obj_t dr_fused_calibrate_fn(mp_obj_t state_obj, mp_obj_t samples_obj) {
+    dr_fused_state *st;
+    dr_fused_config *cfg;
+    dr_config *kcfg;
+    mp_buffer_info_t samples;
+    int code;
+    dr_fused_unpack(state_obj, &st, &cfg, &kcfg);
+    dr_get_array(samples_obj, &samples, MP_BUFFER_READ, 'h');
+    code = dr_fused_calibrate(kcfg, st, (const int16_t *)samples.buf, (int32_t)(samples.len / (6 * sizeof(int16_t))));
+    if (code < 0) {
+        dr_raise(code);
+    }
+    return mp_obj_new_int(code);
+}
+static MP_DEFINE_CONST_FUN_OBJ_2(dr_fused_calibrate_obj, dr_fused_calibrate_fn);
+
+static mp_obj_t dr_fused_process_fn(size_t n_args, const mp_obj_t *args) {
+    dr_fused_state *st;
+    dr_fused_config *cfg;
+    dr_config *kcfg;
+    mp_buffer_info_t samples, dt, out;
+    mp_int_t count;
+    (void)n_args;
+    dr_fused_unpack(args[0], &st, &cfg, &kcfg);
+    dr_get_array(args[1], &samples, MP_BUFFER_READ, 'h');
+    dr_get_array(args[2], &dt, MP_BUFFER_READ, 'i');
+    dr_get_array(args[3], &out, MP_BUFFER_RW, 'f');
+    count = (mp_int_t)(samples.len / (6 * sizeof(int16_t)));
+    if (count < 1 || samples.len != (size_t)count * 6 * sizeof(int16_t) || dt.len != (size_t)count * sizeof(int32_t)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("samples must hold 6 values and dt_us 1 value per sample"));
+    }
+    if (out.len < DR_OUT_FLOATS * sizeof(float)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("out must hold OUT_LEN floats"));
+    }
+    (void)dr_fused_process(kcfg, cfg, st, (const int16_t *)samples.buf, (const int32_t *)dt.buf, (int32_t)count,
+                           (float *)out.buf);
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_fused_process_obj, 4, 4, dr_fused_process_fn);
+
+static mp_obj_t dr_fused_gps_fn(mp_obj_t state_obj, mp_obj_t ve_obj, mp_obj_t vn_obj) {
+    dr_fused_state *st;
+    dr_fused_config *cfg;
+    dr_config *kcfg;
+    dr_fused_unpack(state_obj, &st, &cfg, &kcfg);
+    dr_fused_gps(cfg, st, (float)mp_obj_get_float(ve_obj), (float)mp_obj_get_float(vn_obj));
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_3(dr_fused_gps_obj, dr_fused_gps_fn);
+
 #if MICROPY_ENABLE_DYNRUNTIME
 
 mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *args) {
@@ -237,6 +319,11 @@ mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *a
     mp_store_global(MP_QSTR_Q, MP_OBJ_NEW_SMALL_INT(0));
     mp_store_global(MP_QSTR_V, MP_OBJ_NEW_SMALL_INT(4));
     mp_store_global(MP_QSTR_GYRO_BIAS, MP_OBJ_NEW_SMALL_INT(7));
+    mp_store_global(MP_QSTR_fused_init, MP_OBJ_FROM_PTR(&dr_fused_init_obj));
+    mp_store_global(MP_QSTR_fused_calibrate, MP_OBJ_FROM_PTR(&dr_fused_calibrate_obj));
+    mp_store_global(MP_QSTR_fused_process, MP_OBJ_FROM_PTR(&dr_fused_process_obj));
+    mp_store_global(MP_QSTR_fused_gps, MP_OBJ_FROM_PTR(&dr_fused_gps_obj));
+    mp_store_global(MP_QSTR_FUSED_STATE_LEN, MP_OBJ_NEW_SMALL_INT(DR_FUSED_LEN));
     MP_DYNRUNTIME_INIT_EXIT
 }
 
@@ -261,10 +348,17 @@ static const mp_rom_map_elem_t dr_native_globals_table[] = {
     { MP_ROM_QSTR(MP_QSTR_Q), MP_ROM_INT(0) },
     { MP_ROM_QSTR(MP_QSTR_V), MP_ROM_INT(4) },
     { MP_ROM_QSTR(MP_QSTR_GYRO_BIAS), MP_ROM_INT(7) },
+    { MP_ROM_QSTR(MP_QSTR_fused_init), MP_ROM_PTR(&dr_fused_init_obj) },
+    { MP_ROM_QSTR(MP_QSTR_fused_calibrate), MP_ROM_PTR(&dr_fused_calibrate_obj) },
+    { MP_ROM_QSTR(MP_QSTR_fused_process), MP_ROM_PTR(&dr_fused_process_obj) },
+    { MP_ROM_QSTR(MP_QSTR_fused_gps), MP_ROM_PTR(&dr_fused_gps_obj) },
+    /* sizeof(dr_fused_state) + sizeof(dr_fused_config) + sizeof(dr_config) = 33 + 18 + 12 floats (checked below) */
+    { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(63) },
 };
 static MP_DEFINE_CONST_DICT(dr_native_globals, dr_native_globals_table);
 
 /* the ROM table's 22 must match the structs */
+typedef char dr_fused_floats_is_63[DR_FUSED_LEN == 63 ? 1 : -1];
 typedef char dr_header_floats_is_22[(sizeof(dr_state) + sizeof(dr_config)) == 22 * sizeof(float) ? 1 : -1];
 
 const mp_obj_module_t dr_native_user_cmodule = {

@@ -6,6 +6,7 @@ target_sources(usermod_dr_native INTERFACE
     ${CMAKE_CURRENT_LIST_DIR}/dr_kernel.c
     ${CMAKE_CURRENT_LIST_DIR}/dr_median.c
     ${CMAKE_CURRENT_LIST_DIR}/dr_geo.c
+    ${CMAKE_CURRENT_LIST_DIR}/dr_fused.c
 )
 
 target_include_directories(usermod_dr_native INTERFACE

@@ -5,5 +5,6 @@ SRC_USERMOD += $(DR_NATIVE_DIR)/dr_native.c
 SRC_USERMOD += $(DR_NATIVE_DIR)/dr_kernel.c
 SRC_USERMOD += $(DR_NATIVE_DIR)/dr_median.c
 SRC_USERMOD += $(DR_NATIVE_DIR)/dr_geo.c
+SRC_USERMOD += $(DR_NATIVE_DIR)/dr_fused.c
 
 CFLAGS_USERMOD += -I$(DR_NATIVE_DIR)
