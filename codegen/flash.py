@@ -191,7 +191,8 @@ def classify(output: str, port: str, board: Board, regions: list[Region]) -> Opt
     if "could not exclusively lock" in lower or "resource busy" in lower:
         return UserError(f"port {port} is busy", hint=_busy_hint())
     if "connection refused" in lower or "no such file or directory" in lower and "could not open port" in lower:
-        return UserError(f"no such port {port} (nothing answers there)", hint=_ports_hint())
+        hint = "is the server at that address running?" if is_url(port) else _ports_hint()
+        return UserError(f"no such port {port} (nothing answers there)", hint=hint)
     if "md5 of file does not match" in lower or "write failed" in lower:
         return UserError(
             f"verification failed: the flash on {port} does not hold what was written",

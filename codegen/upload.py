@@ -93,36 +93,58 @@ class RawRepl:
         self.paced = paced  # a TCP link has its own flow control; a UART into a small buffer does not
         self.use_raw_paste = use_raw_paste
         self.raw_paste_used = False
+        self._buffer = b""
+
+    def _fill(self) -> bool:
+        """Move what the port has (waiting up to its short timeout for one byte) into the buffer."""
+        chunk = self.serial.read(max(1, min(self.serial.in_waiting, 4096)))
+        self._buffer += chunk
+        return bool(chunk)
+
+    def _take(self, count: int) -> bytes:
+        data, self._buffer = self._buffer[:count], self._buffer[count:]
+        return data
 
     def read_until(self, ending: bytes, timeout: float) -> bytes:
-        data = b""
+        """Everything up to and including the first `ending`; the rest stays buffered."""
         deadline = time.monotonic() + timeout
-        while not data.endswith(ending):
-            chunk = self.serial.read(max(1, min(self.serial.in_waiting, 4096)))
-            if chunk:
-                data += chunk
+        while True:
+            found = self._buffer.find(ending)
+            if found >= 0:
+                return self._take(found + len(ending))
+            if self._fill():
                 deadline = max(deadline, time.monotonic() + min(timeout, 1.0))  # still talking: keep waiting
             elif time.monotonic() > deadline:
-                raise ReplError(f"timed out waiting for {ending!r}; got {data[-80:]!r}")
-        return data
+                raise ReplError(f"timed out waiting for {ending!r}; got {self._buffer[-80:]!r}")
+
+    def read_exact(self, count: int, timeout: float) -> bytes:
+        deadline = time.monotonic() + timeout
+        while len(self._buffer) < count:
+            if not self._fill() and time.monotonic() > deadline:
+                raise ReplError(f"timed out reading {count} bytes from the board; got {self._buffer!r}")
+        return self._take(count)
+
+    def waiting(self) -> bool:
+        return bool(self._buffer) or self.serial.in_waiting > 0
 
     def drain(self, quiet: float = 0.1) -> bytes:
         """Read whatever the board prints until it has been quiet for `quiet` seconds."""
-        data = b""
         last = time.monotonic()
         while time.monotonic() - last < quiet:
-            chunk = self.serial.read(max(1, self.serial.in_waiting))
-            if chunk:
-                data += chunk
+            if self._fill():
                 last = time.monotonic()
-        return data
+        return self._take(len(self._buffer))
+
+    def discard_input(self) -> None:
+        self._buffer = b""
+        self.serial.reset_input_buffer()
 
     def enter(self) -> None:
         """Stop the running program and enter raw mode."""
         for attempt in range(3):
             self.serial.write(b"\r\x03\x03")  # interrupt main.py (twice: one may land inside a handler)
             self.drain(0.1 + 0.2 * attempt)
-            self.serial.reset_input_buffer()
+            self.discard_input()
             self.serial.write(b"\r\x01")
             try:
                 self.read_until(RAW_BANNER + b">", timeout=2.0)
@@ -134,7 +156,7 @@ class RawRepl:
     def _send_raw_paste(self, code: bytes) -> bool:
         """Send `code` in raw-paste mode; False if the board refuses (then nothing was consumed)."""
         self.serial.write(b"\x05A\x01")
-        answer = self.serial.read(2)
+        answer = self.read_exact(2, timeout=2.0)
         if answer == b"R\x00":
             self.use_raw_paste = False
             return False
@@ -148,7 +170,7 @@ class RawRepl:
         remaining = window
         index = 0
         while index < len(code):
-            while remaining == 0 or self.serial.in_waiting:
+            while remaining == 0 or self.waiting():
                 byte = self.read_exact(1, timeout=5.0)
                 if byte == b"\x01":
                     remaining += window
@@ -165,15 +187,6 @@ class RawRepl:
         self.read_until(b"\x04", timeout=5.0)  # compiled: execution output follows
         self.raw_paste_used = True
         return True
-
-    def read_exact(self, count: int, timeout: float) -> bytes:
-        data = b""
-        deadline = time.monotonic() + timeout
-        while len(data) < count:
-            data += self.serial.read(count - len(data))
-            if len(data) < count and time.monotonic() > deadline:
-                raise ReplError(f"timed out reading {count} bytes from the board; got {data!r}")
-        return data
 
     def exec(self, code: str | bytes, timeout: float = 10.0) -> bytes:
         """Run `code` on the board; return its stdout; raise ReplError with the board's traceback on error."""

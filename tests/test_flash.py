@@ -200,3 +200,18 @@ def test_default_board_generate_build_flash(tmp_path, peer, capsys):
     region = bytes(peer.flash[fs.offset : fs.offset + fs.size])
     assert region == (out / "build" / "fs.img").read_bytes()
     assert read_tree(mount_image(region, block_size=fs.block_size)) == files
+
+
+def test_busy_port(built, peer):
+    import serial
+
+    from peers.pty_link import PtyLink
+
+    tree, _, _ = built
+    with PtyLink("127.0.0.1", peer.port) as link:
+        holder = serial.Serial(link.path, exclusive=True)
+        try:
+            with pytest.raises(UserError, match=f"port {link.path} is busy"):
+                flash(tree, link.path, board=default_board(), progress=quiet)
+        finally:
+            holder.close()

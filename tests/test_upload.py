@@ -152,3 +152,21 @@ def test_default_board_generate_build_upload(peer, tmp_path, capsys):
     files = {p.relative_to(app_dir).as_posix(): p.read_bytes() for p in app_dir.rglob("*") if p.is_file()}
     assert "main.py" in files and peer.files() == files
     assert f"uploaded {len(files)} file(s), 0 unchanged" in capsys.readouterr().out
+
+
+def test_upload_through_a_tty_device_path(peer, built):
+    """A /dev/pts/N in front of the board, as a USB serial adapter would be: paced standard raw mode."""
+    import serial
+
+    from peers.pty_link import PtyLink
+
+    tree, result = built
+    with PtyLink("127.0.0.1", peer.port) as link:
+        holder = serial.Serial(link.path, exclusive=True)  # a serial monitor left open
+        with pytest.raises(UserError, match=f"port {link.path} is busy"):
+            upload(tree, link.path, progress=quiet)
+        holder.close()
+        outcome = upload(tree, link.path, progress=quiet)
+    peer.wait_idle()
+    assert sorted(outcome.sent) == sorted(result.files)
+    assert peer.files() == {rel: (result.app_dir / rel).read_bytes() for rel in result.files}
