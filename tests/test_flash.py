@@ -202,16 +202,19 @@ def test_default_board_generate_build_flash(tmp_path, peer, capsys):
     assert read_tree(mount_image(region, block_size=fs.block_size)) == files
 
 
-def test_busy_port(built, peer):
+def test_flash_through_a_tty_device_path_and_a_busy_one(built, peer):
+    """A /dev/pts/N in front of the emulated chip, as a USB serial adapter would be (esptool's DTR/RTS reset)."""
     import serial
 
     from peers.pty_link import PtyLink
 
-    tree, _, _ = built
+    tree, result, firmware = built
     with PtyLink("127.0.0.1", peer.port) as link:
-        holder = serial.Serial(link.path, exclusive=True)
+        holder = serial.Serial(link.path, exclusive=True)  # a serial monitor left open
         try:
             with pytest.raises(UserError, match=f"port {link.path} is busy"):
                 flash(tree, link.path, board=default_board(), progress=quiet)
         finally:
             holder.close()
+        flash(tree, link.path, firmware=firmware, board=default_board(), progress=quiet)
+    assert_flashed(peer, result, firmware)
