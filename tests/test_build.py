@@ -114,3 +114,19 @@ def test_build_cli_on_a_tree_without_manifest(tmp_path, capsys):
     assert main(["build", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "error:" in err and "MANIFEST.json" in err and "Traceback" not in err
+
+
+def test_native_module_needs_mpy_dir_and_a_cross_compiler(tmp_path, monkeypatch):
+    tree = make_tree(tmp_path / "out")
+    (tree / "native").mkdir()
+    (tree / "native" / "Makefile").write_text("include $(MPY_DIR)/py/dynruntime.mk\n")
+    monkeypatch.delenv("MPY_DIR", raising=False)
+    result = build(tree, board=default_board(), progress=lambda _: None, image=False)
+    assert result.native is None and "MPY_DIR" in result.native_note and "pure-Python fallback" in result.native_note
+    fake_tree = tmp_path / "micropython"
+    (fake_tree / "py").mkdir(parents=True)
+    (fake_tree / "py" / "dynruntime.mk").write_text("")
+    monkeypatch.setenv("MPY_DIR", str(fake_tree))
+    monkeypatch.setenv("CROSS", str(tmp_path / "nowhere" / "xtensa-esp32-elf-"))
+    result = build(tree, board=default_board(), progress=lambda _: None, image=False)
+    assert result.native is None and "no cross compiler for xtensawin" in result.native_note

@@ -70,6 +70,7 @@ def test_flash_over_the_rom_loader(built, peer, tmp_path):
     assert peer.stats.stub_runs == 0
     assert peer.stats.commands.get(0x03, 0) >= 256 + 192  # every 0x400 block went over the wire, uncompressed
     assert peer.stats.commands.get(0x13) == 2  # one MD5 verification per region
+    assert peer.stats.commands.get(0x04, 0) == 0  # no FLASH_END: it would leave the ROM loader
     assert [r.offset for r in outcome.regions] == [0x1000, 0x200000]
 
 
@@ -126,6 +127,8 @@ def test_wrong_chip_is_refused_before_writing(built, peer):
         flash(tree, peer.url, firmware=firmware, board=default_board(), progress=quiet)
     assert peer.flash == bytearray(b"\xff" * len(peer.flash))
     peer.clear_faults()
+    with pytest.raises(UserError, match="the chip on .* is ESP32, but .* has an ESP32-S3"):
+        flash(tree, peer.url, board=default_board(chip="esp32s3"), progress=quiet)  # the board YAML is wrong
     flash(tree, peer.url, firmware=firmware, board=default_board(), progress=quiet)
     assert_flashed(peer, result, firmware)
 
