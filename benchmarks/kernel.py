@@ -189,12 +189,12 @@ def main(argv=None) -> int:
     c_host = rows[0][1]
     print(f"deadreckon kernel benchmark: one window of {n} x 6 samples, block {board.algorithm.block} "
           f"(board {board.name}), best of runs")
-    print(f"{'implementation':52s} {'time/window':>14s} {'x slower than C':>16s}")
+    print(f"{'implementation':64s} {'time/window':>14s} {'x slower than C':>16s}")
     for label, seconds, why in rows:
         if seconds is None:
-            print(f"{label:52s} {'-':>14s} {'':>16s}  ({why})")
+            print(f"{label:64s} {'-':>14s} {'':>16s}  ({why})")
         else:
-            print(f"{label:52s} {seconds * 1e3:11.3f} ms {seconds / c_host:15.1f}x")
+            print(f"{label:64s} {seconds * 1e3:11.3f} ms {seconds / c_host:15.1f}x")
     best_mp = min(mp_rows) if mp_rows else None
     if best_mp and natmod:
         print(f"natmod vs best MicroPython fallback variant, same interpreter: {best_mp / natmod:.0f}x (goal >= 20x)")
