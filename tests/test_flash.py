@@ -221,3 +221,16 @@ def test_flash_through_a_tty_device_path_and_a_busy_one(built, peer):
             holder.close()
         flash(tree, link.path, firmware=firmware, board=default_board(), progress=quiet)
     assert_flashed(peer, result, firmware)
+
+
+def test_falls_back_to_115200_when_the_line_cannot_go_faster(built, peer):
+    from peers.pty_link import PtyLink
+
+    tree, result, firmware = built
+    peer.drop_on_baud_change = True  # the chip goes silent when asked for 460800 baud
+    lines = []
+    with PtyLink("127.0.0.1", peer.port) as link:
+        outcome = flash(tree, link.path, firmware=firmware, board=default_board(), progress=lines.append)
+    assert outcome.baud == 115200 and outcome.attempts[0].startswith("460800: exit 2")
+    assert any("trying 115200" in line for line in lines)
+    assert_flashed(peer, result, firmware)

@@ -19,6 +19,7 @@ Faults for tests (attributes, apply to every connection while set):
     drop_after_blocks   close the connection after this many flash data blocks
     chip_magic          the value read at the chip magic register (e.g. 0x000007C6, an ESP32-S2)
     noise_reply         (opcode, n): send non-SLIP line noise in place of the n-th reply to that opcode
+    drop_on_baud_change close the connection at CHANGE_BAUDRATE (a cable or adapter that cannot go faster)
 """
 
 from __future__ import annotations
@@ -255,6 +256,8 @@ class Session:
 
     def op_0f(self, data: bytes, chk: int):  # CHANGE_BAUDRATE (a socket has no baud rate)
         struct.unpack("<II", data)
+        if self.peer.drop_on_baud_change:
+            raise Dropped()
         return 0, b""
 
     def _erase(self, start: int, end: int) -> None:
@@ -405,6 +408,7 @@ class RomLoaderPeer:
         self.chip_magic = chip_magic
         self.drop_after_blocks: Optional[int] = None
         self.noise_reply: Optional[tuple[int, int]] = None
+        self.drop_on_baud_change = False
         self.stats = Stats()
         self._server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self._server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -425,6 +429,7 @@ class RomLoaderPeer:
         self.chip_magic = ESP32_MAGIC
         self.drop_after_blocks = None
         self.noise_reply = None
+        self.drop_on_baud_change = False
 
     def start(self) -> "RomLoaderPeer":
         self._thread = threading.Thread(target=self._serve, name="esp32-rom-peer", daemon=True)

@@ -16,12 +16,14 @@ class PtyLink:
         tty.setraw(self.master)
         tty.setraw(self.slave)
         self.path = os.ttyname(self.slave)
-        self.socket = socket.create_connection((host, port))
+        self.address = (host, port)
+        self.socket = socket.create_connection(self.address)
         self._stop = False
         self._thread = threading.Thread(target=self._pump, daemon=True)
         self._thread.start()
 
     def _pump(self) -> None:
+        """Copy bytes both ways; when the peer hangs up (the chip reset), connect again, as a USB adapter stays."""
         while not self._stop:
             ready, _, _ = select.select([self.master, self.socket], [], [], 0.1)
             try:
@@ -33,8 +35,14 @@ class PtyLink:
                 if self.socket in ready:
                     data = self.socket.recv(4096)
                     if not data:
-                        return
+                        raise ConnectionResetError()
                     os.write(self.master, data)
+            except (ConnectionError, BrokenPipeError):
+                self.socket.close()
+                try:
+                    self.socket = socket.create_connection(self.address)
+                except OSError:
+                    return
             except OSError:
                 return
 
