@@ -206,3 +206,20 @@ def test_not_a_tag_file(tmp_path):
     path.write_bytes(b"hello")
     with pytest.raises(UserError, match="not an RTKLIB time-tag"):
         read_tag(path)
+
+
+def test_gps_gap_is_flagged_and_bridged():
+    from codegen.post import PostOptions, process
+
+    log, truth = make_run(Scenario(duration=150.0, seed=4))
+    keep = (log.gps.t < 60.0) | (log.gps.t > 80.0)
+    log.gps = log.gps.select(keep)
+    result = process(log, PostOptions())
+    gap_flags = [k for k, f in enumerate(result.orientation.flags) if "gps-gap" in f]
+    assert len(gap_flags) == 1
+    # the stretches GPS covers are smoothed on their own: the gap does not spoil them
+    assert result.velocity_residual_rms < 0.15
+    # the gap itself is bridged (dead reckoning on the interpolated orientation: no gyro, so only a rough path)
+    inside = (result.track.t > 60.5) & (result.track.t < 79.5)
+    assert inside.sum() >= 180 and np.all(np.isfinite(result.track.pos[inside]))
+    assert np.all(np.diff(result.track.t) > 0)

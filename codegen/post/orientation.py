@@ -38,6 +38,8 @@ FLAG_STATIONARY = "stationary"  # no usable track direction
 FLAG_POOR_FIT = "poor-fit"  # vectors inconsistent with one rotation (device turning within the window, bad data)
 FLAG_LM_WAHBA = "lm-wahba"  # LM and closed form disagree by more than the tolerance
 FLAG_NO_IMU = "no-imu"  # interval without IMU samples
+FLAG_GPS_GAP = "gps-gap"  # epochs missing: the interval is too long to stand for one orientation
+GPS_GAP_FACTOR = 3.0  # an interval longer than this many typical intervals is a gap
 
 
 @dataclass
@@ -86,6 +88,7 @@ class Intervals:
     moving: np.ndarray  # (K,) bool, speed >= min_speed
     usable: np.ndarray  # (K,) bool, IMU covers the interval
     track: "Track" = None
+    gap: np.ndarray = None  # (K,) bool, a GPS gap (not usable)
 
     @property
     def mid(self) -> np.ndarray:
@@ -100,17 +103,35 @@ class Track:
     its last value while slower than `min_speed` (a standing device has no track direction)."""
 
     def __init__(self, gps_t: np.ndarray, gps_vel: np.ndarray, min_speed: float):
-        self.spline = CubicSpline(gps_t, gps_vel[:, :2], bc_type="natural") if len(gps_t) >= 3 else None
-        self.t0, self.t1 = gps_t[0], gps_t[-1]
-        self.gps_vel = gps_vel
-        self.gps_t = gps_t
+        # one spline per stretch without gaps: a spline bridging a gap swings, and spoils the epochs next to it
+        step = np.diff(gps_t)
+        breaks = np.flatnonzero(step > GPS_GAP_FACTOR * np.median(step)) + 1 if len(step) else np.array([], int)
+        self.starts = np.concatenate([[0], breaks])
+        self.ends = np.concatenate([breaks, [len(gps_t)]])
+        self.pieces = []
+        for a, b in zip(self.starts, self.ends):
+            t, v = gps_t[a:b], gps_vel[a:b, :2]
+            if len(t) >= 3:
+                self.pieces.append((t[0], t[-1], CubicSpline(t, v, bc_type="natural")))
+            else:
+                self.pieces.append((t[0], t[-1], (t, v)))
+        self.piece_start = gps_t[self.starts]
         self.min_speed = min_speed
 
     def velocity(self, t: np.ndarray) -> np.ndarray:
-        t = np.clip(t, self.t0, self.t1)
-        if self.spline is None:
-            return np.stack([np.interp(t, self.gps_t, self.gps_vel[:, i]) for i in range(2)], axis=-1)
-        return self.spline(t)
+        t = np.asarray(t, dtype=float)
+        which = np.clip(np.searchsorted(self.piece_start, t, side="right") - 1, 0, len(self.pieces) - 1)
+        out = np.empty((len(t), 2))
+        for i in np.unique(which):
+            sel = which == i
+            t0, t1, f = self.pieces[i]
+            tt = np.clip(t[sel], t0, t1)
+            if callable(f):
+                out[sel] = f(tt)
+            else:
+                ts, vs = f
+                out[sel] = np.stack([np.interp(tt, ts, vs[:, 0]), np.interp(tt, ts, vs[:, 1])], axis=1)
+        return out
 
     def yaw(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """chi(t) (rad, unwrapped, held where slow) and the moving mask, for increasing t."""
@@ -134,11 +155,13 @@ def build_intervals(imu_t, acc, gps_t, gps_vel, gps_sigma_vel, min_speed: float)
     sigma_a = np.sqrt(np.mean(gps_sigma_vel[:-1] ** 2 + gps_sigma_vel[1:] ** 2, axis=1)) / dt
     sigma = np.sqrt(sigma_a**2 + ACCEL_MEAN_NOISE**2)
     usable = (t0 >= imu_t[0]) & (t1 <= imu_t[-1])
+    gap = dt > GPS_GAP_FACTOR * np.median(dt)
+    usable &= ~gap
     nodes, cum = cumulative_integral(imu_t, acc)
     acc_mean = interval_means(nodes, cum, t0, t1)
     track = Track(gps_t, gps_vel, min_speed)
     chi, moving = track.yaw(0.5 * (t0 + t1))
-    return Intervals(t0, t1, gps_accel, sigma, acc_mean, chi, moving, usable, track)
+    return Intervals(t0, t1, gps_accel, sigma, acc_mean, chi, moving, usable, track, gap)
 
 
 def turn_compensated_means(iv: Intervals, imu_t: np.ndarray, acc: np.ndarray, up_sensor: np.ndarray) -> np.ndarray:
@@ -316,12 +339,13 @@ def solve_orientations(iv: Intervals, options: OrientationOptions, bias: np.ndar
     prev = None  # (roll, pitch, yaw, track_yaw) of the last solved interval
     usable_idx = np.flatnonzero(iv.usable)
     h = options.half_window
+    segment = np.cumsum(iv.gap) if iv.gap is not None else np.zeros(k_count, dtype=int)  # windows stop at gaps
     for count, k in enumerate(usable_idx):
         if progress and count % max(1, len(usable_idx) // 10) == 0:
             progress("orientation", count / len(usable_idx))
         lo, hi = max(0, k - h), min(k_count, k + h + 1)
         js = np.arange(lo, hi)
-        js = js[iv.usable[js]]
+        js = js[iv.usable[js] & (segment[js] == segment[k])]
         turn = iv.track_yaw[js] - iv.track_yaw[k]
         tj = np.einsum("kij,kj->ki", rot_z(-turn), target[js])  # targets in the track frame of interval k
         sj, wj = a[js], weight[js]
@@ -369,7 +393,7 @@ def solve_orientations(iv: Intervals, options: OrientationOptions, bias: np.ndar
         euler[k] = [wrap(solution[0]), wrap(solution[1]), solution[2]]
         prev = (solution[0], solution[1], solution[2], iv.track_yaw[k])
     for k in np.flatnonzero(~iv.usable):
-        flags[k].append(FLAG_NO_IMU)
+        flags[k].append(FLAG_GPS_GAP if iv.gap is not None and iv.gap[k] else FLAG_NO_IMU)
     valid = np.isfinite(euler[:, 0])
     euler[valid, 2] = wrap(euler[valid, 2])
     if progress:

@@ -10,7 +10,9 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from codegen.post.geodesy import enu_to_geodetic
-from codegen.post.orientation import FLAG_LM_WAHBA, FLAG_NO_IMU, FLAG_POOR_FIT, FLAG_STATIONARY, FLAG_YAW_HELD
+from codegen.post.orientation import (
+    FLAG_GPS_GAP, FLAG_LM_WAHBA, FLAG_NO_IMU, FLAG_POOR_FIT, FLAG_STATIONARY, FLAG_YAW_HELD,
+)
 from codegen.post.pipeline import PostResult
 
 GPS_UTC_LEAP_SECONDS = 18  # s, GPST - UTC since 2017-01-01
@@ -88,7 +90,7 @@ def summary(result: PostResult) -> dict:
     e = np.degrees(o.euler[valid])
     sig = np.degrees(o.sigma[valid])
     flags = {name: int(sum(name in f for f in o.flags)) for name in
-             (FLAG_YAW_HELD, FLAG_STATIONARY, FLAG_POOR_FIT, FLAG_LM_WAHBA, FLAG_NO_IMU)}
+             (FLAG_YAW_HELD, FLAG_STATIONARY, FLAG_POOR_FIT, FLAG_LM_WAHBA, FLAG_NO_IMU, FLAG_GPS_GAP)}
     res = result.velocity_residual
     ok = np.isfinite(res).all(axis=1)
     m = o.mounting

@@ -13,7 +13,7 @@ from codegen.post.delay import DelayEstimate, estimate_delay
 from codegen.post.geodesy import geodetic_to_enu
 from codegen.post.model import Calibration, PostLog
 from codegen.post.orientation import (
-    Intervals, OrientationOptions, OrientationResult, Track, build_intervals, cumulative_integral, euler_matrix,
+    GPS_GAP_FACTOR, Intervals, OrientationOptions, OrientationResult, Track, build_intervals, cumulative_integral, euler_matrix,
     fit_mounting, interval_means, solve_orientations, turn_compensated_means,
 )
 from codegen.post.smoother import SmootherOptions, SmootherResult, smooth
@@ -81,6 +81,53 @@ def check_log(log: PostLog) -> None:
         raise UserError(f"{log.name}: GPS velocities contain gaps (NaN)")
 
 
+def _segments(gps_t: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) epoch index ranges between GPS gaps."""
+    step = np.diff(gps_t)
+    breaks = list(np.flatnonzero(step > GPS_GAP_FACTOR * np.median(step)) + 1)
+    edges = [0] + breaks + [len(gps_t)]
+    return list(zip(edges[:-1], edges[1:]))
+
+
+def smooth_segments(t, a_enu, gps, gps_enu, options: SmootherOptions, bridge: bool, progress: Progress = None
+                    ) -> SmootherResult:
+    """KF + RTS on each stretch of GPS without gaps; with `bridge`, the gaps are filled from one run over the whole
+    log (dead reckoning on the interpolated orientation), which never touches the stretches GPS covers."""
+    parts = []
+    segments = _segments(gps.t)
+    for a, b in segments:
+        margin = 2.0 * float(np.median(np.diff(t)))  # a sample either side: the stretch starts at its first epoch
+        inside = (t >= gps.t[a] - margin) & (t <= gps.t[b - 1] + margin)
+        if b - a < 2 or inside.sum() < MIN_IMU_SAMPLES:
+            continue
+        sel = slice(a, b)
+        parts.append(smooth(t[inside], a_enu[inside], gps.t[sel], gps.vel[sel], gps.sigma_vel[sel], gps_enu[sel],
+                            gps.sigma_pos[sel], options, progress=progress if len(segments) == 1 else None))
+    if not parts:
+        raise UserError("no stretch of the log has both GPS epochs and IMU samples")
+    if bridge and len(segments) > 1:
+        whole = smooth(t, a_enu, gps.t, gps.vel, gps.sigma_vel, gps_enu, gps.sigma_pos, options, progress=progress)
+        covered = np.zeros(len(whole.t), dtype=bool)
+        for p in parts:
+            covered |= (whole.t >= p.t[0]) & (whole.t <= p.t[-1])
+        parts.append(_select(whole, ~covered))
+    merged = [np.concatenate([getattr(p, name) for p in parts]) for name in
+              ("t", "pos", "vel", "bias", "sigma_pos", "sigma_vel", "filtered_vel")]
+    order = np.argsort(merged[0], kind="stable")
+    merged = [m[order] for m in merged]
+    gps_index = np.full(len(gps.t), -1)
+    at = np.searchsorted(merged[0], gps.t)
+    ok = (at < len(merged[0])) & (merged[0][np.minimum(at, len(merged[0]) - 1)] == gps.t)
+    gps_index[ok] = at[ok]
+    t_, pos, vel, bias, sp, sv, fv = merged
+    return SmootherResult(t_, pos, vel, bias, sp, sv, gps_index, fv)
+
+
+def _select(r: SmootherResult, mask: np.ndarray) -> SmootherResult:
+    return SmootherResult(r.t[mask], r.pos[mask], r.vel[mask], r.bias[mask], r.sigma_pos[mask], r.sigma_vel[mask],
+                          np.full(0, -1), r.filtered_vel[mask])
+
+
 def _rotate(orientation: OrientationResult, t: np.ndarray, acc: np.ndarray) -> np.ndarray:
     rot = orientation.slerp()(t)
     return rot.apply(acc - orientation.bias) - np.array([0.0, 0.0, STANDARD_GRAVITY])
@@ -146,14 +193,13 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     t = log.imu.t - delay
     # 2. the smoothed velocity gives a quieter track direction than raw Doppler: orient again with it, and with the
     #    interval means turned back for the device's own turning
-    pos_sigma = gps.sigma_pos
-    first = smooth(t, _rotate(orientation, t, acc), gps.t, gps.vel, gps.sigma_vel, gps_enu, pos_sigma,
-                   options.smoother)
+    #    (per stretch without GPS gaps: dead reckoning across a gap would bend the track)
+    first = smooth_segments(t, _rotate(orientation, t, acc), gps, gps_enu, options.smoother, bridge=False)
     track = Track(first.t, first.vel, options.orientation.min_speed)
     orientation, iv = _orient(t, acc, log, options.orientation, track, progress)
     a_enu = _rotate(orientation, t, acc)
     # 3. final smoothing
-    result = smooth(t, a_enu, gps.t, gps.vel, gps.sigma_vel, gps_enu, pos_sigma, options.smoother, progress=progress)
+    result = smooth_segments(t, a_enu, gps, gps_enu, options.smoother, bridge=True, progress=progress)
     residual = np.full((len(gps), 3), np.nan)
     ok = result.gps_index >= 0
     residual[ok] = gps.vel[ok] - result.vel[result.gps_index[ok]]
