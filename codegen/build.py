@@ -212,6 +212,7 @@ def build(out: Path, board: Optional[Board] = None, progress: Progress = print, 
             action = "copy"
         result.files.append(out_rel)
         progress(f"  [{index}/{len(sources)}] {action:9s} {rel} -> {out_rel}")
+    check_names(result.files)
     result.native, result.native_note = build_native(tree, target_dir, progress)
     if result.native is not None:
         result.files.append(result.native.name)

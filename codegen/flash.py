@@ -9,6 +9,7 @@ makes esptool rewrite the firmware's header.
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import time
@@ -234,6 +235,7 @@ def run_esptool(command: list[str], progress: Progress, expected_chip: str) -> t
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
     lines: list[str] = []
     buffer = b""
+    shown = -1  # the last quarter of a region's write reported
     assert process.stdout is not None
     while True:
         chunk = process.stdout.read1(4096) if hasattr(process.stdout, "read1") else process.stdout.read(4096)
@@ -246,8 +248,15 @@ def run_esptool(command: list[str], progress: Progress, expected_chip: str) -> t
             if not line:
                 continue
             lines.append(line)
-            if not line.startswith("Writing at"):
-                progress(f"  {line}")
+            if line.startswith("Writing at"):
+                match = re.search(r"(\d+(?:\.\d+)?)%", line)
+                quarter = int(float(match.group(1)) // 25) if match else shown
+                if quarter != shown:
+                    shown = quarter
+                    progress(f"  {line.split()[2]}  {quarter * 25:3d}%")
+                continue
+            shown = -1
+            progress(f"  {line}")
             if "doesn't appear to be an" in line:
                 process.kill()  # esptool would "attempt to continue anyway" and write to the wrong chip
     if buffer.strip():
