@@ -275,6 +275,9 @@ def flash(out: Path, port: str, firmware: Optional[Path] = None, erase: bool = F
     board = tree.board
     if board.chip not in ("esp32", "esp32s3"):
         raise UserError(f"flashing {board.chip} boards is not supported (esptool is for Espressif chips)")
+    if erase and firmware is None:
+        raise UserError("--erase without --firmware would leave the board with no MicroPython to run the app",
+                        hint="pass --firmware MICROPYTHON.bin with --erase, or drop --erase to keep the firmware")
     if erase and not stub:
         raise UserError("--erase needs the flasher stub: the ESP32 ROM loader cannot erase the whole flash",
                         hint="drop --no-stub, or flash without --erase")

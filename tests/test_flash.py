@@ -181,7 +181,8 @@ def test_flash_cli_error_path(built, peer, capsys, monkeypatch):
 
 
 def test_default_board_generate_build_flash(tmp_path, peer, capsys):
-    """The whole path a user takes, through the CLI: generate -> build -> flash --erase, on the default board."""
+    """The whole path a user takes, through the CLI: generate -> build -> flash --erase --firmware, on the default
+    board (a blank board gets MicroPython and the app in one go)."""
     require(_have_esptool(), "esptool is not installed (pip install esptool)")
     from codegen.cli import main
     from codegen.loader import load_board
@@ -191,8 +192,12 @@ def test_default_board_generate_build_flash(tmp_path, peer, capsys):
     peer.flash[0x100000:0x100010] = b"\0" * 16  # something the layout does not cover
     assert main(["generate", "-o", str(out)]) == 0
     assert main(["build", str(out)]) == 0  # the board comes from OUT/MANIFEST.json
-    assert main(["flash", str(out), "--port", peer.url, "--erase"]) == 0
-    assert "flashed and verified 1 region(s)" in capsys.readouterr().out
+    firmware = tmp_path / "ESP32_GENERIC.bin"
+    firmware.write_bytes(esp_image(segment_bytes=0x1000))
+    assert main(["flash", str(out), "--port", peer.url, "--erase"]) == 2  # would leave no firmware
+    assert "--erase without --firmware" in capsys.readouterr().err
+    assert main(["flash", str(out), "--port", peer.url, "--erase", "--firmware", str(firmware)]) == 0
+    assert "flashed and verified 2 region(s)" in capsys.readouterr().out
     assert peer.flash[0x100000:0x100010] == b"\xff" * 16
     app_dir = out / "build" / "app"
     files = {p.relative_to(app_dir).as_posix(): p.read_bytes() for p in app_dir.rglob("*") if p.is_file()}
