@@ -3,9 +3,9 @@
     python benchmarks/nmea_fuzz.py [--count 100000] [--seed 1] [--board ttgo-tbeam-v1.1]
 
 Oracle: no exception escapes `Nmea.sentence` / `Nmea.feed`; every sentence whose checksum does not match its
-content is rejected; accepted fixes stay in range (|lat| <= 90 deg, |lon| <= 180 deg, speed >= 0); after any garbage
-the parser still accepts the next valid sentence. Seeds: the gpsd captures in ../shared/data/nmea-gpsd (when
-present) plus synthesised NEO-6M sentences. Prints a table; exits 1 on any oracle failure.
+content is rejected; accepted fixes stay in range (|lat| <= 90 deg, |lon| <= 180 deg, speed >= 0, course in
+[0, 360]); after any garbage the parser still accepts the next valid sentence. Seeds: the gpsd captures in
+../shared/data/nmea-gpsd (when present) plus synthesised NEO-6M sentences. Prints a table; exits 1 on any oracle failure.
 """
 
 from __future__ import annotations
@@ -108,6 +108,8 @@ def check_state(p):
         return "lon out of range %r" % p.lon_e7
     if p.speed_ms is not None and not p.speed_ms >= 0:
         return "speed %r" % p.speed_ms
+    if p.course_deg is not None and not 0 <= p.course_deg <= 360:
+        return "course %r" % p.course_deg
     if p.mode not in (1, 2, 3):
         return "mode %r" % p.mode
     return None
