@@ -170,3 +170,16 @@ def test_upload_through_a_tty_device_path(peer, built):
     peer.wait_idle()
     assert sorted(outcome.sent) == sorted(result.files)
     assert peer.files() == {rel: (result.app_dir / rel).read_bytes() for rel in result.files}
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # pyserial's rfc2217 threads use setDaemon()
+def test_upload_to_an_rfc2217_url(peer, built):
+    """`rfc2217://host:port`, a serial port shared over the network (ser2net and the like)."""
+    from peers.rfc2217_server import Rfc2217Server
+
+    tree, result = built
+    with Rfc2217Server(peer.url) as server:
+        outcome = upload(tree, server.url, progress=quiet)
+    peer.wait_idle()
+    assert sorted(outcome.sent) == sorted(result.files)
+    assert peer.files() == {rel: (result.app_dir / rel).read_bytes() for rel in result.files}
