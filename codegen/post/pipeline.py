@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Optional
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from codegen.board import STANDARD_GRAVITY
 from codegen.errors import UserError
@@ -128,6 +129,13 @@ def _select(r: SmootherResult, mask: np.ndarray) -> SmootherResult:
                           np.full(0, -1), r.filtered_vel[mask])
 
 
+def _rotate_mounted(mounting, track: Track, t: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    chi, _ = track.yaw(t)
+    m = mounting.euler
+    rot = Rotation.from_euler("z", chi[:, None]) * Rotation.from_euler("ZYX", [m[2], m[1], m[0]])
+    return rot.apply(acc - mounting.bias) - np.array([0.0, 0.0, STANDARD_GRAVITY])
+
+
 def _rotate(orientation: OrientationResult, t: np.ndarray, acc: np.ndarray) -> np.ndarray:
     rot = orientation.slerp()(t)
     return rot.apply(acc - orientation.bias) - np.array([0.0, 0.0, STANDARD_GRAVITY])
@@ -172,8 +180,33 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     step = float(np.median(np.diff(log.imu.t)))
 
     # 1. delay and orientation, alternately (the delay search needs ENU accelerations, the orientation the delay)
-    delay, estimate = (options.delay or 0.0), None
+    delay, estimate, curve = (options.delay or 0.0), None, None
     for attempt in range(4):
+        t = log.imu.t - delay
+        iv = build_intervals(t, acc, gps.t, gps.vel, gps.sigma_vel, options.orientation.min_speed)
+        mounting = fit_mounting(iv, options.orientation.estimate_bias, options.orientation.bias_prior,
+                                options.orientation.bias_max_chi2)
+        if options.delay is not None:
+            break
+        # the delay search only needs rough ENU accelerations: the whole-run mounting turned with the track
+        # (cheap), or the per-interval solution where there is too little motion to fit a mounting
+        if mounting is not None:
+            a_rough = _rotate_mounted(mounting, iv.track, t, acc)
+        else:
+            orientation = solve_orientations(iv, options.orientation, np.zeros(3), None)
+            if not orientation.valid.any():
+                raise UserError(f"{log.name}: no GPS interval has IMU samples; cannot find the orientation")
+            a_rough = _rotate(orientation, t, acc)
+        estimate = estimate_delay(t, a_rough, gps.t, gps.vel, options.max_lag if attempt == 0 else 4 * step)
+        curve = estimate if attempt == 0 else curve  # the full-range search, for the report's plot
+        delay += estimate.delay
+        if progress:
+            progress("delay", (attempt + 1) / 4)
+        if abs(estimate.delay) < 0.25 * step:
+            break
+    # then per-interval orientation, and the delay refined with it (a device that does not sit rigidly is only
+    # roughly described by the mounting)
+    for attempt in range(3):
         t = log.imu.t - delay
         iv = build_intervals(t, acc, gps.t, gps.vel, gps.sigma_vel, options.orientation.min_speed)
         mounting = fit_mounting(iv, options.orientation.estimate_bias, options.orientation.bias_prior,
@@ -183,12 +216,11 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
             raise UserError(f"{log.name}: no GPS interval has IMU samples; cannot find the orientation")
         if options.delay is not None:
             break
-        estimate = estimate_delay(t, _rotate(orientation, t, acc), gps.t, gps.vel,
-                                  options.max_lag if attempt == 0 else 4 * step)
-        delay += estimate.delay
-        if progress:
-            progress("delay", (attempt + 1) / 4)
-        if abs(estimate.delay) < 0.25 * step:
+        refined = estimate_delay(t, _rotate(orientation, t, acc), gps.t, gps.vel, min(options.max_lag, 0.25))
+        delay += refined.delay
+        estimate = replace(curve if curve is not None else refined, delay=delay, sigma=refined.sigma,
+                           correlation=refined.correlation)
+        if abs(refined.delay) < 0.25 * step:
             break
     t = log.imu.t - delay
     # 2. the smoothed velocity gives a quieter track direction than raw Doppler: orient again with it, and with the
