@@ -10,10 +10,10 @@ Written from Espressif's published serial protocol description; it holds a 4 MiB
 The ROM answers SYNC eight times, rejects GET_SECURITY_INFO (the ESP32 ROM predates it), shows its chip magic
 0x00F01D83 at 0x40001000, MAC/revision in eFuse words at 0x3FF5A000 and the SPI flash JEDEC ID through the SPI0
 user-command registers at 0x3FF42000. ROM flash writes are 0x400-byte blocks after a 4-word FLASH_BEGIN (which
-erases), and FLASH_DEFL_* blocks it inflates itself; SPI_FLASH_MD5 answers 32 hex characters. A RAM upload ending in MEM_END with an entry point runs the
-"stub": the peer greets with OHAI and then speaks the stub's dialect (2 status bytes, 5-word begins, 16-byte
-binary MD5, ERASE_REGION, READ_FLASH). Flash programming ANDs bits into the erased 0xFF, as NOR flash does, so a
-write without an erase shows up as corrupted data.
+erases), or FLASH_DEFL_* blocks it inflates itself; SPI_FLASH_MD5 answers 32 hex characters. A RAM upload ending
+in MEM_END with an entry point runs the "stub": the peer greets with OHAI and then speaks the stub's dialect
+(2 status bytes, 5-word begins, 16-byte binary MD5, ERASE_FLASH/ERASE_REGION, READ_FLASH). Flash programming ANDs
+bits into the erased 0xFF, as NOR flash does, so a write without an erase shows up as corrupted data.
 
 Faults for tests (attributes, apply to every connection while set):
     drop_after_blocks   close the connection after this many flash data blocks
