@@ -353,10 +353,11 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
                 progress(f"  sent      {rel} ({len(data)} bytes)")
             if result.sent:
                 check = device_hashes(repl, result.sent)
-                bad = [rel for rel in result.sent if check.get(rel) not in (hashlib.sha256(files[rel]).hexdigest(), "?")]
+                expected = {rel: hashlib.sha256(files[rel]).hexdigest() for rel in result.sent}
+                bad = [rel for rel in result.sent if check.get(rel) not in (expected[rel], "?")]
                 if bad:
                     raise UserError(f"the board's copy of {', '.join(bad)} differs from what was sent",
-                                    hint="run the upload again; check the filesystem has room (`df` in the REPL)")
+                                    hint="run the upload again; check the board's filesystem has room (os.statvfs('/'))")
             result.raw_paste = repl.raw_paste_used
             if reset:
                 repl.soft_reset()

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import struct
 from pathlib import Path
 
@@ -68,8 +67,3 @@ def esp_image(chip_id: int = 0, segment_bytes: int = 0x30000, seed: int = 1) -> 
     padding = 15 - (len(body) % 16)
     return body + b"\0" * padding + bytes([check])
 
-
-def fresh_environment() -> dict:
-    env = dict(os.environ)
-    env.pop("MPY_DIR", None)
-    return env
