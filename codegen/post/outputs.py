@@ -182,12 +182,13 @@ def write_plots(result: PostResult, folder: Path) -> list[Path]:
     paths = []
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 7))
     for i, name in enumerate(("roll", "pitch", "yaw")):
-        e, s = np.degrees(o.euler[:, i]), np.degrees(o.sigma[:, i])
+        e, s = np.degrees(o.euler[:, i]), np.minimum(np.degrees(o.sigma[:, i]), 30.0)
         axes[i].plot(o.t - t0, e, ".-", ms=2, lw=0.8)
         axes[i].fill_between(o.t - t0, e - s, e + s, alpha=0.3)
         held = np.array([bool(f) for f in o.flags])
         axes[i].plot((o.t - t0)[held], e[held], "x", color="tab:red", ms=3, label="flagged")
         axes[i].set_ylabel(f"{name} [deg]")
+    axes[2].set_ylim(-185.0, 185.0)
     axes[0].legend(loc="upper right")
     axes[-1].set_xlabel("time [s]")
     fig.suptitle("orientation per GPS interval (band: 1 sigma)")
@@ -196,6 +197,8 @@ def write_plots(result: PostResult, folder: Path) -> list[Path]:
     for i, name in enumerate(("east", "north", "up")):
         axes[i].plot(gps.t - t0, gps.vel[:, i], ".", ms=3, label="GPS Doppler")
         axes[i].plot(tr.t - t0, tr.vel[:, i], lw=0.8, label="IMU + GPS smoothed")
+        imu_only = gps.vel[1:, i] - result.imu_velocity_residual[:, i]  # previous epoch + IMU velocity change
+        axes[i].plot(gps.t[1:] - t0, imu_only, "+", ms=3, label="previous GPS + IMU over the interval")
         axes[i].set_ylabel(f"v {name} [m/s]")
     axes[0].legend(loc="upper right")
     axes[-1].set_xlabel("time [s]")
