@@ -85,7 +85,7 @@ STATE_FIELDS = (
     "bgx", "bgy", "bgz",  # gyro bias, counts (body frame)
     "mean_f", "var_f", "w2",  # motion statistics: |f| m/s^2, its variance (m/s^2)^2, |omega|^2 (rad/s)^2
     "acc_e", "acc_n",  # motion acceleration from the GPS, kernel frame m/s^2 (the tilt reference subtracts it)
-    "steady",  # 1 while that acceleration changed less than steady_accel_ms2 since the previous fix
+    "steady",  # > 0 while that acceleration changed less than steady_accel_ms2: steady^2 - change^2
     "rest_s",  # s the device has looked at rest
     "ux", "uy",  # travel direction, kernel frame (unit)
     "speed", "bias",  # speed along u m/s, along-track accel bias m/s^2
@@ -96,7 +96,7 @@ STATE_FIELDS = (
     "since_fix",  # s since the last GPS update
     "gps_ve", "gps_vn",  # previous fix's velocity, m/s (true ENU)
     "gps_speed",  # m/s, the last fix's speed (a vehicle's speed relaxes towards it)
-    "gps_ok",  # 1 if the previous fix's velocity is usable for the alignment
+    "gps_ok",  # > 0 if the previous fix's velocity has a course: its speed - min_speed_ms
     "pe", "pn",  # position accumulated since the last reset, true ENU m
     "flags",  # 1 at rest, 2 walking (bit field, last sample)
 )
@@ -229,7 +229,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         # tilt correction towards gravity: e = f/|f| x up_body
         # (while fixes arrive, minus the motion acceleration they show: f_c = f - R^T [acc_e, acc_n, 0])
         if st.since_fix < fcfg.gps_timeout_s:
-            gain = kp if st.steady > 0.5 else 0.0
+            gain = kp if st.steady > 0.0 else 0.0
             cx = fx - (r00 * st.acc_e + r10 * st.acc_n)
             cy = fy - (r01 * st.acc_e + r11 * st.acc_n)
             cz = fz - (r02 * st.acc_e + r12 * st.acc_n)
@@ -269,7 +269,7 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
     moving = speed >= fcfg.min_speed_ms
     t = st.since_fix
     # heading alignment from velocity changes (previous fix within 2 s and both fixes with a course)
-    if st.gps_ok > 0.5 and moving and 0.0 < t < fcfg.gps_timeout_s:
+    if st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s:
         gx = ve - st.gps_ve
         gy = vn - st.gps_vn
         lam = fcfg.align_forget
@@ -294,7 +294,7 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
     st.speed += fcfg.speed_gain * e
     if t > 0.0 and not int(st.flags) & 3:
         st.bias -= fcfg.bias_gain * e / t
-    if st.gps_ok > 0.5 and moving and 0.0 < t < fcfg.gps_timeout_s:
+    if st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s:
         # the motion acceleration over the last interval, into the kernel frame (A^T)
         me = (ve - st.gps_ve) / t
         mn = (vn - st.gps_vn) / t
@@ -304,11 +304,11 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
         ae = an = 0.0
     de = ae - st.acc_e
     dn = an - st.acc_n
-    st.steady = 1.0 if de * de + dn * dn < fcfg.steady_accel_ms2 * fcfg.steady_accel_ms2 else 0.0
+    st.steady = fcfg.steady_accel_ms2 * fcfg.steady_accel_ms2 - (de * de + dn * dn)
     st.acc_e, st.acc_n = ae, an
     st.gps_ve, st.gps_vn = ve, vn
     st.gps_speed = speed
-    st.gps_ok = 1.0 if moving else 0.0
+    st.gps_ok = speed - fcfg.min_speed_ms
     st.dvx = st.dvy = 0.0
     st.since_fix = 0.0
 

@@ -210,7 +210,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         st->pn += vn * dt;
         /* tilt correction towards gravity (minus the GPS motion acceleration while fixes arrive) */
         if (st->since_fix < cfg->gps_timeout_s) {
-            gain = st->steady > 0.5f ? cfg->kp : 0.0f;
+            gain = st->steady > 0.0f ? cfg->kp : 0.0f;
             cx = f[0] - (r00 * st->acc_e + r10 * st->acc_n);
             cy = f[1] - (r01 * st->acc_e + r11 * st->acc_n);
             cz = f[2] - (r02 * st->acc_e + r12 * st->acc_n);
@@ -266,7 +266,7 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     int moving = speed >= cfg->min_speed_ms;
     int flags = (int)st->flags;
     float ae = 0.0f, an = 0.0f, de, dn, e;
-    if (st->gps_ok > 0.5f && moving && t > 0.0f && t < cfg->gps_timeout_s) {
+    if (st->gps_ok > 0.0f && moving && t > 0.0f && t < cfg->gps_timeout_s) {
         /* heading alignment from the velocity changes */
         float gx = ve - st->gps_ve, gy = vn - st->gps_vn, inv_t, me, mn, norm;
         st->align_c = cfg->align_forget * st->align_c + st->dvx * gx + st->dvy * gy;
@@ -285,7 +285,8 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     }
     de = ae - st->acc_e;
     dn = an - st->acc_n;
-    st->steady = de * de + dn * dn < cfg->steady_ms2 * cfg->steady_ms2 ? 1.0f : 0.0f;
+    /* flags kept as margins (> 0 means yes): LLVM's Xtensa backend cannot select a constant pair (x ? 1.0f : 0.0f) */
+    st->steady = cfg->steady_ms2 * cfg->steady_ms2 - (de * de + dn * dn);
     st->acc_e = ae;
     st->acc_n = an;
     if (moving) {
@@ -310,7 +311,7 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     st->gps_ve = ve;
     st->gps_vn = vn;
     st->gps_speed = speed;
-    st->gps_ok = moving ? 1.0f : 0.0f;
+    st->gps_ok = speed - cfg->min_speed_ms;
     st->dvx = 0.0f;
     st->dvy = 0.0f;
     st->since_fix = 0.0f;

@@ -52,7 +52,7 @@ typedef struct {
     float var_f;           /* (m/s^2)^2, variance of |f| */
     float w2;              /* (rad/s)^2, mean |omega|^2 */
     float acc_e, acc_n;    /* m/s^2, GPS motion acceleration in the kernel frame */
-    float steady;          /* 1 while that acceleration is steady */
+    float steady;          /* > 0 while that acceleration is steady (steady_ms2^2 - its change^2) */
     float rest_s;          /* s the device has looked at rest */
     float ux, uy;          /* travel direction, kernel frame (unit) */
     float speed;           /* m/s along u */
@@ -64,7 +64,7 @@ typedef struct {
     float since_fix;       /* s since the last GPS update */
     float gps_ve, gps_vn;  /* m/s, the last fix's velocity (true ENU) */
     float gps_speed;       /* m/s, the last fix's speed */
-    float gps_ok;          /* 1 if the last fix had a course */
+    float gps_ok;          /* > 0 if the last fix had a course (its speed - min_speed_ms) */
     float pe, pn;          /* m, true ENU position accumulated (the caller may reset it) */
     float flags;           /* DR_FUSED_AT_REST | DR_FUSED_WALKING of the last sample */
 } dr_fused_state;

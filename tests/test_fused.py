@@ -117,7 +117,7 @@ def test_tilt_converges_to_gravity_with_gps(fk):
     ref = F.FusedState()
     ref.qw, ref.qx, ref.qy, ref.qz = q0
     ref.mean_f = 9.80665
-    ref.steady = 1.0
+    ref.steady = 1.0  # > 0: steady
     c = fk.session()
     c.set_state_vector(ref.vector())
     for _ in range(120):  # 120 s, six time constants of the default 20 s
@@ -168,3 +168,58 @@ def test_config_rejects_a_zero_time_constant(fk):
 
     with pytest.raises(ValueError):
         fk.session(replace(FCFG, tilt_tau_s=0.0))
+
+
+def _fused_sources(tmp_path):
+    from codegen.hostfused import SOURCES, fused_sources
+
+    for name, content in fused_sources().items():
+        (tmp_path / name).write_bytes(content)
+    return SOURCES
+
+
+def _run(cmd):
+    import subprocess
+
+    done = subprocess.run([str(c) for c in cmd], capture_output=True, text=True)
+    assert done.returncode == 0, f"{' '.join(map(str, cmd))}\n{done.stdout}\n{done.stderr}"
+    return done.stdout
+
+
+def test_xtensa_esp32_fused_object_has_no_undefined_symbols(tmp_path):
+    """dr_fused.c with the kernel it calls, for the ESP32 through clang-22/llc-22 (as tests/test_kernel_c.py): no
+    soft-float or libm helper (no float division, no double), no .data/.bss."""
+    from conftest import require_tool
+
+    clang, llc = require_tool("clang-22"), require_tool("llc-22")
+    link, nm, size = require_tool("llvm-link-22"), require_tool("llvm-nm-22"), require_tool("llvm-size-22")
+    sources = _fused_sources(tmp_path)
+    irs = []
+    for source in sources:
+        ir = tmp_path / (source + ".ll")
+        _run([clang, "--target=xtensa", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Os",
+              "-ffreestanding", "-I", tmp_path, "-S", "-emit-llvm", tmp_path / source, "-o", ir])
+        irs.append(ir)
+    linked = tmp_path / "fused.ll"
+    _run([link, "-S", *irs, "-o", linked])
+    obj = tmp_path / "fused_esp32.o"
+    _run([llc, "-mtriple=xtensa", "-mcpu=esp32", "-O2", "-function-sections", "-filetype=obj", linked, "-o", obj])
+    assert _run([nm, "-u", obj]).split() == []
+    rows = _run([size, "-A", obj]).splitlines()
+    data = sum(int(r.split()[1]) for r in rows if r.startswith((".data", ".bss")) and len(r.split()) > 1)
+    assert data == 0
+
+
+def test_fused_c_under_sanitizers(tmp_path):
+    """The harness of benchmarks/fused.py under AddressSanitizer and UndefinedBehaviorSanitizer."""
+    from conftest import require_tool
+    from codegen.paths import native_ext_dir
+
+    cc = require_tool("cc")
+    sources = _fused_sources(tmp_path)
+    binary = tmp_path / "bench_fused"
+    _run([cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-g", "-O1", "-fsanitize=address,undefined",
+          "-fno-sanitize-recover=all", "-I", tmp_path, native_ext_dir() / "tests" / "bench_fused.c",
+          *[tmp_path / s for s in sources], "-o", binary])
+    out = _run([binary, "3"]).split()
+    assert len(out) == 3 and all(math.isfinite(float(x)) for x in out)
