@@ -134,7 +134,14 @@ def test_on_micropython_the_app_follows_the_reference(capsys, tmp_path):
     require_tool("micropython")
     from codegen.sim.onmicropython import run_on_micropython
 
-    rows = run_on_micropython(load_board(None), "walk", 6.0, (3.0, 6.0), seed=1, work=tmp_path, t_loss=17.5)
+    from codegen.sim import trajectory
+
+    # a quick run: 2 s calibration (a board extending the default), walking from 4 s, GPS lost at 8.5 s
+    yaml = tmp_path / "fastcal.yaml"
+    yaml.write_text("extends: ttgo-tbeam-v1.1\nname: tbeam-fastcal\nalgorithm:\n  calibration_s: 2.0\n")
+    walk = trajectory.walk(duration=20.0, rest_s=4.0, seed=1)
+    rows = run_on_micropython(load_board(yaml), "walk", 5.0, (2.5, 5.0), seed=1, work=tmp_path / "run",
+                              t_loss=8.5, traj=walk)
     out = capsys.readouterr().out
     print(out)
     assert "app (MicroPython)" in out and "seed (reference)" in out

