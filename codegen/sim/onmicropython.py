@@ -133,5 +133,9 @@ def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: i
     for name, err in rows.items():
         lines.append(f"{name:28s}" + "".join(f" {e:8.1f}" for e in err))
     lines.append(f"app screen mode at those times: {', '.join(app_modes)}")
+    wake = result.events("mpu_wake")
+    if wake:
+        lines.append(f"the emulated MPU-6050 was woken at {wake[0]['t_us'] / 1e3:.0f} ms: the app's IMU stream lags "
+                     "the truth by that much")
     print("\n".join(lines), file=stream)
     return rows
