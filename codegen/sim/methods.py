@@ -24,6 +24,7 @@ module name there, or by being imported before the benchmark runs:
 from __future__ import annotations
 
 import importlib
+import warnings
 from typing import Callable
 
 import numpy as np
@@ -50,7 +51,9 @@ def registered_methods() -> dict[str, Method]:
             importlib.import_module(module)
         except ModuleNotFoundError as error:
             if error.name != module:
-                raise
+                warnings.warn(f"method plug-in {module} failed to import: {error}", stacklevel=2)
+        except Exception as error:  # a broken plug-in must not take the baselines down with it
+            warnings.warn(f"method plug-in {module} failed to import: {error!r}", stacklevel=2)
     return dict(METHODS)
 
 
