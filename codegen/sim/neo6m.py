@@ -53,7 +53,7 @@ class GpsTrack:
     vel: np.ndarray  # (K, 3) m/s, Doppler velocity ENU (as the receiver measures it)
     lat: np.ndarray  # (K,) deg
     lon: np.ndarray  # (K,) deg
-    alt: np.ndarray  # (K,) m above the ellipsoid... reported as MSL altitude in GGA (geoid separation 0)
+    alt: np.ndarray  # (K,) m; GGA reports it as altitude with a geoid separation of 0 (so MSL = ellipsoid)
     speed: np.ndarray  # (K,) m/s over ground
     course: np.ndarray  # (K,) deg from true North, clockwise; NaN when undefined
     sats: np.ndarray  # (K,) int
