@@ -8,4 +8,6 @@ replay, and the outage metrics every position method is measured by.
     methods      the registry of estimators (seed, const-velocity, hold-last-fix, plug-ins)
     run          build_run / evaluate / format_table
     plot         truth vs estimate in the plane, error against time since GPS loss
+    simulate     what `deadreckon simulate` does (the CLI calls it)
+    onmicropython  `--on-micropython`: the generated app on the unix-port MicroPython, fed by the models
 """

@@ -49,6 +49,8 @@ def simulate(board, scenario: str = "walk", outage_s: float = 30.0, seed: int = 
     except FileNotFoundError as error:
         raise UserError(f"the real walk recording is missing: {error.filename}",
                         hint="replay-walk reads ../shared/data/gnss-imu-walk beside the project checkout") from None
+    except ValueError as error:  # e.g. a GPS rate the NEO-6M cannot deliver
+        raise UserError(str(error), hint="check the board's gps: and imu: settings") from None
     progress(1, 3, "measuring outages")
     try:
         result = evaluate(run, horizons_for(outage_s), available, step=step)
