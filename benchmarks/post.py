@@ -140,7 +140,7 @@ def walk() -> None:
             p = np.stack([np.interp(log.gps.t[inside], tr.t, tr.pos[:, i]) for i in range(2)], axis=1)
             errors.append(np.hypot(*(p - r.gps_enu[inside, :2]).T).max())
         errors = np.array(errors)
-        print(f"GPS outage of {gap:.0f} s, smoothed across ({len(errors)} outages, RTK-fixed epochs inside): "
+        print(f"GPS outage of {gap:.0f} s, smoothed across; orientation from the whole run ({len(errors)} outages with RTK-fixed epochs inside): "
               f"largest error inside: median {np.median(errors):.2f} m, worst {errors.max():.2f} m")
     print()
     # the device's own data: 1 Hz GPS, MPU-6050 noise
