@@ -81,6 +81,22 @@ def test_fast_orientation_matches_the_reference(walk_run, board):
     np.testing.assert_allclose(a, a_ref, atol=1e-8)
 
 
+def test_all_starts_integration_equals_the_reference(walk_run):
+    from codegen import reference
+
+    t, held, dt = methods_mod.seed_acceleration(walk_run)
+    t_start = np.array([t[400] - 0.002, t[3000]])
+    v0 = np.array([[0.5, -1.0], [1.2, 0.3]])
+    times = np.array([[t[1400], t[2400]], [t[3500], t[9000]]])
+    got = methods_mod.zoh_from(t, held, dt, t_start, v0, times)
+    for i, (s, ends) in enumerate(((400, (1400, 2400)), (3000, (3500, 9000)))):
+        for j, e in enumerate(ends):
+            v_start = np.append(v0[i], 0.0)
+            _, pos = reference.integrate_zoh(held[s:e], dt[s:e], v_start)
+            expect = pos[-1, :2] + v0[i] * (t[s] - t_start[i])
+            np.testing.assert_allclose(got[i, j], expect, atol=1e-9)
+
+
 def test_metrics_table(walk_run):
     result = evaluate(walk_run, horizons=(10.0, 30.0))
     text = format_table([result])
