@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from codegen import reference
 from codegen.board import ACCEL_LSB_PER_G, STANDARD_GRAVITY
@@ -185,3 +187,25 @@ def test_position_error_statistics_match_cep():
         err = np.linalg.norm(track.enu[:, :2] - tr.at(track.t)[:, :2], axis=1)
         cep = neo6m.QUALITY[quality][0]
         assert 0.7 * cep < np.median(err) < 1.4 * cep
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-89.9999, 89.9999), st.floats(-179.9999, 179.9999), st.floats(0, 80), st.floats(0, 359.99))
+def test_nmea_fields_round_trip_anywhere(lat, lon, speed, course):
+    one = trajectory.static(duration=1.0, rate=10.0)
+    track = neo6m.simulate_gps(one, quality="rtk", origin=(lat, lon, 100.0))
+    track.speed[:], track.course[:] = speed, course
+    lines = neo6m.nmea_sentences(track)
+    fix = neo6m.parse_nmea(lines)[0]
+    assert abs(fix.lat - track.lat[0]) <= 0.51e-5 / 60 and abs(fix.lon - track.lon[0]) <= 0.51e-5 / 60
+    assert abs(fix.speed - speed) < 0.0006 and abs(fix.course - course) <= 0.005
+    for line in lines:
+        fields = line.decode().split(",")
+        if fields[0] == "$GPRMC":
+            assert float(fields[3][2:]) < 60 and float(fields[5][3:]) < 60
+
+
+def test_nmea_minutes_carry_into_degrees():
+    assert neo6m._lat_field(40.9999999999) == "4100.00000,N"
+    assert neo6m._lon_field(-105.99999999999) == "10600.00000,W"
+    assert neo6m._lat_field(-0.5) == "0030.00000,S"

@@ -133,16 +133,19 @@ def _sentence(body: str) -> bytes:
     return f"${body}*{nmea_checksum(body)}\r\n".encode("ascii")
 
 
+def _degrees_minutes(value: float, width: int) -> str:
+    """|value| as dddmm.mmmmm, rounded to 1e-5 minute with the carry into degrees (59.999996' -> next degree)."""
+    units = int(round(abs(value) * 60 * 100000))  # 1e-5 minute
+    degrees, minutes = divmod(units, 60 * 100000)
+    return f"{degrees:0{width}d}{minutes // 100000:02d}.{minutes % 100000:05d}"
+
+
 def _lat_field(lat: float) -> str:
-    a = abs(lat)
-    d = int(a)
-    return f"{d:02d}{(a - d) * 60:08.5f},{'N' if lat >= 0 else 'S'}"
+    return f"{_degrees_minutes(lat, 2)},{'N' if lat >= 0 else 'S'}"
 
 
 def _lon_field(lon: float) -> str:
-    a = abs(lon)
-    d = int(a)
-    return f"{d:03d}{(a - d) * 60:08.5f},{'E' if lon >= 0 else 'W'}"
+    return f"{_degrees_minutes(lon, 3)},{'E' if lon >= 0 else 'W'}"
 
 
 def nmea_sentences(track: GpsTrack) -> list[bytes]:
