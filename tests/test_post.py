@@ -140,3 +140,17 @@ def test_standing_still_holds_yaw_and_flags_the_intervals():
     e = np.degrees(o.euler[o.valid])
     assert np.abs(e[:, 0] + 5.0).max() < 0.5 and np.abs(e[:, 1] - 3.0).max() < 0.5
     assert np.ptp(e[:, 2]) < 1e-6  # yaw carried, not fitted to noise
+
+
+def test_device_standing_on_its_end_is_solved_and_flagged():
+    """Pitch near 90 deg (x axis up): Euler roll and yaw are not separable, the rotation still is."""
+    from scipy.spatial.transform import Rotation
+
+    log, truth = make_run(Scenario(duration=150.0, mounting_deg=(10.0, 88.0, 30.0), seed=3))
+    result = process(log, PostOptions())
+    o = result.orientation
+    e = o.euler[o.valid]
+    est = Rotation.from_euler("ZYX", np.stack([e[:, 2], e[:, 1], e[:, 0]], axis=1))
+    error = np.degrees((est * truth.attitude(o.t[o.valid]).inv()).magnitude())
+    assert error.max() < 2.0
+    assert all("gimbal" in f for f in np.array(o.flags, dtype=object)[o.valid])

@@ -38,6 +38,8 @@ FLAG_STATIONARY = "stationary"  # no usable track direction
 FLAG_POOR_FIT = "poor-fit"  # vectors inconsistent with one rotation (device turning within the window, bad data)
 FLAG_LM_WAHBA = "lm-wahba"  # LM and closed form disagree by more than the tolerance
 FLAG_NO_IMU = "no-imu"  # interval without IMU samples
+FLAG_GIMBAL = "gimbal"  # pitch within 5 deg of +-90: the rotation is fine, roll and yaw are not separable
+GIMBAL_MARGIN = np.radians(5.0)
 FLAG_GPS_GAP = "gps-gap"  # epochs missing: the interval is too long to stand for one orientation
 GPS_GAP_FACTOR = 3.0  # an interval longer than this many typical intervals is a gap
 
@@ -390,6 +392,8 @@ def solve_orientations(iv: Intervals, options: OrientationOptions, bias: np.ndar
             lm_wahba[k] = np.degrees((r_lm * r_w.inv()).magnitude())
         if lm_wahba[k] > options.lm_wahba_tolerance_deg:
             flags[k].append(FLAG_LM_WAHBA)
+        if abs(abs(wrap(solution[1])) - np.pi / 2) < GIMBAL_MARGIN:
+            flags[k].append(FLAG_GIMBAL)
         euler[k] = [wrap(solution[0]), wrap(solution[1]), solution[2]]
         prev = (solution[0], solution[1], solution[2], iv.track_yaw[k])
     for k in np.flatnonzero(~iv.usable):

@@ -11,7 +11,7 @@ import numpy as np
 
 from codegen.post.geodesy import enu_to_geodetic
 from codegen.post.orientation import (
-    FLAG_GPS_GAP, FLAG_LM_WAHBA, FLAG_NO_IMU, FLAG_POOR_FIT, FLAG_STATIONARY, FLAG_YAW_HELD,
+    FLAG_GIMBAL, FLAG_GPS_GAP, FLAG_LM_WAHBA, FLAG_NO_IMU, FLAG_POOR_FIT, FLAG_STATIONARY, FLAG_YAW_HELD,
 )
 from codegen.post.pipeline import PostResult
 
@@ -90,7 +90,7 @@ def summary(result: PostResult) -> dict:
     e = np.degrees(o.euler[valid])
     sig = np.degrees(o.sigma[valid])
     flags = {name: int(sum(name in f for f in o.flags)) for name in
-             (FLAG_YAW_HELD, FLAG_STATIONARY, FLAG_POOR_FIT, FLAG_LM_WAHBA, FLAG_NO_IMU, FLAG_GPS_GAP)}
+             (FLAG_YAW_HELD, FLAG_STATIONARY, FLAG_POOR_FIT, FLAG_LM_WAHBA, FLAG_NO_IMU, FLAG_GPS_GAP, FLAG_GIMBAL)}
     res = result.velocity_residual
     ok = np.isfinite(res).all(axis=1)
     m = o.mounting
@@ -165,7 +165,8 @@ def report_text(result: PostResult) -> str:
         lines.append(f"flagged intervals (midpoint, s after the first GPS epoch at {t0:.3f} s), first 40:")
         lines.append("  yaw-held: too little horizontal acceleration, yaw carried over; stationary: no track direction;")
         lines.append("  poor-fit: the window's vectors disagree with one rotation; lm-wahba: LM and closed form differ")
-        lines.append("  (on a yaw-held interval: the tilt differs, i.e. the held yaw does not suit the window)")
+        lines.append("  (on a yaw-held interval: the tilt differs, i.e. the held yaw does not suit the window);")
+        lines.append("  gimbal: pitch near +-90 deg, the rotation is sound but roll and yaw are not separable")
         for t, f in flagged[:40]:
             lines.append(f"  {t - t0:8.3f}: {' '.join(f)}")
     return "\n".join(lines) + "\n"
