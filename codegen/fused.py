@@ -53,19 +53,19 @@ class FusedConfig:
     accel_reject_g: float = 0.1  # g, no tilt correction while | |f| - g | exceeds this
     tilt_tau_dark_s: float = 0.0  # s, the same without GPS (no motion acceleration to subtract); 0: none
     steady_accel_ms2: float = 0.3  # m/s^2, the tilt is corrected only while the GPS acceleration changes less
-    speed_tau_s: float = 15.0  # s, a vehicle's speed relaxes towards the last GPS speed (0: never)
+    speed_tau_s: float = 25.0  # s, a vehicle's speed relaxes towards the last GPS speed (0: never)
     gps_timeout_s: float = 2.0  # s, the GPS counts as lost this long after its last fix
     stat_tau_s: float = 0.5  # s, time constant of the motion statistics
     rest_accel_g: float = 0.01  # g, standard deviation of |f| below which the device may be at rest
     rest_gyro_dps: float = 0.5  # degree/s, rate below which the device may be at rest
     rest_time_s: float = 0.4  # s, both below their limits this long = at rest
     bias_tau_s: float = 30.0  # s, time constant of the gyro bias re-estimation at rest
-    walk_accel_g: float = 0.08  # g, standard deviation of |f| above which the device is carried by a walker
+    walk_accel_g: float = 0.03  # g, standard deviation of |f| above which the device is carried by a walker
     min_speed_ms: float = 0.5  # m/s, GPS speeds below this carry no course
     heading_gain: float = 0.3  # per fix, pull of the travel direction towards the GPS course
     align_forget: float = 0.98  # per fix, forgetting factor of the heading alignment sums
     speed_gain: float = 0.5  # per fix, pull of the speed towards the GPS speed
-    bias_gain: float = 0.05  # per fix, along-track bias correction per m/s of speed error (times 1/T)
+    bias_gain: float = 0.1  # per fix, along-track bias correction per m/s of speed error (times 1/T)
     walk_speed_gain: float = 0.2  # per fix, pull of the walking speed towards the GPS speed
 
     @classmethod
