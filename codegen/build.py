@@ -88,7 +88,10 @@ def load_tree(out: Path, board: Optional[Board] = None) -> GeneratedTree:
 
 
 def _manifest_board(out: Path) -> Board:
+    """The board the tree was generated from: its file (found beside OUT, in the working folder or among the bundled
+    boards), checked against the manifest's board_sha256 so a board file edited since `generate` is not used."""
     from codegen.loader import load_board
+    from codegen.paths import board_configs_dir
 
     manifest_path = out / "MANIFEST.json"
     try:
@@ -98,23 +101,26 @@ def _manifest_board(out: Path) -> Board:
     except json.JSONDecodeError as exc:
         raise UserError(f"{manifest_path} is not valid JSON ({exc.msg}, line {exc.lineno})")
     board_file = manifest.get("board_file") or (manifest.get("board_files") or [None])[0]
-    candidates = []
-    if board_file:
-        from codegen.paths import board_configs_dir
-
-        path = Path(board_file)
-        candidates = [path] if path.is_absolute() else [out / path, Path.cwd() / path, board_configs_dir() / path]
-    for candidate in candidates:
-        if candidate.is_file():
-            return load_board(candidate).board
-    if manifest.get("board"):
-        try:
-            return load_board(manifest["board"]).board  # a bundled board by name
-        except UserError:
-            pass
+    if not board_file:
+        raise UserError(f"{manifest_path} names no board file", hint="regenerate the tree from its board YAML")
+    path = Path(board_file)
+    places = [path] if path.is_absolute() else [out / path, Path.cwd() / path, out.parent / path,
+                                                 board_configs_dir() / path]
+    expected = manifest.get("board_sha256")
+    changed = None
+    for candidate in dict.fromkeys(p.resolve() for p in places if p.is_file()):
+        loaded = load_board(candidate)
+        if expected is None or loaded.content_sha256 == expected:
+            return loaded.board
+        changed = changed or candidate
+    if changed is not None:
+        raise UserError(
+            f"the board file {changed} changed since {out} was generated from it",
+            hint=f"regenerate: `deadreckon generate {changed} -o {out}`",
+        )
     raise UserError(
         f"cannot find the board file {board_file!r} that {manifest_path} names",
-        hint="regenerate the tree from its board YAML",
+        hint="run the command from the folder holding the board YAML, or regenerate the tree",
     )
 
 

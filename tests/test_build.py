@@ -130,3 +130,19 @@ def test_native_module_needs_mpy_dir_and_a_cross_compiler(tmp_path, monkeypatch)
     monkeypatch.setenv("CROSS", str(tmp_path / "nowhere" / "xtensa-esp32-elf-"))
     result = build(tree, board=default_board(), progress=lambda _: None, image=False)
     assert result.native is None and "no cross compiler for xtensawin" in result.native_note
+
+
+def test_build_finds_the_board_by_the_manifest_and_refuses_an_edited_one(tmp_path, monkeypatch):
+    from codegen.generate import generate
+    from codegen.loader import load_board
+
+    board_file = tmp_path / "my-board.yaml"
+    board_file.write_text("extends: ttgo-tbeam-v1.1\nname: my-board\nimu: {address: 0x69}\n")
+    out = tmp_path / "out"
+    generate(load_board(board_file), out)
+    monkeypatch.chdir(tmp_path.parent)  # the board file sits beside OUT, not in the working folder
+    result = build(out, progress=lambda _: None, image=False)
+    assert result.tree.board.name == "my-board" and result.tree.board.imu.address == 0x69
+    board_file.write_text(board_file.read_text() + "led: null\n")
+    with pytest.raises(UserError, match="changed since"):
+        build(out, progress=lambda _: None, image=False)
