@@ -100,7 +100,7 @@ def _manifest_board(out: Path) -> Board:
         raise UserError(f"{manifest_path} is missing", hint="run `deadreckon generate BOARD.yaml -o OUT` first")
     except json.JSONDecodeError as exc:
         raise UserError(f"{manifest_path} is not valid JSON ({exc.msg}, line {exc.lineno})")
-    board_file = manifest.get("board_file") or (manifest.get("board_files") or [None])[0]
+    board_file = manifest.get("board_path") or (manifest.get("board_files") or [None])[0]
     if not board_file:
         raise UserError(f"{manifest_path} names no board file", hint="regenerate the tree from its board YAML")
     path = Path(board_file)

@@ -160,11 +160,13 @@ def render_tree(loaded: LoadedBoard) -> dict[str, RenderedFile]:
     return files
 
 
-def manifest_for(loaded: LoadedBoard, files: dict[str, RenderedFile]) -> dict:
+def manifest_for(loaded: LoadedBoard, files: dict[str, RenderedFile], root: Path) -> dict:
     return {
         "generator": f"deadreckon {__version__}",
         "board": loaded.board.name,
         "board_files": [path.name for path in loaded.files],
+        # the board file as seen from the output folder, so `build` finds it from any working folder
+        "board_path": Path(os.path.relpath(loaded.files[0].resolve(), root.resolve())).as_posix(),
         "board_sha256": loaded.content_sha256,
         "files": {
             relative: {
@@ -229,6 +231,6 @@ def generate(loaded: LoadedBoard, root: Path, force: bool = False) -> GenerateRe
         temporary = target.with_name(target.name + ".tmp")
         temporary.write_bytes(rendered.content)
         os.replace(temporary, target)
-    manifest = json.dumps(manifest_for(loaded, files), indent=2, sort_keys=True) + "\n"
+    manifest = json.dumps(manifest_for(loaded, files, root), indent=2, sort_keys=True) + "\n"
     (root / MANIFEST).write_text(manifest, encoding="utf-8")
     return GenerateResult(root, files)
