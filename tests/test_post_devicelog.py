@@ -141,3 +141,47 @@ def test_device_log_without_fix(tmp_path, capsys):
     code = main(["post", str(path), "-o", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert code == 2 and "no GPS fix" in err
+
+
+def test_log_written_by_the_generated_app_on_micropython(tmp_path):
+    """The real writer: the generated T-Beam app on the unix-port MicroPython (tests/mpsim) logs a flat device that
+    is pushed East and stopped while the GPS reports the same motion; `post` reads that log and finds it flat."""
+    from conftest import require_tool
+    from mpsim.harness import generate_app, imu_counts, nmea_epoch, run_app, tbeam_scenario, write_counts, write_stream
+
+    micropython = require_tool("micropython")
+    app = generate_app("ttgo-tbeam-v1.1", tmp_path / "out")
+    rate, accel = 200.0, 1.0  # Hz, m/s^2
+    pushes = [(12.0, 16.0, 0, accel), (22.0, 26.0, 0, -accel)]
+
+    def speed(t):
+        return accel * (np.clip(t - 12.0, 0.0, 4.0) - np.clip(t - 22.0, 0.0, 4.0))
+
+    lat0, lon0 = 40.0350855, -75.52009367
+    metres_per_deg_lon = 111320.0 * np.cos(np.radians(lat0))
+    fine = np.arange(0.0, 32.0, 0.001)
+    east = np.cumsum(speed(fine)) * 0.001
+    chunks = []
+    for t in range(1, 32):
+        lon = lon0 + np.interp(t, fine, east) / metres_per_deg_lon
+        chunks.append((t, nmea_epoch(t, lat0, lon, speed_kn=speed(t) / 0.514444, course=90.0)))
+    counts = write_counts(tmp_path / "imu.bin", imu_counts(32, rate, seed=2, pushes=pushes))
+    gps = write_stream(tmp_path / "gps.txt", chunks)
+    run = run_app(micropython, app, tbeam_scenario(tmp_path, counts, gps, 32), tmp_path)
+    assert run.returncode == 0, run.stderr[-2000:]
+    logs = sorted((tmp_path / "fs").glob("dr*.bin"))
+    assert logs
+    dev = load_log(logs[-1])
+    assert dev.time_scale == "utc" and len(dev.gps) >= 15 and dev.imu.rate_hz == pytest.approx(50.0, rel=0.05)
+    result = process(dev, PostOptions())
+    o = result.orientation
+    e = np.degrees(o.euler[o.valid])
+    assert np.abs(e[:, 0]).max() < 1.0 and np.abs(e[:, 1]).max() < 1.0  # flat
+    assert result.velocity_residual_rms < 0.15
+    assert abs(result.delay) < 0.5
+    # the push was along the sensor's x axis, eastwards: the body x axis (after the header's axes remap) points
+    # East or West, so the yaw of the pushed intervals is 0 or 180 deg
+    pushed = o.valid & (o.horizontal_accel > 0.5 * accel)
+    yaw = np.degrees(o.euler[pushed, 2])
+    assert pushed.sum() >= 4
+    assert np.all(np.minimum(np.abs(yaw), 180.0 - np.abs(yaw)) < 5.0)

@@ -19,6 +19,7 @@ whole run (`fit_mounting`), because a horizontal bias looks exactly like tilt in
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
@@ -384,7 +385,9 @@ def solve_orientations(iv: Intervals, options: OrientationOptions, bias: np.ndar
             flags[k].append(FLAG_POOR_FIT)
         # closed-form cross-check on the same weighted vectors
         r_lm = Rotation.from_matrix(euler_matrix(*solution))
-        r_w, _ = Rotation.align_vectors(tj, sj, weights=wj**2)
+        with warnings.catch_warnings():  # nearly parallel vectors (standing still) are expected: yaw is held there
+            warnings.simplefilter("ignore", UserWarning)
+            r_w, _ = Rotation.align_vectors(tj, sj, weights=wj**2)
         if hold_yaw:
             up_lm, up_w = r_lm.inv().apply(UP), r_w.inv().apply(UP)
             lm_wahba[k] = np.degrees(np.arccos(np.clip(up_lm @ up_w, -1.0, 1.0)))
