@@ -17,6 +17,7 @@ import numpy as np
 
 from codegen.board import STANDARD_GRAVITY
 from codegen.errors import Location, UserError
+from codegen.post.csvlog import average_duplicate_epochs
 from codegen.post.model import GpsSeries, ImuSeries, PostLog
 
 DEVICE_LOG_SUFFIXES = (".bin",)
@@ -189,13 +190,13 @@ def to_post_log(raw: RawDeviceLog) -> PostLog:
     alt_m = np.where(alt[valid] == UNKNOWN_I32, np.nan, alt[valid] / 1000.0)
     sigma_pos = np.stack([sigma_h, sigma_h, 2 * sigma_h], axis=1)
     order = np.argsort(t_gps, kind="stable")
-    t_gps = t_gps[order]
-    if np.any(np.diff(t_gps) <= 0):
-        keep_g = np.concatenate([[True], np.diff(t_gps) > 0])
-        notes.append(f"{path.name}: dropped {np.sum(~keep_g)} repeated GPS epoch(s)")
-        order, t_gps = order[keep_g], t_gps[keep_g]
-    gps = GpsSeries(t_gps, lat[valid][order] * 1e-7, lon[valid][order] * 1e-7, alt_m[order], vel[order],
-                    sigma_vel[order], sigma_pos[order], quality[valid][order].astype(int))
+    n_epochs = len(order)
+    t_gps, (lat_deg, lon_deg, alt_m, vel, sigma_vel, sigma_pos, q) = average_duplicate_epochs(
+        t_gps[order], lat[valid][order] * 1e-7, lon[valid][order] * 1e-7, alt_m[order], vel[order],
+        sigma_vel[order], sigma_pos[order], quality[valid][order].astype(float))
+    if len(t_gps) < n_epochs:
+        notes.append(f"{path.name}: averaged {n_epochs - len(t_gps)} duplicate GPS epoch(s)")
+    gps = GpsSeries(t_gps, lat_deg, lon_deg, alt_m, vel, sigma_vel, sigma_pos, np.round(q).astype(int))
     return PostLog(path.stem, ImuSeries(t_imu, acc), gps, notes=notes, time_scale=time_scale)
 
 
