@@ -220,7 +220,12 @@ class Led(Part):
 
 
 class Algorithm(Part):
-    mode: Literal["seed", "fused"] = "seed"
+    mode: Literal["seed", "fused"] = Field(
+        "fused",
+        description="seed: the seed's windows (block median, deadband, double integration); fused: tilt kept by "
+        "gravity, rest detection, heading and speed from GPS (issue 8; beats the seed and both baselines on the "
+        "walk, car and real-walk benchmarks)",
+    )
     block: int = Field(16, ge=1, description="b: samples per block median")
     window: int = Field(512, ge=1, le=4096, description="n: samples per processing window")
     deadband_g: float = Field(0.03125, ge=0, description="l: |a| below this (in g) becomes 0")
