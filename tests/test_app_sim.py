@@ -11,14 +11,17 @@ from conftest import require_tool
 from mpsim.harness import generate_app, run_app, tbeam_scenario, write_counts, write_stream
 
 
-def test_simulated_drive_with_outage(tmp_path):
+@pytest.mark.parametrize("mode", ["seed", "fused"])
+def test_simulated_drive_with_outage(tmp_path, mode):
     micropython = require_tool("micropython")
     sim_traj = pytest.importorskip("codegen.sim.trajectory")
     from codegen.sim.mpu6050 import simulate_imu
     from codegen.sim.neo6m import nmea_sentences, simulate_gps
 
-    board = load_board("ttgo-tbeam-v1.1").board
-    out = generate_app("ttgo-tbeam-v1.1", tmp_path / "out")
+    yaml = tmp_path / "board.yaml"
+    yaml.write_text(f"extends: ttgo-tbeam-v1.1\nname: tbeam-{mode}\nalgorithm:\n  mode: {mode}\n")
+    board = load_board(yaml).board
+    out = generate_app(yaml, tmp_path / "out")
     trajectory = sim_traj.make_scenario("car", seed=3, duration=50.0)
     _, counts = simulate_imu(trajectory, board, seed=3)
     track = simulate_gps(trajectory, seed=3, outages=[(32.0, 60.0)])
@@ -47,3 +50,18 @@ def test_simulated_drive_with_outage(tmp_path):
     assert len(imu_windows) >= 3
     for line in run.console("DIAG")[1:]:
         assert "dropped=0" in line, line
+    # how far the dead-reckoned position is from the truth at the end (printed: accuracy is issue 6's table)
+    last = [line for line in run.stdout.splitlines() if line.startswith("WIN")][-1]
+    fields = dict(item.split("=") for item in last.split()[2:])
+    import numpy as np
+
+    from codegen.sim.neo6m import geodetic_to_enu
+
+    t_end = int(fields["ticks_ms"]) / 1000  # the run's ticks start at 0
+    truth = trajectory.at(np.array([t_end]))[0]
+    shown = geodetic_to_enu(np.array([int(fields["lat"]) * 1e-7]), np.array([int(fields["lon"]) * 1e-7]),
+                            np.array([0.0]), track.origin)[0]
+    anchor_t = 31.0
+    travelled = np.linalg.norm(truth[:2] - trajectory.at(np.array([anchor_t]))[0][:2])
+    print(f"{mode}: travelled {travelled:.1f} m since the last fix, error {np.linalg.norm(shown[:2] - truth[:2]):.1f} m")
+    assert np.all(np.isfinite(shown))
