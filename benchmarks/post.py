@@ -151,6 +151,8 @@ def walk() -> None:
     print(f"device-like ({dl.name}): delay {rd.delay * 1e3:+.1f} ms +- {rd.delay_estimate.sigma * 1e3:.1f}, "
           f"median roll {np.median(ed[:, 0]):+.2f} pitch {np.median(ed[:, 1]):+.2f} deg, "
           f"velocity residual RMS {rd.velocity_residual_rms:.3f} m/s, flagged {sum(1 for f in od.flags if f)} of {len(od.t)}")
+    for note in rd.notes:
+        print(f"- {note}")
     print()
 
 

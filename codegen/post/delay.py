@@ -50,7 +50,8 @@ def estimate_delay(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gp
         return float(np.sum((dv_imu(tau) - dv_gps) ** 2)) / norm
 
     lags = np.arange(-max_lag, max_lag + 0.5 * step, step) if max_lag > 0 else np.array([0.0])
-    costs = np.array([cost(tau) for tau in lags])
+    per_interval = np.array([np.sum((dv_imu(tau) - dv_gps) ** 2, axis=1) for tau in lags]) / norm
+    costs = per_interval.sum(axis=1)
     best = int(np.argmin(costs))
     if 0 < best < len(lags) - 1:
         refined = minimize_scalar(cost, bounds=(lags[best - 1], lags[best + 1]), method="bounded",
@@ -66,4 +67,23 @@ def estimate_delay(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gp
     curvature = (cp + cm - 2 * c0) / h**2
     dof = max(d.size - 1, 1)
     sigma = float(np.sqrt(2.0 * c0 / dof / curvature)) if curvature > 0 and c0 > 0 else float("inf")
+    # the curvature trusts white residuals; motion the model misses is not white, so also resample the intervals in
+    # blocks and take the spread of the best lag (a broad or two-humped misfit shows here)
+    sigma = max(sigma, _block_bootstrap_sigma(lags, per_interval))
     return DelayEstimate(delay, lags, costs, corr, sigma)
+
+
+BOOTSTRAP_DRAWS = 200
+BOOTSTRAP_BLOCK = 10  # intervals
+
+
+def _block_bootstrap_sigma(lags: np.ndarray, per_interval: np.ndarray, seed: int = 0) -> float:
+    n = per_interval.shape[1]
+    if len(lags) < 3 or n < 2 * BOOTSTRAP_BLOCK:
+        return 0.0
+    rng = np.random.default_rng(seed)
+    starts = np.arange(0, n - BOOTSTRAP_BLOCK + 1)
+    block_cost = np.stack([per_interval[:, s:s + BOOTSTRAP_BLOCK].sum(axis=1) for s in starts], axis=1)
+    picks = rng.integers(0, len(starts), (BOOTSTRAP_DRAWS, max(1, n // BOOTSTRAP_BLOCK)))
+    best = lags[np.argmin(block_cost[:, picks].sum(axis=2), axis=0)]
+    return float(np.std(best))

@@ -204,6 +204,7 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
             progress("delay", (attempt + 1) / 4)
         if abs(estimate.delay) < 0.25 * step:
             break
+    coarse_delay = curve.delay if curve is not None else delay  # the first, full-range search
     # then per-interval orientation, and the delay refined with it (a device that does not sit rigidly is only
     # roughly described by the mounting)
     for attempt in range(3):
@@ -218,10 +219,15 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
             break
         refined = estimate_delay(t, _rotate(orientation, t, acc), gps.t, gps.vel, min(options.max_lag, 0.25))
         delay += refined.delay
-        estimate = replace(curve if curve is not None else refined, delay=delay, sigma=refined.sigma,
+        spread = max(refined.sigma, curve.sigma) if curve is not None else refined.sigma  # the full search's too
+        estimate = replace(curve if curve is not None else refined, delay=delay, sigma=spread,
                            correlation=refined.correlation)
         if abs(refined.delay) < 0.25 * step:
             break
+    if estimate is not None and abs(delay - coarse_delay) > max(3.0 * estimate.sigma, step):
+        notes.append(f"the delay moved from {coarse_delay * 1e3:+.0f} ms (first search) to {delay * 1e3:+.0f} ms as "
+                     f"the orientation was refitted: the data do not pin it down; treat it as uncertain by "
+                     f"{abs(delay - coarse_delay) * 1e3:.0f} ms")
     t = log.imu.t - delay
     # 2. the smoothed velocity gives a quieter track direction than raw Doppler: orient again with it, and with the
     #    interval means turned back for the device's own turning
