@@ -30,6 +30,15 @@ And at each GPS fix with Doppler velocity g (true ENU, m/s), `gps_update`:
   s <- s + speed_gain e, b <- b - bias_gain e / T (T: seconds since the previous fix);
 - walking speed: while walking, s_walk <- s_walk + walk_speed_gain (|g| - s_walk).
 
+Tuning (FusedConfig defaults = the board's algorithm.fused_* defaults): chosen on simulator seeds 101-103 (walk,
+car) and replay degradations 101-103, never on the seeds benchmarks/accuracy.py reports (0-2, replay 0-4). What
+mattered: rest needs a gyro limit of 0.5 degree/s (a car cruising smoothly looked "at rest" at 2 degree/s and the
+zero-velocity update stopped it); the tilt correction must not absorb a car's sustained accelerations (GPS
+compensation + steady gate while fixes arrive, none without GPS); walking shows as |f| standard deviation above
+0.03 g (hand-held real walk 0.04-0.09 g, cars below 0.006 g), and a walker's speed is best held at the learned
+walking speed rather than integrated. No deadband or block median: both threw away the small along-track
+accelerations a vehicle's speed is made of, and the rest detector replaces the deadband's purpose.
+
 The state is a flat vector of floats (the C kernel's caller-owned buffer holds the same fields in the same order);
 FusedState below names them. One GPS-free pass over the IMU and the GPS updates at their epochs is exactly what the
 device does; `estimate` runs it for the simulator's benchmark and registers the method as "fused".
