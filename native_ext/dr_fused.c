@@ -129,6 +129,7 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
                      const int32_t *dt_us, int32_t count, float out[6]) {
     const float g = DR_GRAVITY_MS2;
+    const float db2 = kcfg->deadband_ms2 * kcfg->deadband_ms2;
     float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
     float pe0 = st->pe, pn0 = st->pn;
     float ve, vn;
@@ -159,14 +160,6 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         d = nf - st->mean_f;
         st->var_f += alpha * (d * d - st->var_f);
         st->w2 += alpha * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] - st->w2);
-        if (st->var_f < cfg->rest_var && st->w2 < cfg->rest_w2) {
-            st->rest_s += dt;
-        } else {
-            st->rest_s = 0.0f;
-        }
-        rest = st->rest_s >= cfg->rest_time_s;
-        walking = st->var_f > cfg->walk_var;
-        flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0);
         /* rotation matrix of q */
         r00 = 1.0f - 2.0f * (qy * qy + qz * qz);
         r01 = 2.0f * (qx * qy - qw * qz);
@@ -179,6 +172,15 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         r22 = 1.0f - 2.0f * (qx * qx + qy * qy);
         ae = r00 * f[0] + r01 * f[1] + r02 * f[2];
         an = r10 * f[0] + r11 * f[1] + r12 * f[2];
+        /* rest: still, and no horizontal acceleration beyond the deadband (a smooth push is no rest) */
+        if (st->var_f < cfg->rest_var && st->w2 < cfg->rest_w2 && ae * ae + an * an < db2) {
+            st->rest_s += dt;
+        } else {
+            st->rest_s = 0.0f;
+        }
+        rest = st->rest_s >= cfg->rest_time_s;
+        walking = st->var_f > cfg->walk_var;
+        flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0);
         /* travel direction turned by the rate about Up */
         r = r20 * w[0] + r21 * w[1] + r22 * w[2];
         ux = st->ux - r * dt * st->uy;
@@ -195,7 +197,11 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         } else if (walking) {
             st->speed = st->walk_speed;
         } else {
-            st->speed += (ae * st->ux + an * st->uy - st->bias + (st->gps_speed - st->speed) * cfg->inv_speed_tau) * dt;
+            float a = ae * st->ux + an * st->uy - st->bias;
+            if (dr_absf(a) < kcfg->deadband_ms2) { /* the board's deadband, on the along-track acceleration */
+                a = 0.0f;
+            }
+            st->speed += (a + (st->gps_speed - st->speed) * cfg->inv_speed_tau) * dt;
             if (st->speed < 0.0f) {
                 st->speed = 0.0f;
             }

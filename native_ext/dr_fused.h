@@ -4,7 +4,8 @@
  * Same front end as the kernel (axis remap, scales, gyro bias, quaternion body -> kernel ENU), plus per sample a
  * Mahony-type tilt correction towards gravity (minus the motion acceleration the GPS showed), rest detection
  * (zero-velocity update, gyro bias re-estimation), a travel direction turned by the gyro and a speed along it
- * (walking: the learned walking speed; otherwise the integrated along-track acceleration minus its bias), and at
+ * (walking: the learned walking speed; otherwise the integrated along-track acceleration minus its bias, through
+ * the kernel's deadband kcfg->deadband_ms2, which also bounds the horizontal acceleration at rest), and at
  * each GPS fix (dr_fused_gps) the heading alignment of the kernel frame to true North, the travel direction, the
  * speed and the along-track accelerometer bias.
  *
