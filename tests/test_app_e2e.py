@@ -34,10 +34,17 @@ RATE = 200.0
 def micropython():
     return require_tool("micropython")
 
+SEED_BOARD = "extends: ttgo-tbeam-v1.1\nname: tbeam-seed\nalgorithm:\n  mode: seed\n"
+
 
 @pytest.fixture(scope="module")
 def tbeam(tmp_path_factory):
-    return generate_app("ttgo-tbeam-v1.1", tmp_path_factory.mktemp("tbeam") / "out")
+    """The default board with algorithm mode seed: the push-and-coast assertions are the seed's (the fused default
+    takes a vibration-free coast for rest and stops, by design; it runs in test_app_boards and test_app_sim)."""
+    folder = tmp_path_factory.mktemp("tbeam")
+    board = folder / "tbeam-seed.yaml"
+    board.write_text(SEED_BOARD)
+    return generate_app(board, folder / "out")
 
 
 def gps_chunks(t_from, t_to, **kw):
@@ -150,7 +157,7 @@ def test_log_records(modes_run):
     data = files[0].read_bytes()
     assert len(data) % 4096 == 0  # whole blocks only
     header, records = read_log(data)
-    assert header["board"] == "ttgo-tbeam-v1.1" and header["imu_rate_hz"] == "200.0" and header["log_every"] == "4"
+    assert header["board"] == "tbeam-seed" and header["imu_rate_hz"] == "200.0" and header["log_every"] == "4"
     imu = [r for r in records if r[0] == "I"]
     gps = [r for r in records if r[0] == "G"]
     win = [r for r in records if r[0] == "W"]

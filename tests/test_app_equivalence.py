@@ -1,5 +1,6 @@
-"""The positions the app computes in IMU mode equal the reference pipeline on the same samples, within the kernel
-issue's derived float32 bound (tests/kernelkit.window_bound), with the generated fallback and with the x64 natmod.
+"""The positions the app computes in IMU mode (algorithm `seed`) equal the reference pipeline on the same samples,
+within the kernel issue's derived float32 bound (tests/kernelkit.window_bound), with the generated fallback and with
+the x64 natmod. (The default `fused` method's own equivalence is the kernel issue's; here it runs in test_app_sim.)
 
 The app runs unmodified; a wrapper script only taps `dr.process` and the app's hooks to record, per window, the
 kernel state going in, the samples and intervals the app collected, the kernel's output, and the position the app
@@ -146,9 +147,11 @@ def natmod_dir(tmp_path: Path, out: Path) -> Path:
 @pytest.mark.parametrize("kernel", ["python", "native"])
 def test_imu_positions_equal_reference(kernel, tmp_path):
     micropython = require_tool("micropython")
-    out = generate_app("ttgo-tbeam-v1.1", tmp_path / "out")
+    yaml = tmp_path / "tbeam-seed.yaml"
+    yaml.write_text("extends: ttgo-tbeam-v1.1\nname: tbeam-seed\nalgorithm:\n  mode: seed\n")
+    out = generate_app(yaml, tmp_path / "out")
     extra = [natmod_dir(tmp_path, out)] if kernel == "native" else []
-    board = load_board("ttgo-tbeam-v1.1").board
+    board = load_board(yaml).board
     cfg = ref.KernelConfig.from_board(board)
     duration = 36
     counts = write_counts(tmp_path / "imu.bin", motion_counts(duration))
