@@ -9,17 +9,9 @@ the app drives dr_native (calibrate, process windows, a GPS update per fix).
 
 from __future__ import annotations
 
-import hashlib
-import os
-import shutil
-import subprocess
-import sys
-import tempfile
-from pathlib import Path
 import numpy as np
 
 from codegen import hostkernel
-from codegen.errors import UserError
 
 SOURCES = ("dr_kernel.c", "dr_median.c", "dr_geo.c", "dr_fused.c")
 HEADERS = ("dr_fused.h",)
@@ -28,20 +20,9 @@ PARAM_ORDER = ("tilt_tau_s", "accel_reject_g", "tilt_tau_dark_s", "steady_accel_
                "walk_accel_g", "min_speed_ms", "heading_gain", "align_forget", "speed_gain", "bias_gain",
                "walk_speed_gain")
 
-CDEF = """
-typedef struct {
-    int32_t block;
-    int32_t window;
-    int32_t axis_source[3];
-    float axis_sign[3];
-    float accel_ms2_per_lsb;
-    float gyro_rads_per_lsb;
-    float deadband_ms2;
-    float motion_limit_lsb2;
-} dr_config;
+CDEF = hostkernel.CONFIG_CDEF + """
 typedef struct { ...; } dr_fused_config;
 typedef struct { ...; } dr_fused_state;
-void dr_config_init(dr_config *cfg);
 void dr_fused_config_init(dr_fused_config *cfg);
 int dr_fused_config_set(dr_fused_config *cfg, const float p[18]);
 void dr_fused_state_init(dr_fused_state *st);
@@ -118,66 +99,11 @@ class HostFused:
         return FusedSession(self, params)
 
 
-_LOADED: dict[str, HostFused] = {}
-
-
 def fused_sources(loaded=None) -> dict[str, bytes]:
-    files = hostkernel.kernel_sources(loaded)
-    from codegen.generate import render_tree
-    from codegen.loader import load_board
-
-    tree = render_tree(loaded if loaded is not None else load_board())
-    for name in ("dr_fused.c",) + HEADERS:
-        files[name] = tree[f"native/{name}"].content
-    return files
+    return hostkernel.kernel_sources(loaded, extra=("dr_fused.c",) + HEADERS)
 
 
 def load_fused(loaded=None) -> HostFused:
     """Compile (or find in the cache) the fused kernel for a board (None = the default board)."""
-    import cffi
-
-    files = fused_sources(loaded)
-    digest = hashlib.sha256()
-    for name in sorted(files):
-        digest.update(name.encode() + b"\0" + files[name] + b"\0")
-    digest.update((CDEF + " ".join(hostkernel.C_FLAGS) + sys.version).encode())
-    digest.update(Path(__file__).read_bytes())
-    key = digest.hexdigest()[:20]
-    if key in _LOADED:
-        return _LOADED[key]
-    name = f"_drfused_{key}"
-    home = hostkernel.cache_dir() / "hostfused" / key
-    built = list(home.glob(f"{name}*.so")) if home.is_dir() else []
-    if not built:
-        hostkernel.cache_dir().mkdir(parents=True, exist_ok=True)
-        work = Path(tempfile.mkdtemp(prefix=f"fused-{key}-", dir=hostkernel.cache_dir()))
-        try:
-            for file_name, content in files.items():
-                (work / file_name).write_bytes(content)
-            objects = []
-            for source in SOURCES:
-                obj = work / (source[:-2] + ".o")
-                cmd = [*hostkernel._compiler(), *hostkernel.C_FLAGS, "-I", str(work), "-c", source, "-o", obj.name]
-                done = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
-                if done.returncode:
-                    raise UserError(f"the fused C kernel does not compile: {done.stderr.strip()}")
-                objects.append(obj)
-            ffi = cffi.FFI()
-            ffi.cdef(CDEF)
-            ffi.set_source(name, C_SOURCE, include_dirs=[str(work)], extra_objects=[str(o) for o in objects])
-            library = Path(ffi.compile(tmpdir=str(work), verbose=False))
-            home.parent.mkdir(parents=True, exist_ok=True)
-            staging = Path(tempfile.mkdtemp(prefix=f"stage-{key}-", dir=home.parent))
-            shutil.copy2(library, staging / library.name)
-            try:
-                os.replace(staging, home)
-            except OSError:
-                shutil.rmtree(staging, ignore_errors=True)
-        finally:
-            shutil.rmtree(work, ignore_errors=True)
-        built = list(home.glob(f"{name}*.so"))
-    module = hostkernel._import(built[0], name)
-    result = HostFused(module)
-    _LOADED[key] = result
-    return result
-
+    module, _ = hostkernel.build_module("_drfused", fused_sources(loaded), SOURCES, CDEF, C_SOURCE)
+    return HostFused(module)

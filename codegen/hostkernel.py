@@ -33,7 +33,7 @@ KERNEL_SOURCES = ("dr_kernel.c", "dr_median.c", "dr_geo.c")
 KERNEL_HEADERS = ("dr_kernel.h", "dr_median.h", "dr_geo.h", "dr_math.h", "dr_board.h")
 C_FLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2", "-fPIC")
 
-CDEF = """
+CONFIG_CDEF = """
 typedef struct {
     int32_t block;
     int32_t window;
@@ -44,12 +44,15 @@ typedef struct {
     float deadband_ms2;
     float motion_limit_lsb2;
 } dr_config;
+void dr_config_init(dr_config *cfg);
+"""
+
+CDEF = CONFIG_CDEF + """
 typedef struct {
     float q[4];
     float v[3];
     float gyro_bias_lsb[3];
 } dr_state;
-void dr_config_init(dr_config *cfg);
 int dr_config_set(dr_config *cfg, int32_t block, int32_t window, float accel_lsb_per_g, float gyro_lsb_per_dps,
                   float deadband_g, float motion_threshold_g);
 void dr_state_init(dr_state *st);
@@ -81,13 +84,14 @@ def cache_dir() -> Path:
     return Path(root) if root else Path.home() / ".cache" / "deadreckon"
 
 
-def kernel_sources(loaded=None) -> dict[str, bytes]:
-    """The kernel's C files (name -> content) exactly as `deadreckon generate` renders them for the board."""
+def kernel_sources(loaded=None, extra: tuple[str, ...] = ()) -> dict[str, bytes]:
+    """The kernel's C files (name -> content) exactly as `deadreckon generate` renders them for the board, plus
+    the `extra` files named (the fused kernel's)."""
     from codegen.generate import render_tree
     from codegen.loader import load_board
 
     tree = render_tree(loaded if loaded is not None else load_board())
-    wanted = set(KERNEL_SOURCES) | set(KERNEL_HEADERS)
+    wanted = set(KERNEL_SOURCES) | set(KERNEL_HEADERS) | set(extra)
     files = {name[len("native/"):]: f.content for name, f in tree.items() if name[len("native/"):] in wanted}
     missing = wanted - set(files)
     if missing:
@@ -99,10 +103,10 @@ def _compiler() -> list[str]:
     return (os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc").split()
 
 
-def _compile_objects(folder: Path) -> list[Path]:
-    """Compile each kernel source alone with the strict flags; a failure is a UserError at the rendered line."""
+def _compile_objects(folder: Path, sources: tuple[str, ...]) -> list[Path]:
+    """Compile each source alone with the strict flags; a failure is a UserError at the rendered line."""
     objects = []
-    for source in KERNEL_SOURCES:
+    for source in sources:
         obj = folder / (source[:-2] + ".o")
         cmd = [*_compiler(), *C_FLAGS, "-I", str(folder), "-c", source, "-o", obj.name]
         done = subprocess.run(cmd, cwd=folder, capture_output=True, text=True)
@@ -249,11 +253,11 @@ class KernelSession:
         return out[:3], out[3:], medians[: len(raw) // self.block]
 
 
-def _build_key(files: dict[str, bytes]) -> str:
+def _build_key(files: dict[str, bytes], cdef: str) -> str:
     digest = hashlib.sha256()
     for name in sorted(files):
         digest.update(name.encode() + b"\0" + files[name] + b"\0")
-    digest.update(CDEF.encode())
+    digest.update(cdef.encode())
     digest.update(" ".join(C_FLAGS).encode())
     digest.update(" ".join(_compiler()).encode())
     digest.update(sys.version.encode())
@@ -268,20 +272,19 @@ def _import(path: Path, name: str):
     return module
 
 
-_LOADED: dict[str, HostKernel] = {}
+_MODULES: dict[str, tuple[object, Path]] = {}
 
 
-def load_kernel(loaded=None, files: Optional[dict[str, bytes]] = None) -> HostKernel:
-    """Compile (or find in the cache) the kernel for a board (a codegen.loader.LoadedBoard; None = the default
-    board), or for explicit `files` (name -> content, as kernel_sources returns)."""
+def build_module(prefix: str, files: dict[str, bytes], sources: tuple[str, ...], cdef: str, c_source: str):
+    """Compile `sources` (from `files`, name -> content) and a cffi API-mode wrapper declaring `cdef`, or find the
+    result in the cache under the hash of everything that went in. Returns (module, path of the built library)."""
     import cffi
 
-    files = files if files is not None else kernel_sources(loaded)
-    key = _build_key(files)
-    if key in _LOADED:
-        return _LOADED[key]
-    name = f"_drkernel_{key}"
-    home = cache_dir() / "hostkernel" / key
+    key = _build_key(files, cdef + c_source)
+    if key in _MODULES:
+        return _MODULES[key]
+    name = f"{prefix}_{key}"
+    home = cache_dir() / prefix.strip("_") / key
     built = list(home.glob(f"{name}*.so")) + list(home.glob(f"{name}*.pyd")) if home.is_dir() else []
     if not built:
         cache_dir().mkdir(parents=True, exist_ok=True)
@@ -289,15 +292,10 @@ def load_kernel(loaded=None, files: Optional[dict[str, bytes]] = None) -> HostKe
         try:
             for file_name, content in files.items():
                 (work / file_name).write_bytes(content)
-            objects = _compile_objects(work)
+            objects = _compile_objects(work, sources)
             ffi = cffi.FFI()
-            ffi.cdef(CDEF)
-            ffi.set_source(
-                name,
-                '#include "dr_kernel.h"\n#include "dr_median.h"\n#include "dr_geo.h"\n',
-                include_dirs=[str(work)],
-                extra_objects=[str(o) for o in objects],
-            )
+            ffi.cdef(cdef)
+            ffi.set_source(name, c_source, include_dirs=[str(work)], extra_objects=[str(o) for o in objects])
             library = Path(ffi.compile(tmpdir=str(work), verbose=False))
             home.parent.mkdir(parents=True, exist_ok=True)
             staging = Path(tempfile.mkdtemp(prefix=f"stage-{key}-", dir=home.parent))
@@ -316,6 +314,15 @@ def load_kernel(loaded=None, files: Optional[dict[str, bytes]] = None) -> HostKe
         else:
             shutil.rmtree(work, ignore_errors=True)
         built = list(home.glob(f"{name}*.so")) + list(home.glob(f"{name}*.pyd"))
-    kernel = HostKernel(_import(built[0], name), built[0])
-    _LOADED[key] = kernel
-    return kernel
+    _MODULES[key] = (_import(built[0], name), built[0])
+    return _MODULES[key]
+
+
+def load_kernel(loaded=None, files: Optional[dict[str, bytes]] = None) -> HostKernel:
+    """Compile (or find in the cache) the kernel for a board (a codegen.loader.LoadedBoard; None = the default
+    board), or for explicit `files` (name -> content, as kernel_sources returns)."""
+    files = files if files is not None else kernel_sources(loaded)
+    module, path = build_module(
+        "_drkernel", files, KERNEL_SOURCES, CDEF, '#include "dr_kernel.h"\n#include "dr_median.h"\n#include "dr_geo.h"\n'
+    )
+    return HostKernel(module, path)
