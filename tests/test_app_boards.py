@@ -50,3 +50,29 @@ def test_board_app_runs(name, tmp_path):
     if board.display:
         screen = run.screen_at(13.9)
         assert screen[0].startswith("GPS fix") and screen[1] == "51.4778000 N" and screen[2] == "0.0015000 W"
+
+
+def test_display_on_its_own_bus_uses_that_bus_pins(tmp_path):
+    """Retargeting by YAML alone: the OLED moved to I2C1 on GPIO 13/14 is opened on those pins, the IMU stays."""
+    micropython = require_tool("micropython")
+    board_file = tmp_path / "two-buses.yaml"
+    board_file.write_text(
+        "extends: ttgo-tbeam-v1.1\n"
+        "i2c:\n  oled: {id: 1, sda: 13, scl: 14, frequency: 100000}\n"
+        "display: {bus: oled}\n"
+    )
+    loaded = load_board(board_file)
+    board = loaded.board
+    out = generate_app(str(board_file), tmp_path / "out")
+    counts = write_counts(tmp_path / "imu.bin", imu_counts(14, board.imu.achieved_sample_rate_hz))
+    gps = write_stream(tmp_path / "gps.txt", [(t, nmea_epoch(t, LAT, LON)) for t in range(1, 14)])
+    spec = world(board, tmp_path, counts, gps, 14)
+    display = [d for d in spec["i2c"]["0"] if d["kind"] == board.display.model]
+    spec["i2c"]["0"] = [d for d in spec["i2c"]["0"] if d not in display]
+    spec["i2c"]["1"] = display
+    spec["i2c_pins"] = {"0": [21, 22], "1": [13, 14]}
+    run = run_app(micropython, out, spec, tmp_path / "w")
+    assert run.returncode == 0, run.stderr + run.stdout[-1500:]
+    assert "display=ok" in run.stdout and "imu=ok" in run.stdout, run.stdout[:1500]
+    screen = run.screen_at(13.9)
+    assert screen[0].startswith("GPS fix") and screen[1] == "51.4778000 N"

@@ -111,6 +111,9 @@ class I2C:
         self.id = id
         self.freq = freq
         self.devices = {}
+        wired = _S.get("i2c_pins", {}).get(str(id))  # [sda, scl] the world's devices hang on, when it says
+        if wired and [getattr(sda, "id", sda), getattr(scl, "id", scl)] != wired:
+            return  # a bus opened on other pins: nothing answers there
         for opts in _S.get("i2c", {}).get(str(id), []):
             self.devices[opts["address"]] = simworld.make_device(opts)
         self.transactions = 0
