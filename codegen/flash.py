@@ -18,12 +18,12 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from codegen.board import Board
+from codegen.chips import CHIPS
 from codegen.errors import UserError
 
 FAST_BAUD = 460800
 SAFE_BAUD = 115200
 ESP_IMAGE_MAGIC = 0xE9
-CHIP_NAMES = {"esp32": "ESP32", "esp32s3": "ESP32-S3", "rp2040": "RP2040"}
 
 Progress = Callable[[str], None]
 
@@ -162,7 +162,7 @@ def classify(output: str, port: str, board: Board, regions: list[Region]) -> Opt
     """Turn esptool's output into a UserError that says what happened and what to do; None if unknown."""
     text = output
     lower = text.lower()
-    expected = CHIP_NAMES.get(board.chip, board.chip)
+    expected = CHIPS[board.chip].name
     if "this chip is " in lower and "wrong chip argument" in lower:
         found = text[lower.index("this chip is ") + len("this chip is "):].split(",")[0].split()[0]
         return UserError(
@@ -292,7 +292,7 @@ def flash(out: Path, port: str, firmware: Optional[Path] = None, erase: bool = F
     for baud in (FAST_BAUD, SAFE_BAUD):
         command = esptool_command(board, port, regions, baud, stub=stub, erase=erase, compress=compress)
         progress(f"esptool at {baud} baud{'' if stub else ' (ROM loader, no stub)'}")
-        status, output = run_esptool(command, progress, CHIP_NAMES.get(board.chip, board.chip))
+        status, output = run_esptool(command, progress, CHIPS[board.chip].name)
         attempts.append(f"{baud}: exit {status}")
         if status == 0:
             seconds = time.monotonic() - started
