@@ -14,7 +14,7 @@ from mpsim.harness import generate_app, run_app, tbeam_scenario, write_counts, w
 @pytest.mark.parametrize("mode", ["seed", "fused"])
 def test_simulated_drive_with_outage(tmp_path, mode):
     micropython = require_tool("micropython")
-    sim_traj = pytest.importorskip("codegen.sim.trajectory")
+    import codegen.sim.trajectory as sim_traj
     from codegen.sim.mpu6050 import simulate_imu
     from codegen.sim.neo6m import nmea_sentences, simulate_gps
 

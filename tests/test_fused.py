@@ -29,7 +29,6 @@ Q = slice(0, 4)
 
 @pytest.fixture(scope="module")
 def fk():
-    pytest.importorskip("cffi")
     from codegen.hostfused import load_fused
 
     return load_fused()

@@ -14,7 +14,6 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from codegen import fused as F
 from conftest import require_tool
@@ -96,7 +95,6 @@ def test_fallback_fused_matches_reference_on_micropython(tmp_path):
 
 
 def test_fallback_fused_matches_c(tmp_path):
-    pytest.importorskip("cffi")
     require_tool("micropython")
     from codegen.hostfused import load_fused
 
