@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from codegen import reference as ref
 from conftest import require_tool
-from kernelkit import U, Case, f32, make_window, run_c, run_driver, run_reference, window_bound, write_fallback
+from kernelkit import U, Case, make_window, run_c, run_driver, run_reference, window_bound, write_fallback
 
 DEFAULT = ref.KernelConfig()
 
