@@ -29,6 +29,9 @@ from codegen.generate import render_tree  # noqa: E402
 from codegen.loader import load_board  # noqa: E402
 from codegen.reference import KernelConfig  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from kernel import print_time_table  # noqa: E402  (benchmarks/kernel.py)
+
 ESP32_HZ = 240e6
 
 MP_SCRIPT = """
@@ -126,14 +129,8 @@ def main() -> int:
         else:
             rows.append(("dr_fallback.fused_process on micropython", None, "micropython missing"))
         instructions, note = callgrind(files, folder)
-    c_host = rows[0][1]
     print(f"deadreckon fused benchmark: one window of {n} x 6 samples + one GPS update (board {board.name}), best of runs")
-    print(f"{'implementation':64s} {'time/window':>14s} {'x slower than C':>16s}")
-    for label, seconds, why in rows:
-        if seconds is None:
-            print(f"{label:64s} {'-':>14s} {'':>16s}  ({why})")
-        else:
-            print(f"{label:64s} {seconds * 1e3:11.3f} ms {seconds / c_host:15.1f}x")
+    print_time_table(rows)
     if instructions is None:
         print(f"callgrind: - ({note})")
     else:

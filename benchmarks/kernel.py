@@ -144,6 +144,17 @@ def callgrind_instructions(folder: Path, files) -> tuple[float | None, str]:
     return (totals[1] - totals[0]) / 10, ""
 
 
+def print_time_table(rows) -> None:
+    """(label, seconds or None, why) rows as a table of time per window and ratio to the first row (the C)."""
+    c_host = rows[0][1]
+    print(f"{'implementation':64s} {'time/window':>14s} {'x slower than C':>16s}")
+    for label, seconds, why in rows:
+        if seconds is None:
+            print(f"{label:64s} {'-':>14s} {'':>16s}  ({why})")
+        else:
+            print(f"{label:64s} {seconds * 1e3:11.3f} ms {seconds / c_host:15.1f}x")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--board", default=None, help="board YAML (default: the bundled default board)")
@@ -186,20 +197,14 @@ def main(argv=None) -> int:
         rows.append(("x64 natmod dr_native on micropython", natmod, note))
         instructions, note = callgrind_instructions(folder, files)
 
-    c_host = rows[0][1]
     print(f"deadreckon kernel benchmark: one window of {n} x 6 samples, block {board.algorithm.block} "
           f"(board {board.name}), best of runs")
-    print(f"{'implementation':64s} {'time/window':>14s} {'x slower than C':>16s}")
-    for label, seconds, why in rows:
-        if seconds is None:
-            print(f"{label:64s} {'-':>14s} {'':>16s}  ({why})")
-        else:
-            print(f"{label:64s} {seconds * 1e3:11.3f} ms {seconds / c_host:15.1f}x")
+    print_time_table(rows)
     best_mp = min(mp_rows) if mp_rows else None
     if best_mp and natmod:
         print(f"natmod vs best MicroPython fallback variant, same interpreter: {best_mp / natmod:.0f}x (goal >= 20x)")
     elif best_mp:
-        print(f"C (cffi) vs best MicroPython fallback variant: {best_mp / c_host:.0f}x (goal >= 20x; natmod row "
+        print(f"C (cffi) vs best MicroPython fallback variant: {best_mp / rows[0][1]:.0f}x (goal >= 20x; natmod row "
               "needs MPY_DIR)")
     if instructions is None:
         print(f"callgrind: - ({note})")
