@@ -234,11 +234,11 @@ class Algorithm(Part):
         0.02, gt=0, description="accel standard deviation above this during calibration means 'moved'"
     )
     # mode "fused" (codegen/fused.py, native_ext/dr_fused.c): defaults tuned on the simulator's walk/car scenarios
-    fused_tilt_tau_s: float = Field(20.0, gt=0, description="s: tilt correction time constant while GPS fixes arrive")
+    fused_tilt_tau_s: float = Field(100.0, gt=0, description="s: tilt correction time constant while GPS fixes arrive")
     fused_accel_reject_g: float = Field(0.1, gt=0, description="g: no tilt correction while ||f| - g| exceeds this")
     fused_tilt_tau_dark_s: float = Field(0.0, ge=0, description="s: tilt correction time constant without GPS (0: none)")
     fused_steady_accel_ms2: float = Field(0.3, gt=0, description="m/s^2: tilt corrected only while the GPS acceleration changes less between fixes")
-    fused_speed_tau_s: float = Field(25.0, ge=0, description="s: a vehicle's speed relaxes towards the last GPS speed (0: never)")
+    fused_speed_tau_s: float = Field(0.0, ge=0, description="s: a vehicle's speed relaxes towards the last GPS speed (0: never)")
     fused_gps_timeout_s: float = Field(2.0, gt=0, description="s: GPS counts as lost this long after its last fix")
     fused_stat_tau_s: float = Field(0.5, gt=0, description="s: time constant of the motion statistics")
     fused_rest_accel_g: float = Field(0.01, gt=0, description="g: |f| standard deviation below which the device may be at rest")
@@ -252,6 +252,12 @@ class Algorithm(Part):
     fused_speed_gain: float = Field(0.5, ge=0, le=1, description="per fix: pull of the speed towards the GPS speed")
     fused_bias_gain: float = Field(0.1, ge=0, le=1, description="per fix: along-track accel bias correction gain")
     fused_walk_speed_gain: float = Field(0.2, ge=0, le=1, description="per fix: pull of the walking speed towards the GPS speed")
+    fused_kf_bias_init_g: float = Field(0.05, ge=0, description="g: initial sigma of the horizontal accelerometer offsets (0: no tilt/offset filter)")
+    fused_kf_bias_noise: float = Field(0.001, ge=0, description="m/s^2/sqrt(s): random walk of those offsets")
+    fused_kf_tilt_noise: float = Field(0.002, ge=0, description="m/s^2/sqrt(s): random walk of the gravity leak (tilt error times g)")
+    fused_kf_turn_noise: float = Field(0.1, ge=0, description="m/s^2 per rad: gravity leak a turn may add (gyro scale and cross-axis errors)")
+    fused_kf_vel_sigma_ms: float = Field(0.15, gt=0, description="m/s: GPS Doppler velocity error per axis, with unmodelled motion")
+    fused_kf_align_min: float = Field(20.0, ge=0, description="(m/s)^2: heading alignment sums needed before the filter updates")
 
 
 class Logging(Part):

@@ -11,32 +11,33 @@ from __future__ import annotations
 
 import numpy as np
 
+from dataclasses import fields
+
 from codegen import hostkernel
+from codegen.fused import STATE_LEN, FusedConfig
 
 SOURCES = ("dr_kernel.c", "dr_median.c", "dr_geo.c", "dr_fused.c")
 HEADERS = ("dr_fused.h",)
-PARAM_ORDER = ("tilt_tau_s", "accel_reject_g", "tilt_tau_dark_s", "steady_accel_ms2", "speed_tau_s",
-               "gps_timeout_s", "stat_tau_s", "rest_accel_g", "rest_gyro_dps", "rest_time_s", "bias_tau_s",
-               "walk_accel_g", "min_speed_ms", "heading_gain", "align_forget", "speed_gain", "bias_gain",
-               "walk_speed_gain")
+PARAM_ORDER = tuple(f.name for f in fields(FusedConfig))  # dr_fused_config_set's order
 
 CDEF = hostkernel.CONFIG_CDEF + """
 typedef struct { ...; } dr_fused_config;
 typedef struct { ...; } dr_fused_state;
 void dr_fused_config_init(dr_fused_config *cfg);
-int dr_fused_config_set(dr_fused_config *cfg, const float p[18]);
+int dr_fused_config_set(dr_fused_config *cfg, const float p[%d]);
 void dr_fused_state_init(dr_fused_state *st);
 int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t *samples, int32_t count);
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
                      const int32_t *dt_us, int32_t count, float out[6]);
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn);
-"""
+""" % len(PARAM_ORDER)
 
 C_SOURCE = """
 #include "dr_fused.h"
-typedef char dr_fused_state_is_33_floats[sizeof(dr_fused_state) == 33 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_18_floats[sizeof(dr_fused_config) == 18 * sizeof(float) ? 1 : -1];
-"""
+typedef char dr_fused_state_is_%(state)d_floats[sizeof(dr_fused_state) == %(state)d * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_has_%(params)d_floats[sizeof(dr_fused_config) == %(params)d * sizeof(float) ? 1 : -1];
+typedef char dr_fused_params_match[DR_FUSED_PARAMS == %(params)d ? 1 : -1];
+""" % {"state": STATE_LEN, "params": len(PARAM_ORDER)}
 
 
 class FusedSession:
@@ -51,7 +52,7 @@ class FusedSession:
         if params is None:
             lib.dr_fused_config_init(self.cfg)
         else:
-            p = ffi.new("float[18]", [float(getattr(params, name)) for name in PARAM_ORDER])
+            p = ffi.new("float[%d]" % len(PARAM_ORDER), [float(getattr(params, name)) for name in PARAM_ORDER])
             if lib.dr_fused_config_set(self.cfg, p):
                 raise ValueError("a fused time constant is out of range")
         self.st = ffi.new("dr_fused_state *")
@@ -81,8 +82,8 @@ class FusedSession:
         self.fk.lib.dr_fused_gps(self.cfg, self.st, float(ve), float(vn))
 
     def state_vector(self) -> np.ndarray:
-        """The 33 state floats in the order of codegen.fused.STATE_FIELDS."""
-        return np.array(list(self.fk.ffi.cast("float *", self.st)[0:33]), dtype=np.float32)
+        """The state floats in the order of codegen.fused.STATE_FIELDS."""
+        return np.array(list(self.fk.ffi.cast("float *", self.st)[0:STATE_LEN]), dtype=np.float32)
 
     def set_state_vector(self, values) -> None:
         f = self.fk.ffi.cast("float *", self.st)

@@ -33,12 +33,19 @@ void dr_fused_config_init(dr_fused_config *cfg) {
     p[15] = DR_FUSED_SPEED_GAIN;
     p[16] = DR_FUSED_BIAS_GAIN;
     p[17] = DR_FUSED_WALK_SPEED_GAIN;
+    p[18] = DR_FUSED_KF_BIAS_INIT_G;
+    p[19] = DR_FUSED_KF_BIAS_NOISE;
+    p[20] = DR_FUSED_KF_TILT_NOISE;
+    p[21] = DR_FUSED_KF_TURN_NOISE;
+    p[22] = DR_FUSED_KF_VEL_SIGMA_MS;
+    p[23] = DR_FUSED_KF_ALIGN_MIN;
     (void)dr_fused_config_set(cfg, p);
 }
 
 int dr_fused_config_set(dr_fused_config *cfg, const float p[DR_FUSED_PARAMS]) {
     float rest_a, rest_w, walk_a;
-    if (!(p[0] > 0.0f) || !(p[6] > 0.0f) || p[2] < 0.0f || p[4] < 0.0f || p[10] < 0.0f) {
+    if (!(p[0] > 0.0f) || !(p[6] > 0.0f) || p[2] < 0.0f || p[4] < 0.0f || p[10] < 0.0f || p[18] < 0.0f ||
+        !(p[22] > 0.0f)) {
         return DR_ERR_RANGE;
     }
     rest_a = p[7] * DR_GRAVITY_MS2;
@@ -62,6 +69,12 @@ int dr_fused_config_set(dr_fused_config *cfg, const float p[DR_FUSED_PARAMS]) {
     cfg->speed_gain = p[15];
     cfg->bias_gain = p[16];
     cfg->walk_speed_gain = p[17];
+    cfg->kf_bias_var = p[18] * DR_GRAVITY_MS2 * p[18] * DR_GRAVITY_MS2;
+    cfg->kf_bias_q = p[19] * p[19];
+    cfg->kf_tilt_q = p[20] * p[20];
+    cfg->kf_turn_q = p[21] * p[21];
+    cfg->kf_vel_r = 2.0f * p[22] * p[22];
+    cfg->kf_align_min = p[23];
     return DR_OK;
 }
 
@@ -123,6 +136,8 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
     st->w2 = 0.0f;
     st->rest_s = 0.0f;
     st->speed = 0.0f;
+    st->bax = 0.0f;
+    st->bay = 0.0f;
     return code;
 }
 
@@ -150,6 +165,8 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
             c[i] = kcfg->axis_sign[i] * (float)s[3 + src];
             w[i] = (c[i] - st->gyro_bias_lsb[i]) * kcfg->gyro_rads_per_lsb;
         }
+        f[0] -= st->bax;
+        f[1] -= st->bay;
         /* motion statistics */
         nf = dr_sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
         alpha = dt * cfg->inv_stat_tau;
@@ -183,6 +200,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0);
         /* travel direction turned by the rate about Up */
         r = r20 * w[0] + r21 * w[1] + r22 * w[2];
+        st->turn += dr_absf(r) * dt;
         ux = st->ux - r * dt * st->uy;
         uy = st->uy + r * dt * st->ux;
         inv = dr_inv_sqrt(ux * ux + uy * uy);
@@ -208,6 +226,10 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         }
         st->dvx += ae * dt;
         st->dvy += an * dt;
+        st->m[0] += r00 * dt;
+        st->m[1] += r01 * dt;
+        st->m[2] += r10 * dt;
+        st->m[3] += r11 * dt;
         st->since_fix += dt;
         /* position, true ENU */
         ve = st->speed * (st->cos_t * st->ux - st->sin_t * st->uy);
@@ -264,6 +286,103 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
     return DR_OK;
 }
 
+/* p[] index of the covariance entry (i, j), the upper triangle stored row by row (no table: no .rodata) */
+static int dr_fused_pidx(int i, int j) {
+    int lo = i < j ? i : j, hi = i < j ? j : i;
+    return 4 * lo - ((lo * (lo - 1)) >> 1) + hi - lo;
+}
+
+/* The GPS-aided filter of the gravity leak and the horizontal accelerometer offsets (codegen.fused's
+ * tilt_and_offset_update): called at each fix with its velocity, whether it has a course, and the seconds since
+ * the previous fix, before those are replaced. */
+static void dr_fused_filter(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, int moving, float t) {
+    float h[2][2], pht[4][2], gain[4][2], x[4];
+    float inv_t, gx, gy, z0, z1, s00, s01, s11, inv_det, i00, i01, i11, qd, qb, hx, hy, norm2;
+    int i, j;
+    if (!(cfg->kf_bias_var > 0.0f)) {
+        return;
+    }
+    if (!(st->p[7] > 0.0f)) { /* the first fix after calibration: start with d = -R_h b */
+        const float v = cfg->kf_bias_var;
+        float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
+        float r00 = 1.0f - 2.0f * (qy * qy + qz * qz), r01 = 2.0f * (qx * qy - qw * qz);
+        float r10 = 2.0f * (qx * qy + qw * qz), r11 = 1.0f - 2.0f * (qx * qx + qz * qz);
+        st->p[0] = v * (r00 * r00 + r01 * r01);
+        st->p[1] = v * (r00 * r10 + r01 * r11);
+        st->p[2] = -v * r00;
+        st->p[3] = -v * r01;
+        st->p[4] = v * (r10 * r10 + r11 * r11);
+        st->p[5] = -v * r10;
+        st->p[6] = -v * r11;
+        st->p[7] = v;
+        st->p[8] = 0.0f;
+        st->p[9] = v;
+        return;
+    }
+    if (!(t > 0.0f)) {
+        return;
+    }
+    qd = cfg->kf_tilt_q * t + cfg->kf_turn_q * st->turn * st->turn;
+    qb = cfg->kf_bias_q * t;
+    st->p[0] += qd;
+    st->p[4] += qd;
+    st->p[7] += qb;
+    st->p[9] += qb;
+    norm2 = st->align_c * st->align_c + st->align_s * st->align_s;
+    if (!(st->gps_ok > 0.0f && moving && t < cfg->gps_timeout_s && norm2 >= cfg->kf_align_min * cfg->kf_align_min)) {
+        return;
+    }
+    inv_t = dr_recip(t);
+    gx = ve - st->gps_ve;
+    gy = vn - st->gps_vn;
+    z0 = (st->dvx - (st->cos_t * gx + st->sin_t * gy)) * inv_t;
+    z1 = (st->dvy - (-st->sin_t * gx + st->cos_t * gy)) * inv_t;
+    h[0][0] = st->m[0] * inv_t;
+    h[0][1] = st->m[1] * inv_t;
+    h[1][0] = st->m[2] * inv_t;
+    h[1][1] = st->m[3] * inv_t;
+    for (i = 0; i < 4; i++) { /* P H^T, H = [I2 | h] */
+        float pi2 = st->p[dr_fused_pidx(i, 2)], pi3 = st->p[dr_fused_pidx(i, 3)];
+        for (j = 0; j < 2; j++) {
+            pht[i][j] = st->p[dr_fused_pidx(i, j)] + pi2 * h[j][0] + pi3 * h[j][1];
+        }
+    }
+    s00 = pht[0][0] + h[0][0] * pht[2][0] + h[0][1] * pht[3][0] + cfg->kf_vel_r * inv_t * inv_t;
+    s01 = pht[0][1] + h[0][0] * pht[2][1] + h[0][1] * pht[3][1];
+    s11 = pht[1][1] + h[1][0] * pht[2][1] + h[1][1] * pht[3][1] + cfg->kf_vel_r * inv_t * inv_t;
+    inv_det = dr_recip(s00 * s11 - s01 * s01);
+    i00 = s11 * inv_det;
+    i01 = -s01 * inv_det;
+    i11 = s00 * inv_det;
+    for (i = 0; i < 4; i++) { /* K = P H^T S^-1, x = K z */
+        gain[i][0] = pht[i][0] * i00 + pht[i][1] * i01;
+        gain[i][1] = pht[i][0] * i01 + pht[i][1] * i11;
+        x[i] = gain[i][0] * z0 + gain[i][1] * z1;
+    }
+    for (i = 0; i < 4; i++) {
+        for (j = i; j < 4; j++) {
+            st->p[dr_fused_pidx(i, j)] -= gain[i][0] * pht[j][0] + gain[i][1] * pht[j][1];
+        }
+    }
+    st->bax += x[2];
+    st->bay += x[3];
+    /* remove the leak: q <- [1, (d_N / g, -d_E / g, 0) / 2] (x) q */
+    hx = 0.5f * x[1] * DR_INV_GRAVITY;
+    hy = -0.5f * x[0] * DR_INV_GRAVITY;
+    {
+        float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
+        float nw = qw - hx * qx - hy * qy;
+        float nx = qx + hx * qw + hy * qz;
+        float ny = qy + hy * qw - hx * qz;
+        float nz = qz + hx * qy - hy * qx;
+        float inv = dr_inv_sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
+        st->q[0] = nw * inv;
+        st->q[1] = nx * inv;
+        st->q[2] = ny * inv;
+        st->q[3] = nz * inv;
+    }
+}
+
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn) {
     float s2 = ve * ve + vn * vn;
     float inv_speed = dr_inv_sqrt(s2);
@@ -271,6 +390,7 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     float t = st->since_fix;
     int moving = speed >= cfg->min_speed_ms;
     int flags = (int)st->flags;
+    int i;
     float ae = 0.0f, an = 0.0f, de, dn, e;
     if (st->gps_ok > 0.0f && moving && t > 0.0f && t < cfg->gps_timeout_s) {
         /* heading alignment from the velocity changes */
@@ -289,6 +409,7 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
         ae = st->cos_t * me + st->sin_t * mn;
         an = -st->sin_t * me + st->cos_t * mn;
     }
+    dr_fused_filter(cfg, st, ve, vn, moving, t);
     de = ae - st->acc_e;
     dn = an - st->acc_n;
     /* flags kept as margins (> 0 means yes): LLVM's Xtensa backend cannot select a constant pair (x ? 1.0f : 0.0f) */
@@ -320,5 +441,9 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     st->gps_ok = speed - cfg->min_speed_ms;
     st->dvx = 0.0f;
     st->dvy = 0.0f;
+    for (i = 0; i < 4; i++) {
+        st->m[i] = 0.0f;
+    }
+    st->turn = 0.0f;
     st->since_fix = 0.0f;
 }

@@ -7,7 +7,8 @@
  * (walking: the learned walking speed; otherwise the integrated along-track acceleration minus its bias, through
  * the kernel's deadband kcfg->deadband_ms2, which also bounds the horizontal acceleration at rest), and at
  * each GPS fix (dr_fused_gps) the heading alignment of the kernel frame to true North, the travel direction, the
- * speed and the along-track accelerometer bias.
+ * speed, the along-track accelerometer bias and a 4-state Kalman filter of the gravity leak (tilt error) and the
+ * horizontal accelerometer offsets, fed back into the orientation and the samples.
  *
  * Float32 only, no division, no allocation, no global or static mutable state: the caller owns a dr_config (the
  * kernel's: remap and scales), a dr_fused_config and a dr_fused_state.
@@ -19,7 +20,7 @@
 
 #include "dr_kernel.h"
 
-#define DR_FUSED_PARAMS (18) /* floats dr_fused_config_set takes, in the order of codegen.fused.FusedConfig */
+#define DR_FUSED_PARAMS (24) /* floats dr_fused_config_set takes, in the order of codegen.fused.FusedConfig */
 #define DR_FUSED_AT_REST (1) /* dr_fused_state.flags bit: the last sample was at rest */
 #define DR_FUSED_WALKING (2) /* dr_fused_state.flags bit: the last sample looked like a walker's */
 
@@ -43,9 +44,15 @@ typedef struct {
     float speed_gain;      /* per fix */
     float bias_gain;       /* per fix, m/s^2 of bias per m/s of speed error per s */
     float walk_speed_gain; /* per fix */
+    float kf_bias_var;     /* (m/s^2)^2, initial variance of the horizontal accelerometer offsets (0: no filter) */
+    float kf_bias_q;       /* (m/s^2)^2/s, their random walk */
+    float kf_tilt_q;       /* (m/s^2)^2/s, random walk of the gravity leak */
+    float kf_turn_q;       /* (m/s^2/rad)^2, gravity leak variance per squared radian turned */
+    float kf_vel_r;        /* (m/s)^2, twice the GPS velocity variance per axis */
+    float kf_align_min;    /* (m/s)^2, heading alignment sums needed before the filter updates */
 } dr_fused_config;
 
-/* The state, field for field codegen.fused.STATE_FIELDS (33 floats). */
+/* The state, field for field codegen.fused.STATE_FIELDS (50 floats). */
 typedef struct {
     float q[4];            /* orientation w, x, y, z: body -> kernel ENU */
     float gyro_bias_lsb[3];/* counts */
@@ -68,6 +75,10 @@ typedef struct {
     float gps_ok;          /* > 0 if the last fix had a course (its speed - min_speed_ms) */
     float pe, pn;          /* m, true ENU position accumulated (the caller may reset it) */
     float flags;           /* DR_FUSED_AT_REST | DR_FUSED_WALKING of the last sample */
+    float bax, bay;        /* m/s^2, accelerometer offsets of the body x, y axes (subtracted from every sample) */
+    float m[4];            /* s, integral of R(q)'s horizontal rows (r00, r01, r10, r11) since the last fix */
+    float turn;            /* rad, integral of |rate about Up| since the last fix */
+    float p[10];           /* the tilt/offset filter's covariance, upper triangle row by row (p00 p01 .. p33) */
 } dr_fused_state;
 
 /* Fills cfg from the board constants of dr_board.h. */

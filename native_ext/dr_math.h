@@ -12,6 +12,7 @@
 #include <stdint.h>
 
 #define DR_GRAVITY_MS2 (9.80665f)            /* m/s^2, standard gravity */
+#define DR_INV_GRAVITY (0.101971621f)        /* s^2/m, 1 / standard gravity */
 #define DR_PI (3.14159265358979f)            /* rad */
 #define DR_RAD_PER_DEG (0.0174532925199433f) /* rad per degree */
 #define DR_S_PER_US (1.0e-6f)                /* s per microsecond */

@@ -17,5 +17,5 @@ for step in data["steps"]:
         dr.fused_process(st, array("h", step[1]), array("i", step[2]), out)
     else:
         dr.fused_gps(st, step[1], step[2])
-    answer["steps"].append([list(out), [st[i] for i in range(33)]])
+    answer["steps"].append([list(out), [st[i] for i in range(50)]])
 print(json.dumps(answer))

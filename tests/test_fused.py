@@ -12,6 +12,7 @@ as a difference far above these bounds, and the flags are compared exactly as we
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -109,7 +110,9 @@ def test_at_rest_nothing_moves(fk):
 
 
 def test_tilt_converges_to_gravity_with_gps(fk):
-    """Start 5 degrees off; at rest with GPS fixes arriving, the tilt correction removes the error."""
+    """Start 5 degrees off; at rest with GPS fixes arriving, the Mahony correction (alone: no offset filter)
+    removes the error."""
+    mahony = replace(FCFG, tilt_tau_s=20.0, kf_bias_init_g=0.0)
     samples = _rest_samples(200)
     dt = np.full(200, 5000, dtype=np.int32)
     q0 = quat_from_rotvec(np.radians([5.0, -3.0, 0.0]))
@@ -117,11 +120,11 @@ def test_tilt_converges_to_gravity_with_gps(fk):
     ref.qw, ref.qx, ref.qy, ref.qz = q0
     ref.mean_f = 9.80665
     ref.steady = 1.0  # > 0: steady
-    c = fk.session()
+    c = fk.session(mahony)
     c.set_state_vector(ref.vector())
-    for _ in range(120):  # 120 s, six time constants of the default 20 s
-        F.process(ref, samples, dt, KCFG, FCFG)
-        F.gps_update(ref, 0.0, 0.0, FCFG)
+    for _ in range(120):  # 120 s, six time constants of 20 s
+        F.process(ref, samples, dt, KCFG, mahony)
+        F.gps_update(ref, 0.0, 0.0, mahony)
         c.process(samples, dt)
         c.gps(0.0, 0.0)
     for q in (ref.vector()[Q], c.state_vector()[Q]):
@@ -163,10 +166,68 @@ def test_gps_sets_speed_and_course(fk):
 
 
 def test_config_rejects_a_zero_time_constant(fk):
-    from dataclasses import replace
-
     with pytest.raises(ValueError):
         fk.session(replace(FCFG, tilt_tau_s=0.0))
+    with pytest.raises(ValueError):
+        fk.session(replace(FCFG, kf_vel_sigma_ms=0.0))
+
+
+def _car_with_offsets(offset_ms2, seed=5, duration=240.0):
+    """A simulated car whose MPU-6050 is perfect except for a constant accelerometer offset (board frame = sensor
+    frame on the default board), with its open-sky GPS."""
+    from codegen.sim import mpu6050, neo6m, trajectory
+    from codegen.sim.run import RunData
+
+    assert [tuple(a) for a in BOARD.imu.axis_map] == [(0, 1), (1, 1), (2, 1)]
+    traj = trajectory.make_scenario("car", seed=seed, duration=duration)
+    device = mpu6050.DeviceErrors(np.asarray(offset_ms2, dtype=float), np.zeros(3), np.eye(3), np.eye(3))
+    t_us, counts = mpu6050.simulate_imu(traj, BOARD, seed=seed, errors=mpu6050.MpuErrors.ideal(), device=device)
+    gps = neo6m.simulate_gps(traj, seed=seed + 1000, rate_hz=BOARD.gps.rate_hz)
+    return RunData("car", BOARD, seed, t_us, counts, gps, traj)
+
+
+def test_filter_learns_the_accelerometer_offsets_and_the_c_kernel_agrees(fk):
+    """Calibration folds a 40/-30 mg offset into the tilt; the car's turns under GPS separate them: the filter's
+    offsets converge to the truth, the gravity leak it leaves is far below the offset, and the C kernel's filter
+    state follows the reference's."""
+    offset = np.array([0.04, -0.03, 0.02]) * 9.80665
+    run = _car_with_offsets(offset)
+    t, dt_us, snaps, _, _ = F._fused_pass(run, FCFG)
+    last = max(snaps)
+    _, st = snaps[last]
+    assert abs(st.bax - offset[0]) < 0.1 * abs(offset[0]) and abs(st.bay - offset[1]) < 0.1 * abs(offset[1])
+    # the same stream through the C kernel, driven as the app drives it
+    n_cal = int(np.searchsorted(t, BOARD.algorithm.calibration_s))
+    c = fk.session()
+    c.calibrate(run.counts[:n_cal])
+    k = n_cal
+    vel = run.gps.device_velocity()
+    for j in sorted(snaps):
+        stop = snaps[j][0]
+        if stop > k:
+            c.process(run.counts[k:stop], dt_us[k:stop])
+            k = stop
+        c.gps(float(vel[j, 0]), float(vel[j, 1]))
+    sv = c.state_vector()
+    for name in ("bax", "bay"):
+        assert sv[F.IDX[name]] == pytest.approx(getattr(st, name), abs=0.01 * np.abs(offset).max())
+    for name in F._P:
+        assert sv[F.IDX[name]] == pytest.approx(getattr(st, name), rel=1e-2, abs=1e-6)
+
+
+def test_filter_without_offsets_stays_near_zero():
+    """No offset, no tilt error: the filter must not invent one (|b| well below the 50 mg initial sigma)."""
+    run = _car_with_offsets([0.0, 0.0, 0.0], seed=6)
+    _, _, snaps, _, _ = F._fused_pass(run, FCFG)
+    _, st = snaps[max(snaps)]
+    assert math.hypot(st.bax, st.bay) < 0.01 * 9.80665
+
+
+def test_filter_off_leaves_the_offsets_alone():
+    run = _car_with_offsets([0.3, 0.2, 0.0], seed=7, duration=120.0)
+    _, _, snaps, _, _ = F._fused_pass(run, replace(FCFG, kf_bias_init_g=0.0))
+    _, st = snaps[max(snaps)]
+    assert st.bax == 0.0 and st.bay == 0.0 and st.p22 == 0.0
 
 
 def _fused_sources(tmp_path):

@@ -73,6 +73,10 @@ def _assert_close(got, want, n_samples, path):
     assert abs(got[F.IDX["pe"]] - want[F.IDX["pe"]]) < bound
     assert abs(got[F.IDX["pn"]] - want[F.IDX["pn"]]) < bound
     assert abs(got[F.IDX["speed"]] - want[F.IDX["speed"]]) < 1e-3 * (1 + abs(want[F.IDX["speed"]]))
+    # the tilt/offset filter: offsets in m/s^2 (a few 0.1), its covariance (variances from ~1e-5 up)
+    np.testing.assert_allclose(got[F.IDX["bax"]:F.IDX["bay"] + 1], want[F.IDX["bax"]:F.IDX["bay"] + 1], atol=1e-4)
+    p = [F.IDX[name] for name in F._P]
+    np.testing.assert_allclose(got[p], want[p], rtol=1e-3, atol=1e-7)
 
 
 def _compare(answer, calib, steps):
@@ -99,7 +103,7 @@ def test_fallback_fused_matches_c(tmp_path):
     from codegen.hostfused import load_fused
 
     write_fallback(tmp_path)
-    calib, steps = _steps("car", seed=22)
+    calib, steps = _steps("car", seed=22, stop=70.0)  # long enough for the tilt/offset filter to update
     answer = _run_mp("dr_fallback", tmp_path, calib, steps, tmp_path)
     c = load_fused().session()
     c.calibrate(calib)
@@ -112,6 +116,8 @@ def test_fallback_fused_matches_c(tmp_path):
             c.gps(s[1], s[2])
         want = c.state_vector()
         _assert_close(got, want, n, float(np.hypot(want[F.IDX["pe"]], want[F.IDX["pn"]])) + 10.0)
+    initial = (FCFG.kf_bias_init_g * 9.80665) ** 2
+    assert want[F.IDX["p22"]] < 0.5 * initial and want[F.IDX["bax"]] != 0.0  # the filter did update
 
 
 def test_natmod_fused_matches_reference(tmp_path):
