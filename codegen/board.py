@@ -12,6 +12,7 @@ from typing import Annotated, Literal, Optional
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, WithJsonSchema, field_validator
 
 STANDARD_GRAVITY = 9.80665  # m/s^2
+FUSED_MEDIAN_MAX = 32  # samples: the longest block the fused median option keeps (dr_fused.h DR_FUSED_MEDIAN_MAX)
 
 ACCEL_RANGES_G = (2, 4, 8, 16)
 GYRO_RANGES_DPS = (250, 500, 1000, 2000)
@@ -258,6 +259,7 @@ class Algorithm(Part):
     fused_kf_turn_noise: float = Field(0.1, ge=0, description="m/s^2 per rad: gravity leak a turn may add (gyro scale and cross-axis errors)")
     fused_kf_vel_sigma_ms: float = Field(0.15, gt=0, description="m/s: GPS Doppler velocity error per axis, with unmodelled motion")
     fused_kf_align_min: float = Field(20.0, ge=0, description="(m/s)^2: heading alignment sums needed before the filter updates")
+    fused_median: bool = Field(False, description="a vehicle's along-track acceleration is the median of the last b (block) samples: the seed's block median, sliding (b <= 32)")
 
 
 class Logging(Part):

@@ -19,6 +19,7 @@ fused method keeps the same front end (calibration, gyro bias, quaternion body -
    and a speed s >= 0 along it: at rest s = 0; walking s = the learned walking speed; otherwise (a vehicle)
        s <- s + (D(u . a_h - b) + (s_gps - s) / speed_tau_s) dt,   a = R(q) f - [0, 0, g],
    D the board's deadband (|x| < algorithm.deadband_g becomes 0: it stops a slow tilt leak from building speed),
+   applied after the optional median of the last b along-track accelerations (`median`, off by default),
    b the along-track accelerometer bias, s_gps the last GPS speed (an optional prior, off by default: it pulls
    a car that brakes or speeds up during the outage back to its old speed);
 4. position in true ENU: p += s (A u) dt, with A the rotation by theta from the kernel's frame to true ENU
@@ -51,8 +52,11 @@ accelerometer offset dominated (102 of 122 m on seeds 104-106); the tilt/offset 
 26 m at 60 s there. With the filter on, the Mahony correction while fixes arrive only fights it (21 m with
 tilt_tau_s 100 s, 26 m with 20 s), so it is kept weak; none without GPS (a car's sustained accelerations would
 pull the tilt away). The board's deadband (0.03125 g) on the along-track acceleration still helps the car (60 s
-median 22 -> 34 m with 0.01 g) and leaves the walks unchanged, so it stays; the block median is not used (a
-per-sample filter has no blocks; not tried). Tried and dropped: a dead zone on a walker's yaw rate (the hand's
+median 22 -> 34 m with 0.01 g) and leaves the walks unchanged, so it stays. The block median stays available as
+`median` (board fused_median: true): a per-sample filter has no blocks, so it is the seed's median of b samples
+made sliding, on a vehicle's along-track acceleration (the ring restarts after rest or walking). On car seeds
+101-106 it moved the 30 / 60 s medians from 7.5 / 21.6 m to 7.9 / 22.1 m: the MPU-6050 model's noise is
+Gaussian, without the spikes (a door slam, a pothole) a median is for, so it is off by default. Tried and dropped: a dead zone on a walker's yaw rate (the hand's
 swings are not turns), no gain; a higher heading gain, worse.
 
 The state is a flat vector of floats (the C kernel's caller-owned buffer holds the same fields in the same order);
@@ -67,6 +71,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from codegen.board import FUSED_MEDIAN_MAX
 from codegen.reference import STANDARD_GRAVITY, KernelConfig, remap_axes, tilt_from_gravity
 
 
@@ -98,6 +103,7 @@ class FusedConfig:
     kf_turn_noise: float = 0.1  # m/s^2 per rad, gravity leak a turn adds (gyro cross-axis and scale errors)
     kf_vel_sigma_ms: float = 0.15  # m/s, GPS Doppler velocity error per axis (with unmodelled motion)
     kf_align_min: float = 20.0  # (m/s)^2, heading alignment sums needed before the filter trusts the frame
+    median: float = 0.0  # 1: a vehicle's along-track acceleration is the median of the last b (algorithm.block)
 
     @classmethod
     def from_board(cls, board) -> "FusedConfig":
@@ -134,7 +140,8 @@ STATE_FIELDS = (
     "m00", "m01", "m10", "m11",  # integral of the horizontal rows of R(q) since the last fix, s
     "turn",  # integral of |rate about Up| since the last fix, rad
     "p00", "p01", "p02", "p03", "p11", "p12", "p13", "p22", "p23", "p33",  # the filter's covariance (upper)
-)
+    "med_i", "med_n",  # the median option's ring: next slot, slots filled
+) + tuple(f"med{k}" for k in range(FUSED_MEDIAN_MAX))  # the last along-track accelerations (a ring), m/s^2
 IDX = {name: i for i, name in enumerate(STATE_FIELDS)}
 STATE_LEN = len(STATE_FIELDS)
 OUT_LEN = 6
@@ -199,6 +206,10 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     inv_stat = 1.0 / fcfg.stat_tau_s
     inv_bias = 1.0 / fcfg.bias_tau_s
     inv_speed = 1.0 / fcfg.speed_tau_s if fcfg.speed_tau_s > 0.0 else 0.0
+    median = kcfg.block if fcfg.median > 0.0 and kcfg.block > 1 else 0
+    if median > FUSED_MEDIAN_MAX:
+        raise ValueError(f"the median option takes algorithm.block <= {FUSED_MEDIAN_MAX}, not {median}")
+    ring = [getattr(st, f"med{k}") for k in range(FUSED_MEDIAN_MAX)]
     flags = np.zeros(len(dts), dtype=np.int8)
     pe0, pn0 = st.pe, st.pn
     qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
@@ -248,6 +259,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         st.ux = ux * inv
         st.uy = uy * inv
         # speed along u
+        if rest or walking:
+            st.med_i = st.med_n = 0.0  # the median ring restarts when the vehicle branch is entered again
         if rest:
             st.speed = 0.0
             st.bgx += dt * inv_bias * (cx - st.bgx)
@@ -256,7 +269,10 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         elif walking:
             st.speed = st.walk_speed
         else:
-            a = ae * st.ux + an * st.uy - st.bias
+            a = ae * st.ux + an * st.uy
+            if median:  # the seed's block median, sliding: the median of the last b along-track accelerations
+                a = _ring_median(st, ring, a, median)
+            a -= st.bias
             if abs(a) < deadband:  # the board's deadband (algorithm.deadband_g), on the along-track acceleration
                 a = 0.0
             st.speed += (a + (st.gps_speed - st.speed) * inv_speed) * dt
@@ -304,11 +320,26 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
         qw, qx, qy, qz = nw * inv, nx * inv, ny * inv, nz * inv
     st.qw, st.qx, st.qy, st.qz = qw, qx, qy, qz
+    for k in range(FUSED_MEDIAN_MAX):
+        setattr(st, f"med{k}", ring[k])
     st.flags = float(flags[-1]) if len(flags) else st.flags
     ve = st.speed * (st.cos_t * st.ux - st.sin_t * st.uy)
     vn = st.speed * (st.sin_t * st.ux + st.cos_t * st.uy)
     out = np.array([st.pe - pe0, st.pn - pn0, 0.0, ve, vn, 0.0])
     return out, flags
+
+
+def _ring_median(st: FusedState, ring: list, a: float, b: int) -> float:
+    """Push a into the ring of the last b values and return their median (an even count: the mean of the middle
+    two, as numpy.median and dr_median). The ring restarts whenever the vehicle branch was left (med_n = 0)."""
+    i = int(st.med_i)
+    ring[i] = a
+    st.med_i = float((i + 1) % b)
+    n = min(int(st.med_n) + 1, b)
+    st.med_n = float(n)
+    window = sorted(ring[:n])  # after a restart the ring fills from slot 0: the first n slots are the filled ones
+    half = n >> 1
+    return window[half] if n & 1 else (window[half - 1] + window[half]) * 0.5
 
 
 def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:

@@ -10,7 +10,7 @@ import difflib
 from dataclasses import dataclass
 from typing import Iterator, Optional
 
-from codegen.board import Board, PinSpec
+from codegen.board import FUSED_MEDIAN_MAX, Board, PinSpec
 from codegen.chips import CHIPS, PMU_RAILS, ChipPins
 from codegen.diagnostics import Diagnostic, error, warning
 from codegen.yamlsource import KeyPath, SourceMap
@@ -231,6 +231,13 @@ def _check_algorithm(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
             f"algorithm.block: b = {algorithm.block} does not divide n = {algorithm.window}",
             source.value(("algorithm", "block")),
             f"the nearest b that divides {algorithm.window} is {nearest}",
+        )
+    if algorithm.fused_median and algorithm.block > FUSED_MEDIAN_MAX:
+        yield error(
+            f"algorithm.block: b = {algorithm.block} is longer than the {FUSED_MEDIAN_MAX} samples the fused "
+            "median option (fused_median: true) keeps",
+            source.value(("algorithm", "block")),
+            f"use b <= {FUSED_MEDIAN_MAX}, or fused_median: false",
         )
     if algorithm.deadband_g >= imu.accel_range_g:
         yield error(

@@ -5,6 +5,7 @@
 
 #include "dr_board.h"
 #include "dr_math.h"
+#include "dr_median.h"
 
 #define DR_FUSED_SUM_CHUNK (1024) /* samples summed in int32 before moving to float (1024 * 32768 < 2^31) */
 
@@ -39,6 +40,7 @@ void dr_fused_config_init(dr_fused_config *cfg) {
     p[21] = DR_FUSED_KF_TURN_NOISE;
     p[22] = DR_FUSED_KF_VEL_SIGMA_MS;
     p[23] = DR_FUSED_KF_ALIGN_MIN;
+    p[24] = DR_FUSED_MEDIAN;
     (void)dr_fused_config_set(cfg, p);
 }
 
@@ -75,6 +77,7 @@ int dr_fused_config_set(dr_fused_config *cfg, const float p[DR_FUSED_PARAMS]) {
     cfg->kf_turn_q = p[21] * p[21];
     cfg->kf_vel_r = 2.0f * p[22] * p[22];
     cfg->kf_align_min = p[23];
+    cfg->median = p[24];
     return DR_OK;
 }
 
@@ -150,8 +153,12 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
     float ve, vn;
     int32_t k;
     int flags = (int)st->flags;
+    int32_t median = cfg->median > 0.0f && kcfg->block > 1 ? kcfg->block : 0;
     if (count < 1) {
         return DR_ERR_COUNT;
+    }
+    if (median > DR_FUSED_MEDIAN_MAX) {
+        return DR_ERR_BLOCK;
     }
     for (k = 0; k < count; k++) {
         const int16_t *s = samples + 6 * k;
@@ -207,6 +214,10 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         st->ux = ux * inv;
         st->uy = uy * inv;
         /* speed along u */
+        if (rest || walking) { /* the median ring restarts when the vehicle branch is entered again */
+            st->med_i = 0.0f;
+            st->med_n = 0.0f;
+        }
         if (rest) {
             st->speed = 0.0f;
             for (i = 0; i < 3; i++) {
@@ -215,7 +226,22 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         } else if (walking) {
             st->speed = st->walk_speed;
         } else {
-            float a = ae * st->ux + an * st->uy - st->bias;
+            float a = ae * st->ux + an * st->uy;
+            if (median) { /* the seed's block median, sliding: the median of the last b along-track accelerations */
+                float window[DR_FUSED_MEDIAN_MAX];
+                int32_t slot = (int32_t)st->med_i, filled = (int32_t)st->med_n + 1, m;
+                st->med[slot] = a;
+                st->med_i = (float)(slot + 1 == median ? 0 : slot + 1);
+                if (filled > median) {
+                    filled = median;
+                }
+                st->med_n = (float)filled;
+                for (m = 0; m < filled; m++) { /* after a restart the ring fills from slot 0 */
+                    window[m] = st->med[m];
+                }
+                a = dr_median(window, filled);
+            }
+            a -= st->bias;
             if (dr_absf(a) < kcfg->deadband_ms2) { /* the board's deadband, on the along-track acceleration */
                 a = 0.0f;
             }

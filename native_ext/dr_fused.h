@@ -20,9 +20,10 @@
 
 #include "dr_kernel.h"
 
-#define DR_FUSED_PARAMS (24) /* floats dr_fused_config_set takes, in the order of codegen.fused.FusedConfig */
+#define DR_FUSED_PARAMS (25) /* floats dr_fused_config_set takes, in the order of codegen.fused.FusedConfig */
 #define DR_FUSED_AT_REST (1) /* dr_fused_state.flags bit: the last sample was at rest */
 #define DR_FUSED_WALKING (2) /* dr_fused_state.flags bit: the last sample looked like a walker's */
+#define DR_FUSED_MEDIAN_MAX (32) /* longest block (dr_config.block) the median option takes */
 
 /* The parameters, stored in the form the loop uses (every field 4 bytes). */
 typedef struct {
@@ -50,9 +51,10 @@ typedef struct {
     float kf_turn_q;       /* (m/s^2/rad)^2, gravity leak variance per squared radian turned */
     float kf_vel_r;        /* (m/s)^2, twice the GPS velocity variance per axis */
     float kf_align_min;    /* (m/s)^2, heading alignment sums needed before the filter updates */
+    float median;          /* > 0: a vehicle's along-track acceleration is the median of the last kcfg->block */
 } dr_fused_config;
 
-/* The state, field for field codegen.fused.STATE_FIELDS (50 floats). */
+/* The state, field for field codegen.fused.STATE_FIELDS (84 floats). */
 typedef struct {
     float q[4];            /* orientation w, x, y, z: body -> kernel ENU */
     float gyro_bias_lsb[3];/* counts */
@@ -79,6 +81,8 @@ typedef struct {
     float m[4];            /* s, integral of R(q)'s horizontal rows (r00, r01, r10, r11) since the last fix */
     float turn;            /* rad, integral of |rate about Up| since the last fix */
     float p[10];           /* the tilt/offset filter's covariance, upper triangle row by row (p00 p01 .. p33) */
+    float med_i, med_n;    /* the median option's ring: next slot, slots filled (whole numbers) */
+    float med[DR_FUSED_MEDIAN_MAX]; /* m/s^2, the last along-track accelerations */
 } dr_fused_state;
 
 /* Fills cfg from the board constants of dr_board.h. */
@@ -97,7 +101,8 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
 
 /* Processes count >= 1 raw samples (sensor frame, interleaved), each held dt_us[k] microseconds. out: the
  * displacement East, North, Up (m, true ENU; Up 0) over the samples, then the velocity East, North, Up (m/s).
- * Returns DR_OK or DR_ERR_COUNT (nothing changed). */
+ * Returns DR_OK, DR_ERR_COUNT or DR_ERR_BLOCK (the median option with kcfg->block > DR_FUSED_MEDIAN_MAX): nothing
+ * changed. */
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
                      const int32_t *dt_us, int32_t count, float out[6]);
 

@@ -353,12 +353,12 @@ static const mp_rom_map_elem_t dr_native_globals_table[] = {
     { MP_ROM_QSTR(MP_QSTR_fused_process), MP_ROM_PTR(&dr_fused_process_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_gps), MP_ROM_PTR(&dr_fused_gps_obj) },
     /* sizeof(dr_fused_state) + sizeof(dr_fused_config) + sizeof(dr_config) = 33 + 18 + 12 floats (checked below) */
-    { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(86) },
+    { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(121) },
 };
 static MP_DEFINE_CONST_DICT(dr_native_globals, dr_native_globals_table);
 
 /* the ROM table's 22 must match the structs */
-typedef char dr_fused_floats_is_86[DR_FUSED_LEN == 86 ? 1 : -1];
+typedef char dr_fused_floats_is_121[DR_FUSED_LEN == 121 ? 1 : -1];
 typedef char dr_header_floats_is_22[(sizeof(dr_state) + sizeof(dr_config)) == 22 * sizeof(float) ? 1 : -1];
 
 const mp_obj_module_t dr_native_user_cmodule = {

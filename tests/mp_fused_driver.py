@@ -10,12 +10,15 @@ with open(sys.argv[2]) as f:
     data = json.load(f)
 st = array("f", [0.0] * dr.FUSED_STATE_LEN)
 out = array("f", [0.0] * dr.OUT_LEN)
-dr.fused_init(st)
+if "params" in data:
+    dr.fused_init(st, data["params"])
+else:
+    dr.fused_init(st)
 answer = {"moved": dr.fused_calibrate(st, array("h", data["calib"])), "steps": []}
 for step in data["steps"]:
     if step[0] == "p":
         dr.fused_process(st, array("h", step[1]), array("i", step[2]), out)
     else:
         dr.fused_gps(st, step[1], step[2])
-    answer["steps"].append([list(out), [st[i] for i in range(50)]])
+    answer["steps"].append([list(out), [st[i] for i in range(data["state_len"])]])
 print(json.dumps(answer))

@@ -160,6 +160,22 @@ def test_block_must_divide_window(tmp_path):
     assert _at(diagnostic) == (3, 10)
 
 
+def test_fused_median_needs_a_block_its_ring_holds(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        algorithm: {fused_median: true, block: 64}
+    """)
+    found = _only(report)
+    assert found.message == ("algorithm.block: b = 64 is longer than the 32 samples the fused median option "
+                             "(fused_median: true) keeps")
+    assert _at(found) == (2, 40)  # the value 64
+    assert found.hint == "use b <= 32, or fused_median: false"
+    assert not _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        algorithm: {fused_median: true, block: 32}
+    """).diagnostics
+
+
 def test_deadband_below_range(tmp_path):
     report = _report(tmp_path, """
         extends: ttgo-tbeam-v1.1

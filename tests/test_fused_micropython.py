@@ -11,11 +11,14 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from codegen import fused as F
+from codegen.hostfused import PARAM_ORDER
 from conftest import require_tool
 from kernelkit import write_fallback
 from test_fused import BOARD, EPS32, FCFG, KCFG, Q
@@ -41,9 +44,11 @@ def _steps(scenario="walk", seed=21, start=10.0, stop=25.0):
     return run.counts[:n_cal], steps
 
 
-def _run_mp(module, module_dir, calib, steps, work):
-    payload = {"calib": calib.ravel().tolist(),
+def _run_mp(module, module_dir, calib, steps, work, params=None):
+    payload = {"calib": calib.ravel().tolist(), "state_len": F.STATE_LEN,
                "steps": [[s[0], s[1].ravel().tolist(), s[2].tolist()] if s[0] == "p" else list(s) for s in steps]}
+    if params is not None:
+        payload["params"] = [float(getattr(params, name)) for name in PARAM_ORDER]
     (work / "fused.json").write_text(json.dumps(payload))
     env = dict(os.environ, MICROPYPATH=f"{module_dir}:.frozen")
     done = subprocess.run([require_tool("micropython"), "-X", "heapsize=64M", str(DRIVER), module,
@@ -98,14 +103,16 @@ def test_fallback_fused_matches_reference_on_micropython(tmp_path):
     assert np.hypot(*answer["steps"][-1][1][F.IDX["pe"]:F.IDX["pn"] + 1]) > 5.0  # it walked
 
 
-def test_fallback_fused_matches_c(tmp_path):
+@pytest.mark.parametrize("median", [False, True])
+def test_fallback_fused_matches_c(tmp_path, median):
     require_tool("micropython")
     from codegen.hostfused import load_fused
 
+    params = replace(FCFG, median=1.0) if median else None
     write_fallback(tmp_path)
     calib, steps = _steps("car", seed=22, stop=70.0)  # long enough for the tilt/offset filter to update
-    answer = _run_mp("dr_fallback", tmp_path, calib, steps, tmp_path)
-    c = load_fused().session()
+    answer = _run_mp("dr_fallback", tmp_path, calib, steps, tmp_path, params)
+    c = load_fused().session(params)
     c.calibrate(calib)
     n = 0
     for s, (out, got) in zip(steps, answer["steps"]):
@@ -118,6 +125,10 @@ def test_fallback_fused_matches_c(tmp_path):
         _assert_close(got, want, n, float(np.hypot(want[F.IDX["pe"]], want[F.IDX["pn"]])) + 10.0)
     initial = (FCFG.kf_bias_init_g * 9.80665) ** 2
     assert want[F.IDX["p22"]] < 0.5 * initial and want[F.IDX["bax"]] != 0.0  # the filter did update
+    if median:  # the ring was in use, and holds the same values
+        assert want[F.IDX["med_n"]] > 0
+        ring = [F.IDX[f"med{k}"] for k in range(BOARD.algorithm.block)]
+        np.testing.assert_allclose(np.asarray(got)[ring], want[ring], atol=1e-4)
 
 
 def test_natmod_fused_matches_reference(tmp_path):
