@@ -33,6 +33,10 @@ And at each GPS fix with Doppler velocity g (true ENU, m/s), `gps_update`:
 - speed and along-track bias: a steady-state two-state Kalman filter (alpha-beta form) on e = |g| - s:
   s <- s + speed_gain e, b <- b - bias_gain e / T (T: seconds since the previous fix);
 - walking speed: while walking, s_walk <- s_walk + walk_speed_gain (|g| - s_walk);
+- (before gps_update, position_update) the fix's position smoothed with the Doppler: a 2-state Kalman filter per
+  axis of the true position and the receiver's slowly wandering error (Gauss-Markov, pos_sigma_m, pos_tau_s),
+  so an outage starts from a better point than the raw fix (car 0 s median 2.8 -> 2.2 m, replayed walk
+  2.3 -> 1.9 m; the simulated walk's gait makes its 1 Hz Doppler alias, and it gains less);
 - the tilt and the accelerometer's horizontal offsets, a 4-state Kalman filter (tilt_and_offset_update): the
   difference between the IMU's and the GPS's velocity change over the interval is the gravity leak (g times the
   tilt error, fixed in the earth frame) plus the body-frame offsets seen through R(q). Calibration folds the
@@ -104,6 +108,9 @@ class FusedConfig:
     kf_vel_sigma_ms: float = 0.15  # m/s, GPS Doppler velocity error per axis (with unmodelled motion)
     kf_align_min: float = 20.0  # (m/s)^2, heading alignment sums needed before the filter trusts the frame
     median: float = 0.0  # 1: a vehicle's along-track acceleration is the median of the last b (algorithm.block)
+    pos_sigma_m: float = 2.1  # m, the receiver's position error per axis (Gauss-Markov sigma); 0: no smoothing
+    pos_tau_s: float = 60.0  # s, its correlation time
+    pos_step_sigma_ms: float = 0.15  # m/s, error of the Doppler velocity integrated between fixes, per second
 
     @classmethod
     def from_board(cls, board) -> "FusedConfig":
@@ -140,6 +147,9 @@ STATE_FIELDS = (
     "m00", "m01", "m10", "m11",  # integral of the horizontal rows of R(q) since the last fix, s
     "turn",  # integral of |rate about Up| since the last fix, rad
     "p00", "p01", "p02", "p03", "p11", "p12", "p13", "p22", "p23", "p33",  # the filter's covariance (upper)
+    "fix_ae", "fix_an",  # smoothed position minus the last fix's, true ENU m (where an outage starts from)
+    "fix_ee", "fix_en",  # the receiver's position error estimated at the last fix, m
+    "fix_pxx", "fix_pxe", "fix_pee",  # their covariance (the same for East and North), m^2
     "med_i", "med_n",  # the median option's ring: next slot, slots filled
 ) + tuple(f"med{k}" for k in range(FUSED_MEDIAN_MAX))  # the last along-track accelerations (a ring), m/s^2
 IDX = {name: i for i, name in enumerate(STATE_FIELDS)}
@@ -342,6 +352,46 @@ def _ring_median(st: FusedState, ring: list, a: float, b: int) -> float:
     return window[half] if n & 1 else (window[half - 1] + window[half]) * 0.5
 
 
+def position_update(st: FusedState, ve: float, vn: float, de: float, dn: float, fcfg: FusedConfig) -> None:
+    """A fix's position, before its gps_update: (de, dn) = its displacement from the previous fix (true ENU m), (ve,
+    vn) its Doppler velocity. A 2-state Kalman filter per axis smooths the receiver's position with its Doppler:
+        x_k = x_k-1 + T (v_k-1 + v_k) / 2 + w,   e_k = phi e_k-1 + n,   y_k = x_k + e_k,
+    x the true position, e the receiver's error (first-order Gauss-Markov: sigma pos_sigma_m, correlation time
+    pos_tau_s, phi = exp(-T / tau) by its cubic Taylor polynomial, T <= gps_timeout_s), w ~ pos_step_sigma_ms T.
+    The state is kept relative to the fix (fix_ae, fix_an = x_hat - y), so the caller's anchor stays the fix and
+    the outage starts from fix + (fix_ae, fix_an). A first fix, or one after an outage, restarts the filter at
+    the fix itself (x_hat = y, e_hat = 0, their errors +-pos_sigma_m, perfectly anti-correlated)."""
+    sigma2 = fcfg.pos_sigma_m * fcfg.pos_sigma_m
+    t = st.since_fix
+    if sigma2 <= 0.0:
+        return
+    if not (st.fix_pxx > 0.0 and 0.0 < t < fcfg.gps_timeout_s):
+        st.fix_ae = st.fix_an = st.fix_ee = st.fix_en = 0.0
+        st.fix_pxx = st.fix_pee = sigma2
+        st.fix_pxe = -sigma2
+        return
+    x = t / fcfg.pos_tau_s
+    phi = 1.0 - x * (1.0 - x * (0.5 - x * (1.0 / 6.0)))
+    step = fcfg.pos_step_sigma_ms * t
+    pxx = st.fix_pxx + step * step
+    pxe = phi * st.fix_pxe
+    pee = phi * phi * st.fix_pee + sigma2 * (1.0 - phi * phi)
+    ae = st.fix_ae + 0.5 * t * (st.gps_ve + ve) - de  # x_hat- - y, East
+    an = st.fix_an + 0.5 * t * (st.gps_vn + vn) - dn
+    ee = phi * st.fix_ee
+    en = phi * st.fix_en
+    s = pxx + 2.0 * pxe + pee
+    kx = (pxx + pxe) / s
+    ke = (pxe + pee) / s
+    st.fix_ae = ae - kx * (ae + ee)  # innovation y - x_hat- - e_hat- = -(a + e)
+    st.fix_an = an - kx * (an + en)
+    st.fix_ee = ee - ke * (ae + ee)
+    st.fix_en = en - ke * (an + en)
+    st.fix_pxx = pxx - kx * kx * s
+    st.fix_pxe = pxe - kx * ke * s
+    st.fix_pee = pee - ke * ke * s
+
+
 def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
     """One GPS fix's Doppler velocity (true ENU East, North, m/s; 0, 0 when the course is undefined)."""
     speed = math.sqrt(ve * ve + vn * vn)
@@ -487,6 +537,7 @@ def _fused_pass(run, fcfg: FusedConfig | None = None):
     gps = run.gps
     snaps = {}
     k = n_cal
+    prev = -1
     for j in np.flatnonzero(gps.valid & (gps.t >= t[n_cal])):
         stop = int(np.searchsorted(t, gps.t[j], side="left"))  # samples before the fix
         stop = min(stop, len(dt_us))
@@ -494,8 +545,11 @@ def _fused_pass(run, fcfg: FusedConfig | None = None):
             process(st, run.counts[k:stop], dt_us[k:stop], kcfg, fcfg)
             k = stop
         v = gps.device_velocity()[j]
+        d = gps.enu[j, :2] - gps.enu[prev, :2] if prev >= 0 else np.zeros(2)
+        position_update(st, float(v[0]), float(v[1]), float(d[0]), float(d[1]), fcfg)
         gps_update(st, float(v[0]), float(v[1]), fcfg)
         snaps[int(j)] = (k, st.copy())
+        prev = int(j)
     return t, dt_us, snaps, kcfg, fcfg
 
 
@@ -512,7 +566,7 @@ def estimate(run, starts, times, fcfg: FusedConfig | None = None):
         k, snap = snaps[int(j)]
         st = snap.copy()
         st.pe = st.pn = 0.0
-        base = run.gps.enu[j, :2]
+        base = run.gps.enu[j, :2] + (st.fix_ae, st.fix_an)  # the fix, smoothed
         ends = np.searchsorted(t, times[i], side="right") - 1  # last sample at or before each time
         for h, end in enumerate(ends):
             end = min(int(end), len(dt_us))

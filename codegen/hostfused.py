@@ -4,7 +4,7 @@ the app drives dr_native (calibrate, process windows, a GPS update per fix).
 
     fk = load_fused()                      # default board
     s = fk.session()                       # dr_config + dr_fused_config + dr_fused_state, owned here
-    s.calibrate(rest_samples); s.process(samples, dt_us); s.gps(ve, vn); s.state_vector()
+    s.calibrate(rest_samples); s.process(samples, dt_us); s.position(ve, vn, de, dn); s.gps(ve, vn); s.state_vector()
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
                      const int32_t *dt_us, int32_t count, float out[6]);
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn);
+void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn);
 """ % len(PARAM_ORDER)
 
 C_SOURCE = """
@@ -77,6 +78,9 @@ class FusedSession:
         if code:
             raise ValueError(f"fused process error {code}")
         return np.array(list(self.out), dtype=np.float32)
+
+    def position(self, ve: float, vn: float, de: float, dn: float) -> None:
+        self.fk.lib.dr_fused_position(self.cfg, self.st, float(ve), float(vn), float(de), float(dn))
 
     def gps(self, ve: float, vn: float) -> None:
         self.fk.lib.dr_fused_gps(self.cfg, self.st, float(ve), float(vn))

@@ -41,13 +41,16 @@ void dr_fused_config_init(dr_fused_config *cfg) {
     p[22] = DR_FUSED_KF_VEL_SIGMA_MS;
     p[23] = DR_FUSED_KF_ALIGN_MIN;
     p[24] = DR_FUSED_MEDIAN;
+    p[25] = DR_FUSED_POS_SIGMA_M;
+    p[26] = DR_FUSED_POS_TAU_S;
+    p[27] = DR_FUSED_POS_STEP_SIGMA_MS;
     (void)dr_fused_config_set(cfg, p);
 }
 
 int dr_fused_config_set(dr_fused_config *cfg, const float p[DR_FUSED_PARAMS]) {
     float rest_a, rest_w, walk_a;
     if (!(p[0] > 0.0f) || !(p[6] > 0.0f) || p[2] < 0.0f || p[4] < 0.0f || p[10] < 0.0f || p[18] < 0.0f ||
-        !(p[22] > 0.0f)) {
+        !(p[22] > 0.0f) || p[25] < 0.0f || !(p[26] > 0.0f)) {
         return DR_ERR_RANGE;
     }
     rest_a = p[7] * DR_GRAVITY_MS2;
@@ -78,6 +81,9 @@ int dr_fused_config_set(dr_fused_config *cfg, const float p[DR_FUSED_PARAMS]) {
     cfg->kf_vel_r = 2.0f * p[22] * p[22];
     cfg->kf_align_min = p[23];
     cfg->median = p[24];
+    cfg->pos_var = p[25] * p[25];
+    cfg->inv_pos_tau = dr_recip(p[26]);
+    cfg->pos_step_q = p[27] * p[27];
     return DR_OK;
 }
 
@@ -407,6 +413,44 @@ static void dr_fused_filter(const dr_fused_config *cfg, dr_fused_state *st, floa
         st->q[2] = ny * inv;
         st->q[3] = nz * inv;
     }
+}
+
+void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn) {
+    const float t = st->since_fix;
+    float x, phi, pxx, pxe, pee, ae, an, ee, en, s, inv_s, kx, ke;
+    if (!(cfg->pos_var > 0.0f)) {
+        return;
+    }
+    if (!(st->fix_pxx > 0.0f && t > 0.0f && t < cfg->gps_timeout_s)) { /* (re)start at the fix itself */
+        st->fix_ae = 0.0f;
+        st->fix_an = 0.0f;
+        st->fix_ee = 0.0f;
+        st->fix_en = 0.0f;
+        st->fix_pxx = cfg->pos_var;
+        st->fix_pee = cfg->pos_var;
+        st->fix_pxe = -cfg->pos_var;
+        return;
+    }
+    x = t * cfg->inv_pos_tau;
+    phi = 1.0f - x * (1.0f - x * (0.5f - x * (1.0f / 6.0f))); /* exp(-x), cubic Taylor (x <= gps_timeout / tau) */
+    pxx = st->fix_pxx + cfg->pos_step_q * t * t;
+    pxe = phi * st->fix_pxe;
+    pee = phi * phi * st->fix_pee + cfg->pos_var * (1.0f - phi * phi);
+    ae = st->fix_ae + 0.5f * t * (st->gps_ve + ve) - de;
+    an = st->fix_an + 0.5f * t * (st->gps_vn + vn) - dn;
+    ee = phi * st->fix_ee;
+    en = phi * st->fix_en;
+    s = pxx + 2.0f * pxe + pee;
+    inv_s = dr_recip(s);
+    kx = (pxx + pxe) * inv_s;
+    ke = (pxe + pee) * inv_s;
+    st->fix_ae = ae - kx * (ae + ee);
+    st->fix_an = an - kx * (an + en);
+    st->fix_ee = ee - ke * (ae + ee);
+    st->fix_en = en - ke * (an + en);
+    st->fix_pxx = pxx - kx * kx * s;
+    st->fix_pxe = pxe - kx * ke * s;
+    st->fix_pee = pee - ke * ke * s;
 }
 
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn) {

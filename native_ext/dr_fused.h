@@ -20,7 +20,7 @@
 
 #include "dr_kernel.h"
 
-#define DR_FUSED_PARAMS (25) /* floats dr_fused_config_set takes, in the order of codegen.fused.FusedConfig */
+#define DR_FUSED_PARAMS (28) /* floats dr_fused_config_set takes, in the order of codegen.fused.FusedConfig */
 #define DR_FUSED_AT_REST (1) /* dr_fused_state.flags bit: the last sample was at rest */
 #define DR_FUSED_WALKING (2) /* dr_fused_state.flags bit: the last sample looked like a walker's */
 #define DR_FUSED_MEDIAN_MAX (32) /* longest block (dr_config.block) the median option takes */
@@ -52,9 +52,12 @@ typedef struct {
     float kf_vel_r;        /* (m/s)^2, twice the GPS velocity variance per axis */
     float kf_align_min;    /* (m/s)^2, heading alignment sums needed before the filter updates */
     float median;          /* > 0: a vehicle's along-track acceleration is the median of the last kcfg->block */
+    float pos_var;         /* m^2, the receiver's position error variance per axis (0: no position smoothing) */
+    float inv_pos_tau;     /* 1/s, the inverse of its correlation time */
+    float pos_step_q;      /* (m/s)^2, variance of the integrated Doppler velocity's error per second of step */
 } dr_fused_config;
 
-/* The state, field for field codegen.fused.STATE_FIELDS (84 floats). */
+/* The state, field for field codegen.fused.STATE_FIELDS (91 floats). */
 typedef struct {
     float q[4];            /* orientation w, x, y, z: body -> kernel ENU */
     float gyro_bias_lsb[3];/* counts */
@@ -81,6 +84,9 @@ typedef struct {
     float m[4];            /* s, integral of R(q)'s horizontal rows (r00, r01, r10, r11) since the last fix */
     float turn;            /* rad, integral of |rate about Up| since the last fix */
     float p[10];           /* the tilt/offset filter's covariance, upper triangle row by row (p00 p01 .. p33) */
+    float fix_ae, fix_an;  /* m, smoothed position minus the last fix's (true ENU): where an outage starts from */
+    float fix_ee, fix_en;  /* m, the receiver's position error estimated at the last fix */
+    float fix_pxx, fix_pxe, fix_pee; /* m^2, their covariance (the same for East and North) */
     float med_i, med_n;    /* the median option's ring: next slot, slots filled (whole numbers) */
     float med[DR_FUSED_MEDIAN_MAX]; /* m/s^2, the last along-track accelerations */
 } dr_fused_state;
@@ -105,6 +111,12 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
  * changed. */
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
                      const int32_t *dt_us, int32_t count, float out[6]);
+
+/* One GPS fix's position, called before dr_fused_gps for the same fix: its Doppler velocity (m/s East, North) and its
+ * displacement from the previous fix (m East, North; anything for the first). Smooths the receiver's position with
+ * its Doppler (codegen.fused.position_update); afterwards st->fix_ae, fix_an is the smoothed position minus this
+ * fix's, where an outage should start from. */
+void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn);
 
 /* One GPS fix's Doppler velocity, m/s East and North (0, 0 when the receiver gives no course). */
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn);

@@ -14,6 +14,8 @@
 #include "py/obj.h"
 #endif
 
+#include <stddef.h>
+
 #include "dr_board.h"
 #include "dr_fused.h"
 #include "dr_geo.h"
@@ -299,6 +301,20 @@ static mp_obj_t dr_fused_gps_fn(mp_obj_t state_obj, mp_obj_t ve_obj, mp_obj_t vn
 }
 static MP_DEFINE_CONST_FUN_OBJ_3(dr_fused_gps_obj, dr_fused_gps_fn);
 
+/* fused_position(fstate, ve, vn, de, dn): a fix's position, before fused_gps for the same fix */
+static mp_obj_t dr_fused_position_fn(size_t n_args, const mp_obj_t *args) {
+    dr_fused_state *st;
+    dr_fused_config *cfg;
+    dr_config *kcfg;
+    (void)n_args;
+    dr_fused_unpack(args[0], &st, &cfg, &kcfg);
+    dr_fused_position(cfg, st, (float)mp_obj_get_float(args[1]), (float)mp_obj_get_float(args[2]),
+                      (float)mp_obj_get_float(args[3]), (float)mp_obj_get_float(args[4]));
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_fused_position_obj, 5, 5, dr_fused_position_fn);
+#define DR_FUSED_FIX_AE ((mp_int_t)(offsetof(dr_fused_state, fix_ae) / sizeof(float)))
+
 #if MICROPY_ENABLE_DYNRUNTIME
 
 mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *args) {
@@ -323,6 +339,8 @@ mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *a
     mp_store_global(MP_QSTR_fused_calibrate, MP_OBJ_FROM_PTR(&dr_fused_calibrate_obj));
     mp_store_global(MP_QSTR_fused_process, MP_OBJ_FROM_PTR(&dr_fused_process_obj));
     mp_store_global(MP_QSTR_fused_gps, MP_OBJ_FROM_PTR(&dr_fused_gps_obj));
+    mp_store_global(MP_QSTR_fused_position, MP_OBJ_FROM_PTR(&dr_fused_position_obj));
+    mp_store_global(MP_QSTR_FIX_AE, MP_OBJ_NEW_SMALL_INT(DR_FUSED_FIX_AE));
     mp_store_global(MP_QSTR_FUSED_STATE_LEN, MP_OBJ_NEW_SMALL_INT(DR_FUSED_LEN));
     MP_DYNRUNTIME_INIT_EXIT
 }
@@ -352,13 +370,16 @@ static const mp_rom_map_elem_t dr_native_globals_table[] = {
     { MP_ROM_QSTR(MP_QSTR_fused_calibrate), MP_ROM_PTR(&dr_fused_calibrate_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_process), MP_ROM_PTR(&dr_fused_process_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_gps), MP_ROM_PTR(&dr_fused_gps_obj) },
-    /* sizeof(dr_fused_state) + sizeof(dr_fused_config) + sizeof(dr_config) = 33 + 18 + 12 floats (checked below) */
-    { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(121) },
+    { MP_ROM_QSTR(MP_QSTR_fused_position), MP_ROM_PTR(&dr_fused_position_obj) },
+    { MP_ROM_QSTR(MP_QSTR_FIX_AE), MP_ROM_INT(50) },
+    /* sizeof(dr_fused_state) + sizeof(dr_fused_config) + sizeof(dr_config) = 91 + 28 + 12 floats (checked below) */
+    { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(131) },
 };
 static MP_DEFINE_CONST_DICT(dr_native_globals, dr_native_globals_table);
 
-/* the ROM table's 22 must match the structs */
-typedef char dr_fused_floats_is_121[DR_FUSED_LEN == 121 ? 1 : -1];
+/* the ROM table's 22, 131 and 50 must match the structs */
+typedef char dr_fused_floats_is_131[DR_FUSED_LEN == 131 ? 1 : -1];
+typedef char dr_fused_fix_ae_is_50[DR_FUSED_FIX_AE == 50 ? 1 : -1];
 typedef char dr_header_floats_is_22[(sizeof(dr_state) + sizeof(dr_config)) == 22 * sizeof(float) ? 1 : -1];
 
 const mp_obj_module_t dr_native_user_cmodule = {

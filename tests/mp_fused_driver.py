@@ -19,6 +19,7 @@ for step in data["steps"]:
     if step[0] == "p":
         dr.fused_process(st, array("h", step[1]), array("i", step[2]), out)
     else:
+        dr.fused_position(st, step[1], step[2], step[3], step[4])
         dr.fused_gps(st, step[1], step[2])
     answer["steps"].append([list(out), [st[i] for i in range(data["state_len"])]])
 print(json.dumps(answer))

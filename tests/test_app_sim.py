@@ -10,6 +10,33 @@ from codegen.loader import load_board
 from conftest import require_tool
 from mpsim.harness import generate_app, run_app, tbeam_scenario, write_counts, write_stream
 
+# In fused mode the app runs under this tap: it reports each fix's fused_position call (the Doppler, the metres from
+# the previous anchor the app computed, the smoothed offset it got) and, per GPS-mode window, the app's ENU offset.
+FUSED_TAP = r"""
+import json
+import app
+
+dr = app.dr
+orig_position = dr.fused_position
+
+
+def fused_position(st, ve, vn, de, dn):
+    orig_position(st, ve, vn, de, dn)
+    anchor = a.anchor or (0, 0)
+    print("FIXPOS " + json.dumps([ve, vn, de, dn, st[dr.FIX_AE], st[dr.FIX_AE + 1], anchor[0], anchor[1],
+                                  a.nmea.lat_e7, a.nmea.lon_e7]))
+
+
+def on_window(app_, samples, dt_us, out):
+    print("ENU " + json.dumps([app_.mode, app_.enu[0], app_.enu[1]]))
+
+
+dr.fused_position = fused_position
+a = app.App()
+a.on_window = on_window
+a.run()
+"""
+
 
 @pytest.mark.parametrize("mode", ["seed", "fused"])
 def test_simulated_drive_with_outage(tmp_path, mode):
@@ -32,7 +59,11 @@ def test_simulated_drive_with_outage(tmp_path, mode):
     gps = write_stream(tmp_path / "gps.txt", chunks)
     imu = write_counts(tmp_path / "imu.bin", counts)
     scenario = tbeam_scenario(tmp_path, imu, gps, 48.0, rate_hz=board.imu.achieved_sample_rate_hz)
-    run = run_app(micropython, out, scenario, tmp_path / "w")
+    script = None
+    if mode == "fused":
+        script = tmp_path / "tap.py"
+        script.write_text(FUSED_TAP)
+    run = run_app(micropython, out, scenario, tmp_path / "w", script=script and str(script))
     assert run.returncode == 0, run.stderr + run.stdout[-1500:]
     assert "Traceback" not in run.stdout
     # while fixes arrive the screen shows the receiver's position (to the 1e-7 degree of the NMEA's 5 decimals)
@@ -65,3 +96,40 @@ def test_simulated_drive_with_outage(tmp_path, mode):
     travelled = np.linalg.norm(truth[:2] - trajectory.at(np.array([anchor_t]))[0][:2])
     print(f"{mode}: travelled {travelled:.1f} m since the last fix, error {np.linalg.norm(shown[:2] - truth[:2]):.1f} m")
     assert np.all(np.isfinite(shown))
+    if mode == "fused":
+        _check_fix_smoothing(run.stdout, track)
+
+
+def _check_fix_smoothing(stdout, track):
+    """The app's metres between fixes agree with the geodesy of the NMEA positions, and an outage would start from
+    the smoothed fix: in GPS mode the app's ENU offset is the one fused_position left for the last fix."""
+    import json
+
+    import numpy as np
+
+    from codegen.sim.neo6m import geodetic_to_enu
+
+    def enu(lat_e7, lon_e7):
+        return geodetic_to_enu(np.array([lat_e7 * 1e-7]), np.array([lon_e7 * 1e-7]), np.array([0.0]),
+                               track.origin)[0][:2]
+
+    fixes = []
+    last = None
+    checked = 0
+    for line in stdout.splitlines():
+        if line.startswith("FIXPOS "):
+            ve, vn, de, dn, ae, an, alat, alon, lat, lon = json.loads(line[7:])
+            if alat or alon:  # not the first fix: the metres from the previous anchor
+                want = enu(lat, lon) - enu(alat, alon)
+                assert abs(de - want[0]) < 0.005 * abs(want[0]) + 0.02 and abs(dn - want[1]) < 0.005 * abs(
+                    want[1]) + 0.02, (de, dn, want)
+            fixes.append((ae, an))
+            last = (ae, an)
+        elif line.startswith("ENU ") and last is not None:
+            mode, e, n = json.loads(line[4:])
+            if mode == 0:  # GPS mode: no dead reckoning added, the offset is the smoothed fix's
+                assert abs(e - last[0]) < 1e-5 and abs(n - last[1]) < 1e-5, (e, n, last)
+                checked += 1
+    assert len(fixes) >= 20 and checked >= 10
+    offsets = np.hypot(*np.array(fixes).T)
+    assert offsets.max() < 10.0 and offsets[5:].max() > 0.05  # the filter moved the start point, by metres at most

@@ -39,7 +39,8 @@ def _steps(scenario="walk", seed=21, start=10.0, stop=25.0):
     for j in range(int(start) + 1, int(stop)):
         end = int(np.searchsorted(t, float(j)))
         steps.append(("p", run.counts[k:end], dt[k:end]))
-        steps.append(("g", float(vel[j, 0]), float(vel[j, 1])))
+        d = run.gps.enu[j, :2] - run.gps.enu[j - 1, :2]
+        steps.append(("g", float(vel[j, 0]), float(vel[j, 1]), float(d[0]), float(d[1])))
         k = end
     return run.counts[:n_cal], steps
 
@@ -65,6 +66,7 @@ def _reference(calib, steps):
         if s[0] == "p":
             F.process(st, s[1], s[2], KCFG, FCFG)
         else:
+            F.position_update(st, s[1], s[2], s[3], s[4], FCFG)
             F.gps_update(st, s[1], s[2], FCFG)
         states.append(st.vector())
     return int(moved), states
@@ -82,6 +84,8 @@ def _assert_close(got, want, n_samples, path):
     np.testing.assert_allclose(got[F.IDX["bax"]:F.IDX["bay"] + 1], want[F.IDX["bax"]:F.IDX["bay"] + 1], atol=1e-4)
     p = [F.IDX[name] for name in F._P]
     np.testing.assert_allclose(got[p], want[p], rtol=1e-3, atol=1e-7)
+    fix = [F.IDX[name] for name in ("fix_ae", "fix_an", "fix_ee", "fix_en", "fix_pxx", "fix_pxe", "fix_pee")]
+    np.testing.assert_allclose(got[fix], want[fix], atol=1e-4)
 
 
 def _compare(answer, calib, steps):
@@ -120,6 +124,7 @@ def test_fallback_fused_matches_c(tmp_path, median):
             c.process(s[1], s[2])
             n += len(s[1])
         else:
+            c.position(s[1], s[2], s[3], s[4])
             c.gps(s[1], s[2])
         want = c.state_vector()
         _assert_close(got, want, n, float(np.hypot(want[F.IDX["pe"]], want[F.IDX["pn"]])) + 10.0)
