@@ -33,6 +33,7 @@ int main(int argc, char **argv) {
         if (dr_fused_process(&kcfg, &cfg, &st, samples, dt_us, DR_WINDOW_SAMPLES, out) != DR_OK) {
             return 1;
         }
+        dr_fused_position(&cfg, &st, 1.0f, 0.5f, 1.0f, 0.5f);
         dr_fused_gps(&cfg, &st, 1.0f, 0.5f);
     }
     printf("%g %g %g\n", (double)out[0], (double)out[1], (double)out[2]);
