@@ -60,8 +60,12 @@ median 22 -> 34 m with 0.01 g) and leaves the walks unchanged, so it stays. The 
 `median` (board fused_median: true): a per-sample filter has no blocks, so it is the seed's median of b samples
 made sliding, on a vehicle's along-track acceleration (the ring restarts after rest or walking). On car seeds
 101-106 it moved the 30 / 60 s medians from 7.5 / 21.6 m to 7.9 / 22.1 m: the MPU-6050 model's noise is
-Gaussian, without the spikes (a door slam, a pothole) a median is for, so it is off by default. Tried and dropped: a dead zone on a walker's yaw rate (the hand's
-swings are not turns), no gain; a higher heading gain, worse.
+Gaussian, without the spikes (a door slam, a pothole) a median is for, so it is off by default.
+
+The walk's limit: the hand's slow yaw swings (the simulator's +-10 degrees about the course) turn u although the
+walker goes straight; with them switched off in the simulator the 10 s drift falls from 2.1 to 1.2 m. Tried and
+dropped: no turn while the smoothed rate about Up stays below 7 degree/s (10 s 3.5 -> 3.2 m, but 30 / 60 s
+7.4 -> 8.3 / 14.3 -> 19.9 m: real turns lose their gentle ends); heading gains 0.08-1.0 (0.3 is best).
 
 The state is a flat vector of floats (the C kernel's caller-owned buffer holds the same fields in the same order);
 FusedState below names them. One GPS-free pass over the IMU and the GPS updates at their epochs is exactly what the
@@ -445,8 +449,8 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
 
 
 # the covariance's upper triangle in STATE_FIELDS order: (row, column) -> field
-_P = ("p00", "p01", "p02", "p03", "p11", "p12", "p13", "p22", "p23", "p33")
-_PIJ = {(i, j): _P[n] for n, (i, j) in enumerate((i, j) for i in range(4) for j in range(i, 4))}
+COVARIANCE_FIELDS = ("p00", "p01", "p02", "p03", "p11", "p12", "p13", "p22", "p23", "p33")
+_PIJ = {(i, j): COVARIANCE_FIELDS[n] for n, (i, j) in enumerate((i, j) for i in range(4) for j in range(i, 4))}
 
 
 def tilt_and_offset_update(st: FusedState, ve: float, vn: float, moving: bool, t: float, fcfg: FusedConfig) -> None:

@@ -296,7 +296,7 @@ def test_filter_learns_the_accelerometer_offsets_and_the_c_kernel_agrees(fk):
     sv = c.state_vector()
     for name in ("bax", "bay"):
         assert sv[F.IDX[name]] == pytest.approx(getattr(st, name), abs=0.01 * np.abs(offset).max())
-    for name in F._P:
+    for name in F.COVARIANCE_FIELDS:
         assert sv[F.IDX[name]] == pytest.approx(getattr(st, name), rel=1e-2, abs=1e-6)
 
 

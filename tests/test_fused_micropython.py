@@ -82,7 +82,7 @@ def _assert_close(got, want, n_samples, path):
     assert abs(got[F.IDX["speed"]] - want[F.IDX["speed"]]) < 1e-3 * (1 + abs(want[F.IDX["speed"]]))
     # the tilt/offset filter: offsets in m/s^2 (a few 0.1), its covariance (variances from ~1e-5 up)
     np.testing.assert_allclose(got[F.IDX["bax"]:F.IDX["bay"] + 1], want[F.IDX["bax"]:F.IDX["bay"] + 1], atol=1e-4)
-    p = [F.IDX[name] for name in F._P]
+    p = [F.IDX[name] for name in F.COVARIANCE_FIELDS]
     np.testing.assert_allclose(got[p], want[p], rtol=1e-3, atol=1e-7)
     fix = [F.IDX[name] for name in ("fix_ae", "fix_an", "fix_ee", "fix_en", "fix_pxx", "fix_pxe", "fix_pee")]
     np.testing.assert_allclose(got[fix], want[fix], atol=1e-4)
