@@ -244,8 +244,12 @@ def test_position_filter_smooths_the_fixes_and_the_c_kernel_agrees(fk):
         if k >= 100:  # past the start-up
             raw.append(np.linalg.norm(err[k]))
             smooth.append(np.linalg.norm(fixes[k] + (ref.fix_ae, ref.fix_an) - truth[k]))
-    assert np.sqrt(np.mean(np.square(smooth))) < 0.85 * np.sqrt(np.mean(np.square(raw)))
-    assert ref.fix_pxx < 2.1**2  # the filter is surer of the position than of one fix
+    rms_smooth = np.sqrt(np.mean(np.square(smooth)) / 2)  # per axis
+    rms_raw = np.sqrt(np.mean(np.square(raw)) / 2)
+    # the filter is consistent: what it achieved is what its covariance says (500 fixes, ~8 correlation times:
+    # the realised RMS is itself uncertain by ~20%), and that is well below the raw fixes' error
+    assert rms_smooth == pytest.approx(math.sqrt(ref.fix_pxx), rel=0.2), (rms_smooth, math.sqrt(ref.fix_pxx))
+    assert rms_smooth < 0.85 * rms_raw, (rms_smooth, rms_raw)
 
 
 def test_position_filter_restarts_after_an_outage():
@@ -305,7 +309,7 @@ def test_filter_without_offsets_stays_near_zero():
     run = _car_with_offsets([0.0, 0.0, 0.0], seed=6)
     _, _, snaps, _, _ = F._fused_pass(run, FCFG)
     _, st = snaps[max(snaps)]
-    assert math.hypot(st.bax, st.bay) < 0.01 * 9.80665
+    assert math.hypot(st.bax, st.bay) < 0.002 * 9.80665  # 2 mg: a 25th of the filter's initial 50 mg sigma
 
 
 def test_filter_off_leaves_the_offsets_alone():
