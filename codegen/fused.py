@@ -539,6 +539,7 @@ def _fused_pass(run, fcfg: FusedConfig | None = None):
     st = FusedState()
     calibrate(st, run.counts[:n_cal], kcfg)
     gps = run.gps
+    vel = gps.device_velocity()
     snaps = {}
     k = n_cal
     prev = -1
@@ -548,7 +549,7 @@ def _fused_pass(run, fcfg: FusedConfig | None = None):
         if stop > k:
             process(st, run.counts[k:stop], dt_us[k:stop], kcfg, fcfg)
             k = stop
-        v = gps.device_velocity()[j]
+        v = vel[j]
         d = gps.enu[j, :2] - gps.enu[prev, :2] if prev >= 0 else np.zeros(2)
         position_update(st, float(v[0]), float(v[1]), float(d[0]), float(d[1]), fcfg)
         gps_update(st, float(v[0]), float(v[1]), fcfg)

@@ -9,9 +9,9 @@ the app drives dr_native (calibrate, process windows, a GPS update per fix).
 
 from __future__ import annotations
 
-import numpy as np
-
 from dataclasses import fields
+
+import numpy as np
 
 from codegen import hostkernel
 from codegen.fused import STATE_LEN, FusedConfig
