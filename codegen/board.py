@@ -261,7 +261,7 @@ class Algorithm(Part):
     fused_kf_align_min: float = Field(20.0, ge=0, description="(m/s)^2: heading alignment sums needed before the filter updates")
     fused_pos_sigma_m: float = Field(2.1, ge=0, description="m: the receiver's position error per axis, for smoothing the fix an outage starts from (0: raw fixes)")
     fused_pos_tau_s: float = Field(60.0, gt=0, description="s: correlation time of that error")
-    fused_pos_step_sigma_ms: float = Field(0.15, gt=0, description="m/s: error of the Doppler velocity integrated between fixes, per second")
+    fused_pos_step_sigma_ms: float = Field(0.1, gt=0, description="m/s: error of the step between fixes (Doppler trapezoid + IMU), per second")
     fused_median: bool = Field(False, description="a vehicle's along-track acceleration is the median of the last b (block) samples: the seed's block median, sliding (b <= 32)")
 
 

@@ -210,6 +210,9 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         }
         rest = st->rest_s >= cfg->rest_time_s;
         walking = st->var_f > cfg->walk_var;
+        if ((flags & DR_FUSED_WALKING) && !walking) {
+            st->speed = 0.0f; /* the steps stopped, and so did the walker */
+        }
         flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0);
         /* travel direction turned by the rate about Up */
         r = r20 * w[0] + r21 * w[1] + r22 * w[2];
@@ -256,6 +259,8 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
                 st->speed = 0.0f;
             }
         }
+        st->dpx += (st->dvx + 0.5f * ae * dt) * dt;
+        st->dpy += (st->dvy + 0.5f * an * dt) * dt;
         st->dvx += ae * dt;
         st->dvy += an * dt;
         st->m[0] += r00 * dt;
@@ -417,7 +422,7 @@ static void dr_fused_filter(const dr_fused_config *cfg, dr_fused_state *st, floa
 
 void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn) {
     const float t = st->since_fix;
-    float x, phi, pxx, pxe, pee, ae, an, ee, en, s, inv_s, kx, ke;
+    float x, phi, pxx, pxe, pee, cx, cy, ae, an, ee, en, s, inv_s, kx, ke;
     if (!(cfg->pos_var > 0.0f)) {
         return;
     }
@@ -436,8 +441,11 @@ void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve,
     pxx = st->fix_pxx + cfg->pos_step_q * t * t;
     pxe = phi * st->fix_pxe;
     pee = phi * phi * st->fix_pee + cfg->pos_var * (1.0f - phi * phi);
-    ae = st->fix_ae + 0.5f * t * (st->gps_ve + ve) - de;
-    an = st->fix_an + 0.5f * t * (st->gps_vn + vn) - dn;
+    /* the IMU's correction to the trapezoid T (v0 + v1) / 2, rotated into true ENU below */
+    cx = st->dpx - 0.5f * t * st->dvx;
+    cy = st->dpy - 0.5f * t * st->dvy;
+    ae = st->fix_ae + 0.5f * t * (st->gps_ve + ve) + (st->cos_t * cx - st->sin_t * cy) - de;
+    an = st->fix_an + 0.5f * t * (st->gps_vn + vn) + (st->sin_t * cx + st->cos_t * cy) - dn;
     ee = phi * st->fix_ee;
     en = phi * st->fix_en;
     s = pxx + 2.0f * pxe + pee;
@@ -511,6 +519,8 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     st->gps_ok = speed - cfg->min_speed_ms;
     st->dvx = 0.0f;
     st->dvy = 0.0f;
+    st->dpx = 0.0f;
+    st->dpy = 0.0f;
     for (i = 0; i < 4; i++) {
         st->m[i] = 0.0f;
     }

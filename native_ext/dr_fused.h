@@ -4,7 +4,7 @@
  * Same front end as the kernel (axis remap, scales, gyro bias, quaternion body -> kernel ENU), plus per sample a
  * Mahony-type tilt correction towards gravity (minus the motion acceleration the GPS showed), rest detection
  * (zero-velocity update, gyro bias re-estimation), a travel direction turned by the gyro and a speed along it
- * (walking: the learned walking speed; otherwise the integrated along-track acceleration minus its bias, through
+ * (walking: the learned walking speed, 0 when the steps stop; otherwise the integrated along-track acceleration minus its bias, through
  * the kernel's deadband kcfg->deadband_ms2, which also bounds the horizontal acceleration at rest), and at
  * each GPS fix (dr_fused_gps) the heading alignment of the kernel frame to true North, the travel direction, the
  * speed, the along-track accelerometer bias and a 4-state Kalman filter of the gravity leak (tilt error) and the
@@ -54,10 +54,10 @@ typedef struct {
     float median;          /* > 0: a vehicle's along-track acceleration is the median of the last kcfg->block */
     float pos_var;         /* m^2, the receiver's position error variance per axis (0: no position smoothing) */
     float inv_pos_tau;     /* 1/s, the inverse of its correlation time */
-    float pos_step_q;      /* (m/s)^2, variance of the integrated Doppler velocity's error per second of step */
+    float pos_step_q;      /* (m/s)^2, variance of the step between fixes (Doppler trapezoid + IMU) per second */
 } dr_fused_config;
 
-/* The state, field for field codegen.fused.STATE_FIELDS (91 floats). */
+/* The state, field for field codegen.fused.STATE_FIELDS (93 floats). */
 typedef struct {
     float q[4];            /* orientation w, x, y, z: body -> kernel ENU */
     float gyro_bias_lsb[3];/* counts */
@@ -87,6 +87,7 @@ typedef struct {
     float fix_ae, fix_an;  /* m, smoothed position minus the last fix's (true ENU): where an outage starts from */
     float fix_ee, fix_en;  /* m, the receiver's position error estimated at the last fix */
     float fix_pxx, fix_pxe, fix_pee; /* m^2, their covariance (the same for East and North) */
+    float dpx, dpy;        /* m, integral of dvx, dvy since the last fix */
     float med_i, med_n;    /* the median option's ring: next slot, slots filled (whole numbers) */
     float med[DR_FUSED_MEDIAN_MAX]; /* m/s^2, the last along-track accelerations */
 } dr_fused_state;
@@ -114,7 +115,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
 
 /* One GPS fix's position, called before dr_fused_gps for the same fix: its Doppler velocity (m/s East, North) and its
  * displacement from the previous fix (m East, North; anything for the first). Smooths the receiver's position with
- * its Doppler (codegen.fused.position_update); afterwards st->fix_ae, fix_an is the smoothed position minus this
+ * its Doppler and the IMU's displacement between fixes (codegen.fused.position_update); afterwards st->fix_ae, fix_an is the smoothed position minus this
  * fix's, where an outage should start from. */
 void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn);
 

@@ -63,7 +63,8 @@ def _drive(run, ref, c, start_s, stop_s, fcfg=FCFG):
         c.gps(float(vel[j, 0]), float(vel[j, 1]))
 
 
-@pytest.mark.parametrize("scenario,seed,median", [("walk", 11, False), ("car", 12, False), ("car", 13, True)])
+@pytest.mark.parametrize("scenario,seed,median", [("walk", 11, False), ("walk", 30, False), ("car", 12, False),
+                                                   ("car", 13, True)])
 def test_c_matches_reference_on_a_simulated_run(fk, scenario, seed, median):
     fcfg = replace(FCFG, median=1.0) if median else FCFG
     run = _stream(scenario, seed, 50.0)
@@ -78,6 +79,7 @@ def test_c_matches_reference_on_a_simulated_run(fk, scenario, seed, median):
     np.testing.assert_allclose(c.state_vector(), ref.vector(), rtol=0, atol=2000 * EPS32 * 2 * 32768 / 2000 + 1e-6)
     n = 0
     path = 0.0
+    steps = []
     for out_r, out_c in _drive(run, ref, c, 10.0, 49.0, fcfg):
         n += 200
         path += float(np.hypot(out_r[0], out_r[1]))
@@ -91,7 +93,10 @@ def test_c_matches_reference_on_a_simulated_run(fk, scenario, seed, median):
         np.testing.assert_allclose(out_c[3:5], out_r[3:5], atol=1e-3 * (1 + np.abs(out_r[3:5]).max()))
         fix = [F.IDX[name] for name in ("fix_ae", "fix_an", "fix_ee", "fix_en")]
         np.testing.assert_allclose(sv[fix], rv[fix], atol=1e-4)  # metres: a few float32 steps of ~10 m
+        steps.append((int(rv[F.IDX["flags"]]), float(rv[F.IDX["speed"]])))
     assert path > 20.0  # the run really moved
+    if seed == 30:  # this walk stops at 34.9 s: the walker's speed went to 0 with his steps, in both
+        assert any(f0 == 2 and f1 == 0 and v1 == 0.0 for (f0, _), (f1, v1) in zip(steps, steps[1:]))
 
 
 def _rest_samples(n, tilt=(0.0, 0.0, 0.0), gyro=(0, 0, 0)):
@@ -154,6 +159,66 @@ def test_turn_rotates_the_travel_direction(fk):
     turned = rate * steps * 0.005
     for ux, uy in ((ref.ux, ref.uy), tuple(c.state_vector()[[F.IDX["ux"], F.IDX["uy"]]])):
         assert math.atan2(uy, ux) == pytest.approx(turned, abs=1e-3)
+
+
+def test_walker_stops_when_the_steps_stop(fk):
+    """5 s of steps (|f| swinging 0.15 g at 2 Hz) at the learned walking speed, then 3 s without steps while the
+    hand still turns the device back and forth (1 degree/s: no rest). The speed drops to 0 with the steps, in the
+    reference and the C, and the position stops; before, it went on at the walking speed."""
+    t = np.arange(1600) * 0.005
+    f = KCFG.accel_lsb_per_g * (1.0 + np.where(t < 5.0, 0.15 * np.sin(2 * np.pi * 2.0 * t), 0.0))
+    rate = np.round(np.where((t // 0.5) % 2 == 0, 1.0, -1.0) * KCFG.gyro_lsb_per_dps)
+    zero = np.zeros_like(t)
+    samples = np.stack([zero, zero, np.round(f), rate, zero, zero], axis=-1).astype(np.int16)
+    dt = np.full(len(t), 5000, dtype=np.int32)
+    ref = F.FusedState()
+    ref.mean_f = 9.80665
+    ref.walk_speed = 1.4
+    c = fk.session()
+    c.set_state_vector(ref.vector())
+    walk, fading, still = slice(0, 1000), slice(1000, 1400), slice(1400, None)
+    out_r, flags = F.process(ref, samples[walk], dt[walk], KCFG, FCFG)
+    out_c = c.process(samples[walk], dt[walk])
+    assert flags[-1] == 2 and ref.speed == pytest.approx(1.4) and out_r[0] > 5.0  # it walked
+    assert c.state_vector()[F.IDX["speed"]] == pytest.approx(1.4) and out_c[0] == pytest.approx(out_r[0], rel=1e-5)
+    # the variance of |f| (a 0.5 s moving average) falls below the walking limit ~1.3 s after the last step
+    _, flags = F.process(ref, samples[fading], dt[fading], KCFG, FCFG)
+    c.process(samples[fading], dt[fading])
+    assert flags[0] == 2 and flags[-1] == 0
+    out_r, flags = F.process(ref, samples[still], dt[still], KCFG, FCFG)
+    out_c = c.process(samples[still], dt[still])
+    assert not np.any(flags)  # neither walking nor at rest
+    for out, speed in ((out_r, ref.speed), (out_c, c.state_vector()[F.IDX["speed"]])):
+        assert speed == 0.0 and np.hypot(out[0], out[1]) < 1e-3  # 1 s without steps: no metre more
+
+
+def test_position_step_adds_the_imu_to_the_doppler_trapezoid(fk):
+    """Level, accelerating East at a = j t (j = 2 m/s^3) for 1 s between two fixes with velocities 0 and j/2: the
+    trapezoid T (v0 + v1) / 2 = j/4 m overshoots the true j/6 m by 17 cm; the IMU's correction takes it out, so a
+    fix at the true position is no surprise to the position filter (reference and C)."""
+    j = 2.0
+    t = (np.arange(200) + 0.5) * 0.005
+    ax = np.round(j * t / 9.80665 * KCFG.accel_lsb_per_g)
+    zero = np.zeros_like(t)
+    samples = np.stack([ax, zero, np.full_like(t, KCFG.accel_lsb_per_g), zero, zero, zero], axis=-1).astype(np.int16)
+    dt = np.full(len(t), 5000, dtype=np.int32)
+    ref = F.FusedState()
+    ref.mean_f = 9.80665
+    F.position_update(ref, 0.0, 0.0, 0.0, 0.0, FCFG)  # the filter starts at this fix
+    c = fk.session()
+    c.set_state_vector(ref.vector())
+    F.process(ref, samples, dt, KCFG, FCFG)
+    c.process(samples, dt)
+    F.position_update(ref, j / 2, 0.0, j / 6, 0.0, FCFG)
+    c.position(j / 2, 0.0, j / 6, 0.0)
+    # what remains: the counts' rounding (0.6 mm/s^2 per count) integrated twice over 1 s, well under a millimetre
+    for st in (ref.vector(), c.state_vector()):
+        assert abs(st[F.IDX["fix_ae"]]) < 1e-3 and abs(st[F.IDX["fix_an"]]) < 1e-6
+    without = F.FusedState()  # the same fix, had the step been the trapezoid alone: the filter moves by cm
+    F.position_update(without, 0.0, 0.0, 0.0, 0.0, FCFG)
+    without.since_fix = 1.0
+    F.position_update(without, j / 2, 0.0, j / 6, 0.0, FCFG)
+    assert abs(without.fix_ae) > 0.02
 
 
 def test_gps_sets_speed_and_course(fk):

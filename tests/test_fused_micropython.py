@@ -26,7 +26,7 @@ from test_fused import BOARD, EPS32, FCFG, KCFG, Q
 DRIVER = Path(__file__).resolve().parent / "mp_fused_driver.py"
 
 
-def _steps(scenario="walk", seed=21, start=10.0, stop=25.0):
+def _steps(scenario="walk", seed=30, start=10.0, stop=40.0):
     from codegen.sim.run import build_run
 
     run = build_run(scenario, BOARD, seed=seed, duration=stop + 2.0)
@@ -86,6 +86,8 @@ def _assert_close(got, want, n_samples, path):
     np.testing.assert_allclose(got[p], want[p], rtol=1e-3, atol=1e-7)
     fix = [F.IDX[name] for name in ("fix_ae", "fix_an", "fix_ee", "fix_en", "fix_pxx", "fix_pxe", "fix_pee")]
     np.testing.assert_allclose(got[fix], want[fix], atol=1e-4)
+    step = [F.IDX[name] for name in ("dvx", "dvy", "dpx", "dpy")]  # the IMU's part of the step between fixes
+    np.testing.assert_allclose(got[step], want[step], atol=1e-4)
 
 
 def _compare(answer, calib, steps):
@@ -105,6 +107,8 @@ def test_fallback_fused_matches_reference_on_micropython(tmp_path):
     answer = _run_mp("dr_fallback", tmp_path, calib, steps, tmp_path)
     _compare(answer, calib, steps)
     assert np.hypot(*answer["steps"][-1][1][F.IDX["pe"]:F.IDX["pn"] + 1]) > 5.0  # it walked
+    seen = [(int(got[F.IDX["flags"]]), got[F.IDX["speed"]]) for _, got in answer["steps"]]
+    assert any(f0 == 2 and f1 == 0 and v1 == 0.0 for (f0, _), (f1, v1) in zip(seen, seen[1:]))  # and stopped (34.9 s)
 
 
 @pytest.mark.parametrize("median", [False, True])
