@@ -36,10 +36,10 @@ And at each GPS fix with Doppler velocity g (true ENU, m/s), `gps_update`:
 - speed and along-track bias: a steady-state two-state Kalman filter (alpha-beta form) on e = |g| - s:
   s <- s + speed_gain e, b <- b - bias_gain e / T (T: seconds since the previous fix);
 - walking speed: while walking, s_walk <- s_walk + walk_speed_gain (|g| - s_walk);
-- (before gps_update, position_update) the fix's position smoothed with the Doppler: a 2-state Kalman filter per
-  axis of the true position and the receiver's slowly wandering error (Gauss-Markov, pos_sigma_m, pos_tau_s),
-  so an outage starts from a better point than the raw fix (car 0 s median 2.8 -> 2.2 m, replayed walk
-  2.3 -> 1.9 m; the simulated walk's gait makes its 1 Hz Doppler alias, and it gains less);
+- (before gps_update, position_update) the fix's position smoothed with the Doppler and the IMU's step between
+  fixes: a 2-state Kalman filter per axis of the true position and the receiver's slowly wandering error
+  (Gauss-Markov, pos_sigma_m, pos_tau_s), so an outage starts from a better point than the raw fix (0 s medians:
+  car 2.8 -> 2.2 m, replayed walk 2.3 -> 1.8 m, simulated walk 3.0 -> 2.2 m);
 - the tilt and the accelerometer's horizontal offsets, a 4-state Kalman filter (tilt_and_offset_update): the
   difference between the IMU's and the GPS's velocity change over the interval is the gravity leak (g times the
   tilt error, fixed in the earth frame) plus the body-frame offsets seen through R(q). Calibration folds the
@@ -65,7 +65,7 @@ made sliding, on a vehicle's along-track acceleration (the ring restarts after r
 101-106 it moved the 30 / 60 s medians from 7.5 / 21.6 m to 7.9 / 22.1 m: the MPU-6050 model's noise is
 Gaussian, without the spikes (a door slam, a pothole) a median is for, so it is off by default.
 
-The walk's limit: the fix an outage starts from is already ~2.3 m off (the receiver's slowly wandering error, which
+The walk's limit: the fix an outage starts from is already ~2.2 m off (the receiver's slowly wandering error, which
 the position filter can only partly average out), and the hand's slow yaw swings (the simulator's +-10 degrees
 about the course) turn u although the walker goes straight; with them switched off in the simulator the 10 s drift
 falls from 2.1 to 1.2 m. Tried and dropped, each measured on walk seeds 101-112 and the replayed real walk:

@@ -4,8 +4,9 @@
  * Same front end as the kernel (axis remap, scales, gyro bias, quaternion body -> kernel ENU), plus per sample a
  * Mahony-type tilt correction towards gravity (minus the motion acceleration the GPS showed), rest detection
  * (zero-velocity update, gyro bias re-estimation), a travel direction turned by the gyro and a speed along it
- * (walking: the learned walking speed, 0 when the steps stop; otherwise the integrated along-track acceleration minus its bias, through
- * the kernel's deadband kcfg->deadband_ms2, which also bounds the horizontal acceleration at rest), and at
+ * (walking: the learned walking speed, 0 when the steps stop; otherwise the integrated along-track acceleration
+ * minus its bias, through the kernel's deadband kcfg->deadband_ms2, which also bounds the horizontal acceleration
+ * at rest), and at
  * each GPS fix (dr_fused_gps) the heading alignment of the kernel frame to true North, the travel direction, the
  * speed, the along-track accelerometer bias and a 4-state Kalman filter of the gravity leak (tilt error) and the
  * horizontal accelerometer offsets, fed back into the orientation and the samples.
@@ -115,8 +116,8 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
 
 /* One GPS fix's position, called before dr_fused_gps for the same fix: its Doppler velocity (m/s East, North) and its
  * displacement from the previous fix (m East, North; anything for the first). Smooths the receiver's position with
- * its Doppler and the IMU's displacement between fixes (codegen.fused.position_update); afterwards st->fix_ae, fix_an is the smoothed position minus this
- * fix's, where an outage should start from. */
+ * its Doppler and the IMU's displacement between fixes (codegen.fused.position_update); afterwards st->fix_ae,
+ * fix_an is the smoothed position minus this fix's, where an outage should start from. */
 void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn);
 
 /* One GPS fix's Doppler velocity, m/s East and North (0, 0 when the receiver gives no course). */
