@@ -262,6 +262,9 @@ class Algorithm(Part):
     fused_pos_sigma_m: float = Field(2.1, ge=0, description="m: the receiver's position error per axis, for smoothing the fix an outage starts from (0: raw fixes)")
     fused_pos_tau_s: float = Field(60.0, gt=0, description="s: correlation time of that error")
     fused_pos_step_sigma_ms: float = Field(0.1, gt=0, description="m/s: error of the step between fixes (Doppler trapezoid + IMU), per second")
+    fused_turn_hold_tau_s: float = Field(10.0, ge=0, description="s: a walker's slow rotations about Up (the hand swinging about the course) reach the travel direction over this; turns at once (0: everything at once)")
+    fused_turn_start_dps: float = Field(12.0, gt=0, description="degree/s: a walker's turn starts when the smoothed rate about Up exceeds this")
+    fused_turn_end_dps: float = Field(7.0, ge=0, description="degree/s: and ends when it falls below this (at most fused_turn_start_dps)")
     fused_median: bool = Field(False, description="a vehicle's along-track acceleration is the median of the last b (block) samples: the seed's block median, sliding (b <= 32)")
 
 

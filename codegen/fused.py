@@ -15,7 +15,15 @@ fused method keeps the same front end (calibration, gyro bias, quaternion body -
    update (speed 0) and the gyro bias re-estimated towards the raw gyro counts (time constant bias_tau_s).
    Walking = the |f| variance above walk_accel_g^2 (the steps shake the device);
 3. a travel direction u (unit, horizontal, in the kernel's earth frame) turned by the gyro's rate about Up,
-       r = up_body . omega,   u <- u + r dt [-u_N, u_E],  renormalised
+       r = up_body . omega,   u <- u rotated by r dt
+   except that a walker's slow rotations are held back: the hand swings the device about the course (the walker
+   goes straight), while a walker's turns are quick. While walking, r dt goes into a held angle h; a turn starts
+   when r smoothed over stat_tau_s exceeds turn_start_dps and ends when it falls below turn_end_dps (hysteresis,
+   so the turn keeps its gentle ends); during a turn u takes h at once, otherwise h dt / turn_hold_tau_s of it
+   (a swing that returns cancels in h before u takes much of it; a slow curve still arrives, late). Measured on
+   walk seeds 101-136 (10 / 30 / 60 s medians): 3.13 / 6.85 / 11.97 -> 3.04 / 6.83 / 12.36 m, the 10 s drift
+   2.24 -> 1.79 m; the replayed real walk unchanged at 10 and 30 s (2.98 / 3.66 -> 2.99 / 3.61 m); no vehicle
+   is walking, so the car is untouched;
    and a speed s >= 0 along it: at rest s = 0; walking s = the learned walking speed, and 0 on the sample the
    steps stop (a walker who stops stepping has stopped; the hand still moves, so rest alone misses it: on walk
    seeds 101-112 that took the 10 / 30 / 60 s medians from 3.4 / 7.9 / 13.4 to 3.2 / 7.0 / 12.3 m, and the
@@ -66,13 +74,22 @@ made sliding, on a vehicle's along-track acceleration (the ring restarts after r
 Gaussian, without the spikes (a door slam, a pothole) a median is for, so it is off by default.
 
 The walk's limit: the fix an outage starts from is already ~2.2 m off (the receiver's slowly wandering error, which
-the position filter can only partly average out), and the hand's slow yaw swings (the simulator's +-10 degrees
-about the course) turn u although the walker goes straight; with them switched off in the simulator the 10 s drift
-falls from 2.1 to 1.2 m. Tried and dropped, each measured on walk seeds 101-112 and the replayed real walk:
+the position filter can only partly average out: with a 60 s correlation time a 300 s run holds only a few
+independent draws of it, so 10 s medians move by +-0.1-0.2 m between seed sets; compare variants on 36 seeds),
+and the hand's slow yaw swings (the simulator's +-10 degrees about the course) turn u although the walker goes
+straight; with them switched off in the simulator the 10 s drift falls from 2.1 to 1.2 m. The turn hold (step 3)
+takes back part of that. Its settings, 10 s (60 s) medians on walk seeds 101-136, the rate smoothed over 0.3 s:
+- turn end 4 degree/s, turn_hold_tau_s 5 / 10 / 20 s: 3.07 / 3.06 / 3.04 m (11.7 / 12.2 / 12.8 m: a slow curve
+  arrives later); hold 10 s, end 2 / 4 / 7 / 10 degree/s: 3.06 / 3.06 / 3.01 / 3.01 m; start 8 / 12 / 16
+  degree/s: 3.07 / 3.06 / 3.06 m; end 7, hold 8 / 10 / 15 s: 3.04 / 3.01 / 2.99 m (12.1 / 12.2 / 12.6 m);
+- the rate smoothed over stat_tau_s (0.5 s) instead: 3.04 m, within the noise, and one parameter fewer.
+Tried and dropped, each measured on walk seeds 101-112 (or 101-136) and the replayed real walk:
 - no turn while the smoothed rate about Up stays below 7 degree/s (10 s 3.5 -> 3.2 m, but 30 / 60 s
-  7.4 -> 8.3 / 14.3 -> 19.9 m: real turns lose their gentle ends); with hysteresis (a turn starts above 12 and
-  ends below 4 degree/s, keeping its gentle ends) and the slow rates low-passed over 5 s instead of dropped: 10 s
-  drift 2.3 -> 1.9 m but no gain in the 10 s error, and the real walk's 30 s 3.7 -> 4.1 m;
+  7.4 -> 8.3 / 14.3 -> 19.9 m: real turns lose their gentle ends);
+- the hand's offset from the course (what the GPS pulls on u add up to, less their mean) decaying back to its
+  mean during an outage, as a Gauss-Markov process would (time constants 3-20 s): 10 s 3.2 -> 3.2-3.7 m, since
+  the pulls see the offset late and noisily (its correlation with the true offset is 0.55);
+- ending the walk earlier (a higher variance limit to stop, or a faster variance for it, 0.3 s): within 0.05 m;
 - the walker's axis as the principal axis of the horizontal acceleration (the steps surge forwards): exact on
   the simulator's gait (8 degrees), but on the real walk's IMU the axis is 64 degrees off the course in the median
   (its sway and the vertical bob leaking through the tilt dominate): a simulator artefact, not used;
@@ -126,6 +143,9 @@ class FusedConfig:
     pos_sigma_m: float = 2.1  # m, the receiver's position error per axis (Gauss-Markov sigma); 0: no smoothing
     pos_tau_s: float = 60.0  # s, its correlation time
     pos_step_sigma_ms: float = 0.1  # m/s, error of the step between fixes (Doppler trapezoid + IMU), per second
+    turn_hold_tau_s: float = 10.0  # s, a walker's slow rotations about Up reach u over this (0: at once)
+    turn_start_dps: float = 12.0  # degree/s, a walker's turn starts when the smoothed rate about Up exceeds this
+    turn_end_dps: float = 7.0  # degree/s, and ends when it falls below this
 
     @classmethod
     def from_board(cls, board) -> "FusedConfig":
@@ -157,7 +177,7 @@ STATE_FIELDS = (
     "gps_speed",  # m/s, the last fix's speed (a vehicle's speed relaxes towards it)
     "gps_ok",  # > 0 if the previous fix's velocity has a course: its speed - min_speed_ms
     "pe", "pn",  # position accumulated since the last reset, true ENU m
-    "flags",  # 1 at rest, 2 walking (bit field, last sample)
+    "flags",  # 1 at rest, 2 walking, 4 turning (bit field, last sample)
     "bax", "bay",  # accelerometer offsets, body x and y, m/s^2 (subtracted from every sample)
     "m00", "m01", "m10", "m11",  # integral of the horizontal rows of R(q) since the last fix, s
     "turn",  # integral of |rate about Up| since the last fix, rad
@@ -166,6 +186,8 @@ STATE_FIELDS = (
     "fix_ee", "fix_en",  # the receiver's position error estimated at the last fix, m
     "fix_pxx", "fix_pxe", "fix_pee",  # their covariance (the same for East and North), m^2
     "dpx", "dpy",  # integral of dvx, dvy since the last fix, m (after the fields the app reads: their offsets stay)
+    "rate_up",  # rad/s, the rate about Up smoothed over stat_tau_s
+    "held",  # rad, rotation about Up a walker's u has not taken yet
     "med_i", "med_n",  # the median option's ring: next slot, slots filled
 ) + tuple(f"med{k}" for k in range(FUSED_MEDIAN_MAX))  # the last along-track accelerations (a ring), m/s^2
 IDX = {name: i for i, name in enumerate(STATE_FIELDS)}
@@ -238,6 +260,10 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     ring = [getattr(st, f"med{k}") for k in range(FUSED_MEDIAN_MAX)]
     flags = np.zeros(len(dts), dtype=np.int8)
     was_walking = bool(int(st.flags) & 2)
+    turning = bool(int(st.flags) & 4)
+    hold_rate = 1.0 / fcfg.turn_hold_tau_s if fcfg.turn_hold_tau_s > 0.0 else 0.0
+    turn_start = math.radians(fcfg.turn_start_dps)
+    turn_end = math.radians(fcfg.turn_end_dps)
     pe0, pn0 = st.pe, st.pn
     qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
     for k, dt in enumerate(dts):
@@ -279,12 +305,31 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         if was_walking and not walking:
             st.speed = 0.0  # the steps stopped, and so did the walker (a vehicle he boards starts from 0 too)
         was_walking = walking
-        flags[k] = (1 if rest else 0) | (2 if walking else 0)
         # travel direction turned by the rate about Up (uncorrected gyro: the tilt correction is not a turn)
         r = r20 * wx + r21 * wy + r22 * wz
         st.turn += abs(r) * dt
-        ux = st.ux - r * dt * st.uy
-        uy = st.uy + r * dt * st.ux
+        st.rate_up += alpha * (r - st.rate_up)
+        da = r * dt
+        if walking and hold_rate > 0.0:
+            # a walker's turns are quick; the hand's slow swings about the course are not turns: u takes a turn at
+            # once (with what it held), a slow rotation over turn_hold_tau_s (a swing that returns cancels)
+            if abs(st.rate_up) > turn_start:
+                turning = True
+            elif abs(st.rate_up) < turn_end:
+                turning = False
+            st.held += da
+            da = st.held if turning else st.held * min(1.0, dt * hold_rate)
+            st.held -= da
+        else:
+            turning = False
+            da += st.held
+            st.held = 0.0
+        flags[k] = (1 if rest else 0) | (2 if walking else 0) | (4 if turning else 0)
+        # u rotated by da (to second order: a turn's held part can be tens of degrees)
+        cd = 1.0 - 0.5 * da * da
+        sd = da * (1.0 - da * da * (1.0 / 6.0))
+        ux = cd * st.ux - sd * st.uy
+        uy = cd * st.uy + sd * st.ux
         inv = 1.0 / math.sqrt(ux * ux + uy * uy)
         st.ux = ux * inv
         st.uy = uy * inv

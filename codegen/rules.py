@@ -239,6 +239,13 @@ def _check_algorithm(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
             source.value(("algorithm", "block")),
             f"use b <= {FUSED_MEDIAN_MAX}, or fused_median: false",
         )
+    if algorithm.fused_turn_end_dps > algorithm.fused_turn_start_dps:
+        yield error(
+            f"algorithm.fused_turn_end_dps: a turn that ends at {algorithm.fused_turn_end_dps:g} degree/s cannot "
+            f"start at the lower {algorithm.fused_turn_start_dps:g} degree/s",
+            source.value(("algorithm", "fused_turn_end_dps")),
+            "use fused_turn_end_dps <= fused_turn_start_dps (the defaults are 7 and 12)",
+        )
     if algorithm.deadband_g >= imu.accel_range_g:
         yield error(
             f"algorithm.deadband_g: l = {algorithm.deadband_g} g is not below the accelerometer range "

@@ -44,13 +44,16 @@ void dr_fused_config_init(dr_fused_config *cfg) {
     p[25] = DR_FUSED_POS_SIGMA_M;
     p[26] = DR_FUSED_POS_TAU_S;
     p[27] = DR_FUSED_POS_STEP_SIGMA_MS;
+    p[28] = DR_FUSED_TURN_HOLD_TAU_S;
+    p[29] = DR_FUSED_TURN_START_DPS;
+    p[30] = DR_FUSED_TURN_END_DPS;
     (void)dr_fused_config_set(cfg, p);
 }
 
 int dr_fused_config_set(dr_fused_config *cfg, const float p[DR_FUSED_PARAMS]) {
     float rest_a, rest_w, walk_a;
     if (!(p[0] > 0.0f) || !(p[6] > 0.0f) || p[2] < 0.0f || p[4] < 0.0f || p[10] < 0.0f || p[18] < 0.0f ||
-        !(p[22] > 0.0f) || p[25] < 0.0f || !(p[26] > 0.0f)) {
+        !(p[22] > 0.0f) || p[25] < 0.0f || !(p[26] > 0.0f) || p[28] < 0.0f || !(p[30] <= p[29])) {
         return DR_ERR_RANGE;
     }
     rest_a = p[7] * DR_GRAVITY_MS2;
@@ -84,6 +87,9 @@ int dr_fused_config_set(dr_fused_config *cfg, const float p[DR_FUSED_PARAMS]) {
     cfg->pos_var = p[25] * p[25];
     cfg->inv_pos_tau = dr_recip(p[26]);
     cfg->pos_step_q = p[27] * p[27];
+    cfg->hold_rate = dr_fused_rate(p[28]);
+    cfg->turn_start = p[29] * DR_RAD_PER_DEG;
+    cfg->turn_end = p[30] * DR_RAD_PER_DEG;
     return DR_OK;
 }
 
@@ -170,8 +176,9 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         const int16_t *s = samples + 6 * k;
         float dt = (float)dt_us[k] * DR_S_PER_US;
         float f[3], c[3], w[3];
-        float nf, alpha, d, r00, r01, r02, r10, r11, r12, r20, r21, r22, ae, an, r, ux, uy, inv, gain, cx, cy, cz, nc2;
-        int i, rest, walking;
+        float nf, alpha, d, r00, r01, r02, r10, r11, r12, r20, r21, r22, ae, an, r, da, ux, uy, inv, gain, cx, cy, cz,
+            nc2;
+        int i, rest, walking, turning = flags & DR_FUSED_TURNING;
         for (i = 0; i < 3; i++) {
             int32_t src = kcfg->axis_source[i];
             f[i] = kcfg->axis_sign[i] * (float)s[src] * kcfg->accel_ms2_per_lsb;
@@ -213,12 +220,33 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         if ((flags & DR_FUSED_WALKING) && !walking) {
             st->speed = 0.0f; /* the steps stopped, and so did the walker */
         }
-        flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0);
-        /* travel direction turned by the rate about Up */
+        /* travel direction turned by the rate about Up; a walker's slow rotations (the hand) held back */
         r = r20 * w[0] + r21 * w[1] + r22 * w[2];
         st->turn += dr_absf(r) * dt;
-        ux = st->ux - r * dt * st->uy;
-        uy = st->uy + r * dt * st->ux;
+        st->rate_up += alpha * (r - st->rate_up);
+        da = r * dt;
+        if (walking && cfg->hold_rate > 0.0f) {
+            float hold = dt * cfg->hold_rate;
+            if (dr_absf(st->rate_up) > cfg->turn_start) {
+                turning = DR_FUSED_TURNING;
+            } else if (dr_absf(st->rate_up) < cfg->turn_end) {
+                turning = 0;
+            }
+            st->held += da;
+            da = turning ? st->held : st->held * (hold < 1.0f ? hold : 1.0f);
+            st->held -= da;
+        } else {
+            turning = 0;
+            da += st->held;
+            st->held = 0.0f;
+        }
+        flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0) | turning;
+        /* u rotated by da, to second order */
+        {
+            float cd = 1.0f - 0.5f * da * da, sd = da * (1.0f - da * da * (1.0f / 6.0f));
+            ux = cd * st->ux - sd * st->uy;
+            uy = cd * st->uy + sd * st->ux;
+        }
         inv = dr_inv_sqrt(ux * ux + uy * uy);
         st->ux = ux * inv;
         st->uy = uy * inv;

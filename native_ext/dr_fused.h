@@ -21,9 +21,10 @@
 
 #include "dr_kernel.h"
 
-#define DR_FUSED_PARAMS (28) /* floats dr_fused_config_set takes, in the order of codegen.fused.FusedConfig */
+#define DR_FUSED_PARAMS (31) /* floats dr_fused_config_set takes, in the order of codegen.fused.FusedConfig */
 #define DR_FUSED_AT_REST (1) /* dr_fused_state.flags bit: the last sample was at rest */
 #define DR_FUSED_WALKING (2) /* dr_fused_state.flags bit: the last sample looked like a walker's */
+#define DR_FUSED_TURNING (4) /* dr_fused_state.flags bit: the walker was turning */
 #define DR_FUSED_MEDIAN_MAX (32) /* longest block (dr_config.block) the median option takes */
 
 /* The parameters, stored in the form the loop uses (every field 4 bytes). */
@@ -56,9 +57,12 @@ typedef struct {
     float pos_var;         /* m^2, the receiver's position error variance per axis (0: no position smoothing) */
     float inv_pos_tau;     /* 1/s, the inverse of its correlation time */
     float pos_step_q;      /* (m/s)^2, variance of the step between fixes (Doppler trapezoid + IMU) per second */
+    float hold_rate;       /* 1/s, a walker's slow rotations about Up reach u at this rate (0: at once) */
+    float turn_start;      /* rad/s, a walker's turn starts above this smoothed rate about Up */
+    float turn_end;        /* rad/s, and ends below this */
 } dr_fused_config;
 
-/* The state, field for field codegen.fused.STATE_FIELDS (93 floats). */
+/* The state, field for field codegen.fused.STATE_FIELDS (95 floats). */
 typedef struct {
     float q[4];            /* orientation w, x, y, z: body -> kernel ENU */
     float gyro_bias_lsb[3];/* counts */
@@ -80,7 +84,7 @@ typedef struct {
     float gps_speed;       /* m/s, the last fix's speed */
     float gps_ok;          /* > 0 if the last fix had a course (its speed - min_speed_ms) */
     float pe, pn;          /* m, true ENU position accumulated (the caller may reset it) */
-    float flags;           /* DR_FUSED_AT_REST | DR_FUSED_WALKING of the last sample */
+    float flags;           /* DR_FUSED_AT_REST | DR_FUSED_WALKING | DR_FUSED_TURNING of the last sample */
     float bax, bay;        /* m/s^2, accelerometer offsets of the body x, y axes (subtracted from every sample) */
     float m[4];            /* s, integral of R(q)'s horizontal rows (r00, r01, r10, r11) since the last fix */
     float turn;            /* rad, integral of |rate about Up| since the last fix */
@@ -89,6 +93,8 @@ typedef struct {
     float fix_ee, fix_en;  /* m, the receiver's position error estimated at the last fix */
     float fix_pxx, fix_pxe, fix_pee; /* m^2, their covariance (the same for East and North) */
     float dpx, dpy;        /* m, integral of dvx, dvy since the last fix */
+    float rate_up;         /* rad/s, the rate about Up smoothed over the motion statistics' time constant */
+    float held;            /* rad, rotation about Up a walker's u has not taken yet */
     float med_i, med_n;    /* the median option's ring: next slot, slots filled (whole numbers) */
     float med[DR_FUSED_MEDIAN_MAX]; /* m/s^2, the last along-track accelerations */
 } dr_fused_state;

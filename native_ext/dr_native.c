@@ -372,13 +372,13 @@ static const mp_rom_map_elem_t dr_native_globals_table[] = {
     { MP_ROM_QSTR(MP_QSTR_fused_gps), MP_ROM_PTR(&dr_fused_gps_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_position), MP_ROM_PTR(&dr_fused_position_obj) },
     { MP_ROM_QSTR(MP_QSTR_FIX_AE), MP_ROM_INT(50) },
-    /* sizeof(dr_fused_state) + sizeof(dr_fused_config) + sizeof(dr_config) = 93 + 28 + 12 floats (checked below) */
-    { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(133) },
+    /* sizeof(dr_fused_state) + sizeof(dr_fused_config) + sizeof(dr_config) = 95 + 31 + 12 floats (checked below) */
+    { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(138) },
 };
 static MP_DEFINE_CONST_DICT(dr_native_globals, dr_native_globals_table);
 
-/* the ROM table's 22, 133 and 50 must match the structs */
-typedef char dr_fused_floats_is_133[DR_FUSED_LEN == 133 ? 1 : -1];
+/* the ROM table's 22, 138 and 50 must match the structs */
+typedef char dr_fused_floats_is_138[DR_FUSED_LEN == 138 ? 1 : -1];
 typedef char dr_fused_fix_ae_is_50[DR_FUSED_FIX_AE == 50 ? 1 : -1];
 typedef char dr_header_floats_is_22[(sizeof(dr_state) + sizeof(dr_config)) == 22 * sizeof(float) ? 1 : -1];
 

@@ -176,6 +176,22 @@ def test_fused_median_needs_a_block_its_ring_holds(tmp_path):
     """).diagnostics
 
 
+def test_fused_turn_ends_below_where_it_starts(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        algorithm: {fused_turn_start_dps: 5, fused_turn_end_dps: 8}
+    """)
+    found = _only(report)
+    assert found.message == ("algorithm.fused_turn_end_dps: a turn that ends at 8 degree/s cannot start at the "
+                             "lower 5 degree/s")
+    assert _at(found) == (2, 58)  # the value 8
+    assert found.hint == "use fused_turn_end_dps <= fused_turn_start_dps (the defaults are 7 and 12)"
+    assert not _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        algorithm: {fused_turn_start_dps: 8, fused_turn_end_dps: 8}
+    """).diagnostics
+
+
 def test_deadband_below_range(tmp_path):
     report = _report(tmp_path, """
         extends: ttgo-tbeam-v1.1

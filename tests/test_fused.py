@@ -192,6 +192,62 @@ def test_walker_stops_when_the_steps_stop(fk):
         assert speed == 0.0 and np.hypot(out[0], out[1]) < 1e-3  # 1 s without steps: no metre more
 
 
+def _u_angles(process, samples, dt, chunk=20):
+    """Degrees of the travel direction after every chunk of samples (process(samples, dt) -> the state vector)."""
+    out = []
+    for k in range(0, len(samples), chunk):
+        st = process(samples[k:k + chunk], dt[k:k + chunk])
+        out.append(math.degrees(math.atan2(st[F.IDX["uy"]], st[F.IDX["ux"]])))
+    return np.array(out)
+
+
+def test_walker_holds_the_hands_swing_and_takes_a_turn_at_once(fk):
+    """Walking (steps at 2 Hz), the device level: 1 s straight; the hand swings it 9 degrees left and back (6
+    degree/s for 1.5 s each way, below the 7 degree/s a turn ends at); a 90 degree turn at 45 degree/s; 1 s straight.
+    The travel direction keeps the course through the swing (moving at most 2 degrees where the gyro moved 9) and
+    takes the turn with what it held, ending on the device's heading; reference and C. Without the hold
+    (turn_hold_tau_s 0) u follows the hand all the way."""
+    t = np.arange(2000) * 0.005
+    rate_dps = np.select([(t >= 1.0) & (t < 2.5), (t >= 2.5) & (t < 4.0), (t >= 4.0) & (t < 6.0)], [6.0, -6.0, 45.0])
+    counts = np.round(rate_dps * KCFG.gyro_lsb_per_dps)
+    f = np.round(KCFG.accel_lsb_per_g * (1.0 + 0.15 * np.sin(2 * np.pi * 2.0 * t)))
+    zero = np.zeros_like(t)
+    samples = np.stack([zero, zero, f, zero, zero, counts], axis=-1).astype(np.int16)
+    dt = np.full(len(t), 5000, dtype=np.int32)
+    heading = np.degrees(np.cumsum(counts / KCFG.gyro_lsb_per_dps * np.radians(1.0) * 0.005))[19::20]
+
+    def start():
+        st = F.FusedState()
+        st.mean_f = 9.80665
+        st.var_f = (0.1 * 9.80665) ** 2  # already walking
+        st.walk_speed = 1.4
+        return st
+
+    def reference(fcfg):
+        st = start()
+
+        def step(s, d):
+            flags = F.process(st, s, d, KCFG, fcfg)[1]
+            assert np.all(flags & 2)
+            return st.vector()
+        return step
+
+    c = fk.session()
+    c.set_state_vector(start().vector())
+
+    def c_step(s, d):
+        c.process(s, d)
+        return c.state_vector()
+
+    swing, after = (t[19::20] >= 1.0) & (t[19::20] < 4.0), t[19::20] >= 6.5
+    assert np.max(np.abs(heading[swing])) == pytest.approx(9.0, abs=0.1)  # what the gyro saw
+    for u in (_u_angles(reference(FCFG), samples, dt), _u_angles(c_step, samples, dt)):
+        assert np.max(np.abs(u[swing])) < 2.0
+        assert np.all(np.abs(u[after] - heading[after]) < 0.05) and heading[-1] == pytest.approx(90.0, abs=0.1)
+    follows = _u_angles(reference(replace(FCFG, turn_hold_tau_s=0.0)), samples, dt)
+    assert np.allclose(follows, heading, atol=0.05)
+
+
 def test_position_step_adds_the_imu_to_the_doppler_trapezoid(fk):
     """Level, accelerating East at a = j t (j = 2 m/s^3) for 1 s between two fixes with velocities 0 and j/2: the
     trapezoid T (v0 + v1) / 2 = j/4 m overshoots the true j/6 m by 17 cm; the IMU's correction takes it out, so a
@@ -241,6 +297,8 @@ def test_config_rejects_a_zero_time_constant(fk):
         fk.session(replace(FCFG, tilt_tau_s=0.0))
     with pytest.raises(ValueError):
         fk.session(replace(FCFG, kf_vel_sigma_ms=0.0))
+    with pytest.raises(ValueError):
+        fk.session(replace(FCFG, turn_start_dps=5.0, turn_end_dps=8.0))
 
 
 @pytest.mark.parametrize("median", [False, True])
