@@ -204,7 +204,8 @@ def _u_angles(process, samples, dt, chunk=20):
 def test_walker_holds_the_hands_swing_and_takes_a_turn_at_once(fk):
     """Walking (steps at 2 Hz), the device level: 1 s straight; the hand swings it 9 degrees left and back (6
     degree/s for 1.5 s each way, below the 7 degree/s a turn ends at); a 90 degree turn at 45 degree/s; 1 s straight.
-    The travel direction keeps the course through the swing (moving at most 2 degrees where the gyro moved 9) and
+    The travel direction keeps the course through the swing (under 2 degrees where the gyro moved 9: the held angle,
+    a triangle up to 9 degrees over 3 s, leaks into u at a tenth per second, about 1.2 degrees at most) and
     takes the turn with what it held, ending on the device's heading; reference and C. Without the hold
     (turn_hold_tau_s 0) u follows the hand all the way."""
     t = np.arange(2000) * 0.005
