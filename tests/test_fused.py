@@ -42,9 +42,19 @@ def _stream(scenario, seed, duration):
     return run
 
 
+def _assert_heading_close(got, want, n_samples):
+    """The travel direction and the turn hold, float32 against float64. u and the held angle take one rounded
+    rotation per sample (n eps) of the rate about Up, which carries the quaternion's error (its bound). The smoothed
+    rate forgets its errors: rates below ~1 rad/s rounded to float32 (6e-8 relative), plus q's error (1.2e-4)
+    times the rates about the horizontal axes (well under 0.1 rad/s while walking), so 1e-5."""
+    u = [F.IDX["ux"], F.IDX["uy"], F.IDX["held"]]
+    np.testing.assert_allclose(got[u], want[u], atol=n_samples * EPS32 + 500 * EPS32 * 4)
+    assert abs(got[F.IDX["rate_up"]] - want[F.IDX["rate_up"]]) < 1e-5
+
+
 def _drive(run, ref, c, start_s, stop_s, fcfg=FCFG):
     """Samples from start_s to stop_s in the windows between GPS fixes, a GPS update at each fix; yields after
-    each fix (the app's order)."""
+    each fix (the app's order): the reference's and the C's outputs, and the reference's flags of every sample."""
     t = run.t_us * 1e-6
     dt = np.diff(run.t_us)
     k = int(np.searchsorted(t, start_s))
@@ -55,7 +65,7 @@ def _drive(run, ref, c, start_s, stop_s, fcfg=FCFG):
             out_r, flags = F.process(ref, run.counts[k:stop], dt[k:stop], KCFG, fcfg)
             out_c = c.process(run.counts[k:stop], dt[k:stop])
             k = stop
-            yield out_r, out_c
+            yield out_r, out_c, flags
         d = run.gps.enu[j, :2] - run.gps.enu[j - 1, :2]
         F.position_update(ref, float(vel[j, 0]), float(vel[j, 1]), float(d[0]), float(d[1]), fcfg)
         c.position(float(vel[j, 0]), float(vel[j, 1]), float(d[0]), float(d[1]))
@@ -80,13 +90,16 @@ def test_c_matches_reference_on_a_simulated_run(fk, scenario, seed, median):
     n = 0
     path = 0.0
     steps = []
-    for out_r, out_c in _drive(run, ref, c, 10.0, 49.0, fcfg):
+    seen = 0
+    for out_r, out_c, flags in _drive(run, ref, c, 10.0, 49.0, fcfg):
+        seen |= int(np.bitwise_or.reduce(flags))
         n += 200
         path += float(np.hypot(out_r[0], out_r[1]))
         sv = c.state_vector()
         rv = ref.vector()
         assert int(sv[F.IDX["flags"]]) == int(rv[F.IDX["flags"]])
         np.testing.assert_allclose(sv[Q], rv[Q], atol=500 * EPS32 * 4)
+        _assert_heading_close(sv, rv, n)
         bound = n * EPS32 * max(path, 1.0) + 1e-4
         assert abs(sv[F.IDX["pe"]] - rv[F.IDX["pe"]]) < bound
         assert abs(sv[F.IDX["pn"]] - rv[F.IDX["pn"]]) < bound
@@ -95,6 +108,8 @@ def test_c_matches_reference_on_a_simulated_run(fk, scenario, seed, median):
         np.testing.assert_allclose(sv[fix], rv[fix], atol=1e-4)  # metres: a few float32 steps of ~10 m
         steps.append((int(rv[F.IDX["flags"]]), float(rv[F.IDX["speed"]])))
     assert path > 20.0  # the run really moved
+    if seed == 11:  # this walk turns at 28.7-31.7 s: the turn hold's both branches ran, in both
+        assert seen & 4
     if seed == 30:  # this walk stops at 34.9 s: the walker's speed went to 0 with his steps, in both
         assert any(f0 == 2 and f1 == 0 and v1 == 0.0 for (f0, _), (f1, v1) in zip(steps, steps[1:]))
 
