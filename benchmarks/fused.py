@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 from codegen import fused as F  # noqa: E402
 from codegen.generate import render_tree  # noqa: E402
 from codegen.loader import load_board  # noqa: E402
+from codegen.tools import find_tool  # noqa: E402
 from codegen.reference import KernelConfig  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -120,7 +121,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         (folder / "dr_fallback.py").write_bytes(files["app/dr_fallback.py"].content)
-        mp = shutil.which("micropython")
+        mp = find_tool("micropython")
         if mp:
             script = MP_SCRIPT.format(n=n, samples=samples.ravel().tolist(), dt=dt.tolist(), repeat=5)
             (folder / "bench.py").write_text(script)

