@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from codegen.loader import load_board  # noqa: E402
+from codegen.board.loader import load_board  # noqa: E402
 from codegen.sim.methods import registered_methods  # noqa: E402
 from codegen.sim.mpu6050 import MpuErrors  # noqa: E402
 from codegen.sim.run import SCENARIOS, build_run, evaluate, format_table  # noqa: E402

@@ -3,7 +3,7 @@
 
     python3 benchmarks/fused.py
 
-Rows: the C kernel (dr_fused_process + one dr_fused_gps) through cffi, the float64 reference (codegen/fused.py), the
+Rows: the C kernel (dr_fused_process + one dr_fused_gps) through cffi, the float64 reference (codegen/kernel/fused.py), the
 generated fallback's fused_process on the unix-port `micropython`; then valgrind callgrind's instruction count of the
 C harness native_ext/tests/bench_fused.c per window and what it means at 240 MHz (as benchmarks/kernel.py does for
 the seed kernel: x86-64 instructions as a proxy for the ESP32's single-issue LX6).
@@ -24,11 +24,11 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from codegen import fused as F  # noqa: E402
+from codegen.board.loader import load_board  # noqa: E402
 from codegen.generate import render_tree  # noqa: E402
-from codegen.loader import load_board  # noqa: E402
+from codegen.kernel import fused as F  # noqa: E402
+from codegen.kernel.reference import KernelConfig  # noqa: E402
 from codegen.tools import find_tool  # noqa: E402
-from codegen.reference import KernelConfig  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from kernel import print_time_table  # noqa: E402  (benchmarks/kernel.py)
@@ -100,7 +100,7 @@ def main() -> int:
     kcfg = KernelConfig.from_board(board)
     fcfg = F.FusedConfig.from_board(board)
     rows = []
-    from codegen.hostfused import load_fused
+    from codegen.kernel.hostfused import load_fused
 
     s = load_fused(loaded).session()
 
@@ -117,7 +117,7 @@ def main() -> int:
         F.position_update(st, 1.0, 0.5, 1.0, 0.5, fcfg)
         F.gps_update(st, 1.0, 0.5, fcfg)
 
-    rows.append(("reference codegen/fused.py (float64, per-sample Python)", best_of(ref_window, 5), ""))
+    rows.append(("reference codegen/kernel/fused.py (float64, per-sample Python)", best_of(ref_window, 5), ""))
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         (folder / "dr_fallback.py").write_bytes(files["app/dr_fallback.py"].content)

@@ -24,9 +24,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from codegen import reference as ref  # noqa: E402
+from codegen.board.loader import load_board  # noqa: E402
 from codegen.generate import render_tree  # noqa: E402
-from codegen.loader import load_board  # noqa: E402
+from codegen.kernel import reference as ref  # noqa: E402
 from codegen.tools import find_tool, micropython_tree, tool_env  # noqa: E402
 
 ESP32_HZ = 240e6
@@ -170,7 +170,7 @@ def main(argv=None) -> int:
     samples, dt = window(np.random.default_rng(1), n)
     rows: list[tuple[str, float | None, str]] = []
 
-    from codegen.hostkernel import load_kernel
+    from codegen.kernel.hostkernel import load_kernel
 
     kernel = load_kernel(loaded)
     run = kernel.session()

@@ -223,8 +223,8 @@ def main(argv=None) -> int:
     parser.add_argument("--micropython", default="micropython")
     args = parser.parse_args(argv)
     sys.path.insert(0, str(ROOT))
+    from codegen.board.loader import load_board
     from codegen.generate import generate
-    from codegen.loader import load_board
 
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)

@@ -21,7 +21,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from codegen.board import ACCEL_LSB_PER_G, STANDARD_GRAVITY  # noqa: E402
+from codegen.board.model import ACCEL_LSB_PER_G, STANDARD_GRAVITY  # noqa: E402
 from codegen.post import PostOptions, load_log, process  # noqa: E402
 from codegen.post.model import ImuSeries, PostLog  # noqa: E402
 from codegen.post.orientation import wrap  # noqa: E402

@@ -20,7 +20,7 @@ def _board_arg(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from codegen.loader import load_board_report
+    from codegen.board.loader import load_board_report
 
     report = load_board_report(args.board)
     report.print(sys.stderr, strict=args.strict)
@@ -31,8 +31,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
+    from codegen.board.loader import load_board
     from codegen.generate import generate
-    from codegen.loader import load_board
 
     loaded = load_board(args.board, strict=args.strict)
     result = generate(loaded, Path(args.output), force=args.force)
@@ -41,7 +41,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_boards(args: argparse.Namespace) -> int:
-    from codegen.loader import bundled_boards
+    from codegen.board.loader import bundled_boards
 
     for name, path, description in bundled_boards():
         print(f"{name:24s} {description}")
@@ -51,15 +51,15 @@ def cmd_boards(args: argparse.Namespace) -> int:
 def cmd_schema(args: argparse.Namespace) -> int:
     import json
 
-    from codegen.schema import board_json_schema
+    from codegen.board.schema import board_json_schema
 
     print(json.dumps(board_json_schema(), indent=2, sort_keys=True))
     return 0
 
 
 def cmd_config(args: argparse.Namespace) -> int:
-    from codegen.loader import load_board
-    from codegen.schema import resolved_config_lines
+    from codegen.board.loader import load_board
+    from codegen.board.schema import resolved_config_lines
 
     loaded = load_board(args.board)
     for line in resolved_config_lines(loaded):
@@ -68,7 +68,7 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 
 def cmd_build(args: argparse.Namespace) -> int:
-    from codegen.build import build
+    from codegen.deploy.build import build
 
     result = build(Path(args.out))
     print(f"built {len(result.files)} files into {result.app_dir} and {result.image}")
@@ -76,7 +76,7 @@ def cmd_build(args: argparse.Namespace) -> int:
 
 
 def cmd_flash(args: argparse.Namespace) -> int:
-    from codegen.flash import flash
+    from codegen.deploy.flash import flash
 
     flash(Path(args.out), args.port, firmware=Path(args.firmware) if args.firmware else None, erase=args.erase,
           stub=not args.no_stub)
@@ -84,14 +84,14 @@ def cmd_flash(args: argparse.Namespace) -> int:
 
 
 def cmd_upload(args: argparse.Namespace) -> int:
-    from codegen.upload import upload
+    from codegen.deploy.upload import upload
 
     upload(Path(args.out), args.port, force=args.force)
     return 0
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from codegen.loader import load_board
+    from codegen.board.loader import load_board
     from codegen.sim.simulate import simulate
 
     loaded = load_board(args.board)

@@ -22,8 +22,8 @@ import jinja2
 from pydantic import BaseModel
 
 from codegen import __version__
+from codegen.board.loader import LoadedBoard
 from codegen.errors import UserError
-from codegen.loader import LoadedBoard
 from codegen.paths import native_ext_dir, templates_dir
 
 MANIFEST = "MANIFEST.json"

@@ -1,5 +1,5 @@
 /*
- * dr_fused.c: the fused real-time algorithm; see dr_fused.h and codegen/fused.py (the specification).
+ * dr_fused.c: the fused real-time algorithm; see dr_fused.h and codegen/kernel/fused.py (the specification).
  */
 #include "dr_fused.h"
 

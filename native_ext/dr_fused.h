@@ -1,5 +1,5 @@
 /*
- * dr_fused.h: the fused real-time algorithm (board `algorithm: fused`). codegen/fused.py is the specification.
+ * dr_fused.h: the fused real-time algorithm (board `algorithm: fused`). codegen/kernel/fused.py is the specification.
  *
  * Same front end as the kernel (axis remap, scales, gyro bias, quaternion body -> kernel ENU), plus per sample a
  * Mahony-type tilt correction towards gravity (minus the motion acceleration the GPS showed), rest detection

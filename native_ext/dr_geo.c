@@ -1,4 +1,4 @@
-/* dr_geo.c: see dr_geo.h; codegen/reference.py offset_latlon_e7 is the specification. */
+/* dr_geo.c: see dr_geo.h; codegen/kernel/reference.py offset_latlon_e7 is the specification. */
 #include "dr_geo.h"
 
 #include "dr_math.h"

@@ -1,4 +1,4 @@
-/* dr_kernel.c: see dr_kernel.h; codegen/reference.py is the specification. */
+/* dr_kernel.c: see dr_kernel.h; codegen/kernel/reference.py is the specification. */
 #include "dr_kernel.h"
 
 #include "dr_board.h"

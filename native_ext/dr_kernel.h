@@ -2,7 +2,7 @@
  * dr_kernel.h: the dead-reckoning kernel. One window of raw MPU-6050 samples in, ENU displacement and velocity out.
  *
  * Float32 only, no allocation, no global or static mutable state: the caller owns a dr_config, a dr_state and a
- * scratch area of DR_SCRATCH_FLOATS(block) floats. codegen/reference.py is the specification; the steps are
+ * scratch area of DR_SCRATCH_FLOATS(block) floats. codegen/kernel/reference.py is the specification; the steps are
  *   1. gyro bias subtraction and scaling to rad/s, accel scaling to m/s^2 (after the board's axis remap);
  *   2. orientation q (body -> ENU) from the gyro: q <- q (x) exp(omega dt / 2), kept at unit length;
  *   3. a = R(q) f - [0, 0, g];

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen import reference as ref
+from codegen.kernel import reference as ref
 from codegen.tools import find_tool
 
 U = 2.0**-24  # float32 unit roundoff
@@ -111,8 +111,8 @@ def micropython() -> str | None:
 
 def write_fallback(folder: Path, loaded=None) -> Path:
     """Render the board's dr_fallback.py (as `deadreckon generate` does) into folder."""
+    from codegen.board.loader import load_board
     from codegen.generate import render_tree
-    from codegen.loader import load_board
 
     tree = render_tree(loaded if loaded is not None else load_board())
     path = Path(folder) / "dr_fallback.py"

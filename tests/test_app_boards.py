@@ -5,10 +5,17 @@ from __future__ import annotations
 
 import pytest
 
-from codegen.board import pin_number
-from codegen.loader import bundled_boards, load_board
+from codegen.board.loader import bundled_boards, load_board
+from codegen.board.model import pin_number
+from codegen.sim.harness import (
+    generate_app,
+    imu_counts,
+    nmea_epoch,
+    run_app,
+    write_counts,
+    write_stream,
+)
 from conftest import require_tool
-from mpsim.harness import generate_app, imu_counts, nmea_epoch, run_app, write_counts, write_stream
 
 LAT, LON = 51.4778, -0.0015
 

@@ -7,9 +7,9 @@ import sys
 
 import pytest
 
-from codegen.loader import bundled_boards, load_board
+from codegen.board.loader import bundled_boards, load_board
+from codegen.sim.harness import generate_app
 from conftest import require
-from mpsim.harness import generate_app
 
 APP_MODULES = {"main.py", "app.py", "board_config.py", "nmea.py", "mpu6050.py", "display.py", "power.py",
                "buttons.py", "logger.py", "dr_fallback.py"}

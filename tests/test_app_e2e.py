@@ -1,4 +1,4 @@
-"""The generated app, unmodified, on the unix-port MicroPython against emulated peripherals (tests/mpsim).
+"""The generated app, unmodified, on the unix-port MicroPython against emulated peripherals (codegen/sim/mpsim).
 
 One scripted run of the default board (T-Beam v1.1) covers what a user sees: calibration at boot, GPS mode with a
 fix, the fix disappearing (IMU mode, positions moving with the IMU), the test-mode button (TEST, LED on) and the
@@ -12,8 +12,7 @@ import re
 
 import pytest
 
-from conftest import require_shared_data, require_tool
-from mpsim.harness import (
+from codegen.sim.harness import (
     TICKS_PERIOD,
     generate_app,
     imu_counts,
@@ -25,6 +24,7 @@ from mpsim.harness import (
     write_counts,
     write_stream,
 )
+from conftest import require_shared_data, require_tool
 
 LAT, LON = 40.0350855, -75.52009367  # the gr601-w capture's place (Malvern PA)
 RATE = 200.0

@@ -4,7 +4,7 @@ the x64 natmod. (The default `fused` method's own equivalence is the kernel issu
 
 The app runs unmodified; a wrapper script only taps `dr.process` and the app's hooks to record, per window, the
 kernel state going in, the samples and intervals the app collected, the kernel's output, and the position the app
-then shows. The host replays the same inputs through codegen/reference.py:
+then shows. The host replays the same inputs through codegen/kernel/reference.py:
 - per window: reference(samples, dt, q0, v0, bias of the app) vs the app's output, within window_bound;
 - chained: the reference run alone from its own calibration, orientation and velocity carried window to window
   (errors composed: a velocity error dv0 adds dv0*T of displacement), against the app's accumulated ENU offset;
@@ -21,12 +21,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen import reference as ref
-from codegen.loader import load_board
-from codegen.tools import tool_env
-from conftest import mpy_dir, require_tool
-from kernelkit import window_bound
-from mpsim.harness import (
+from codegen.board.loader import load_board
+from codegen.kernel import reference as ref
+from codegen.sim.harness import (
     TICKS_PERIOD,
     generate_app,
     imu_counts,
@@ -36,6 +33,9 @@ from mpsim.harness import (
     write_counts,
     write_stream,
 )
+from codegen.tools import tool_env
+from conftest import mpy_dir, require_tool
+from kernelkit import window_bound
 
 RATE = 200.0
 

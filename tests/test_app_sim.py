@@ -6,9 +6,15 @@ from __future__ import annotations
 
 import pytest
 
-from codegen.loader import load_board
+from codegen.board.loader import load_board
+from codegen.sim.harness import (
+    generate_app,
+    run_app,
+    tbeam_scenario,
+    write_counts,
+    write_stream,
+)
 from conftest import require_tool
-from mpsim.harness import generate_app, run_app, tbeam_scenario, write_counts, write_stream
 
 # In fused mode the app runs under this tap: it reports each fix's fused_position call (the Doppler, the metres from
 # the previous anchor the app computed, the smoothed offset it got) and, per GPS-mode window, the app's ENU offset.

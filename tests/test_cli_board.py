@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from codegen.board.loader import bundled_boards
 from conftest import ROOT
-from codegen.loader import bundled_boards
 
 LOCATED = re.compile(r"^(?P<file>[^:\n]+):(?P<line>\d+):(?P<col>\d+): error: ", re.M)
 
@@ -177,7 +177,7 @@ def test_schema_validates_the_bundled_boards():
     import jsonschema
 
     schema = json.loads(run("schema").stdout)
-    from codegen.yamlsource import read_yaml
+    from codegen.board.yamlsource import read_yaml
 
     for _, path, _ in bundled_boards():
         jsonschema.validate(read_yaml(path).data, schema)

@@ -6,10 +6,10 @@ import time
 
 import pytest
 
-from codegen.build import build
+from codegen.deploy.build import build
+from codegen.deploy.flash import flash, plan_regions
+from codegen.deploy.fsimage import mount_image, read_tree
 from codegen.errors import UserError
-from codegen.flash import flash, plan_regions
-from codegen.fsimage import mount_image, read_tree
 from conftest import require
 from peers.esp_rom import RomLoaderPeer
 from peers.trees import default_board, esp_image, make_tree
@@ -183,7 +183,7 @@ def test_flash_cli_error_path(built, peer, capsys, monkeypatch):
     from codegen import cli
 
     tree, result, firmware = built
-    monkeypatch.setattr("codegen.build._manifest_board", lambda out: default_board())
+    monkeypatch.setattr("codegen.deploy.build._manifest_board", lambda out: default_board())
     peer.chip_magic = 0x000007C6
     assert cli.main(["flash", str(tree), "--port", peer.url]) == 2
     err = capsys.readouterr().err
@@ -194,8 +194,8 @@ def test_default_board_generate_build_flash(tmp_path, peer, capsys):
     """The whole path a user takes, through the CLI: generate -> build -> flash --erase --firmware, on the default
     board (a blank board gets MicroPython and the app in one go)."""
     require(_have_esptool(), "esptool is not installed (pip install esptool)")
+    from codegen.board.loader import load_board
     from codegen.cli import main
-    from codegen.loader import load_board
 
     board = load_board(None).board
     out = tmp_path / "out"
@@ -237,7 +237,7 @@ def test_flash_through_a_tty_device_path_and_a_busy_one(built, peer):
 
 
 def test_board_yaml_naming_another_chip():
-    from codegen.flash import classify
+    from codegen.deploy.flash import classify
 
     said = "A fatal error occurred: This chip is ESP32, not ESP32-S3. Wrong chip argument?"
     error = classify(said, "/dev/ttyUSB0", default_board(chip="esp32s3"), [])

@@ -1,4 +1,4 @@
-"""The fused algorithm (issue 8): reference (codegen/fused.py, float64) vs the C kernel (native_ext/dr_fused.c,
+"""The fused algorithm (issue 8): reference (codegen/kernel/fused.py, float64) vs the C kernel (native_ext/dr_fused.c,
 float32, through cffi), on simulated streams driven exactly as the app drives the kernel (calibrate, windows of
 samples, one GPS update per fix), plus analytic cases.
 
@@ -17,9 +17,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from codegen import fused as F
-from codegen.loader import default_board
-from codegen.reference import KernelConfig, quat_from_rotvec, quat_to_matrix
+from codegen.board.loader import default_board
+from codegen.kernel import fused as F
+from codegen.kernel.reference import KernelConfig, quat_from_rotvec, quat_to_matrix
 
 EPS32 = 2.0**-24
 BOARD = default_board()
@@ -30,7 +30,7 @@ Q = slice(0, 4)
 
 @pytest.fixture(scope="module")
 def fk():
-    from codegen.hostfused import load_fused
+    from codegen.kernel.hostfused import load_fused
 
     return load_fused()
 
@@ -459,7 +459,7 @@ def test_filter_off_leaves_the_offsets_alone():
 
 
 def _fused_sources(tmp_path):
-    from codegen.hostfused import SOURCES, fused_sources
+    from codegen.kernel.hostfused import SOURCES, fused_sources
 
     for name, content in fused_sources().items():
         (tmp_path / name).write_bytes(content)
@@ -500,8 +500,8 @@ def test_xtensa_esp32_fused_object_has_no_undefined_symbols(tmp_path):
 
 def test_fused_c_under_sanitizers(tmp_path):
     """The harness of benchmarks/fused.py under AddressSanitizer and UndefinedBehaviorSanitizer."""
-    from conftest import require_tool
     from codegen.paths import native_ext_dir
+    from conftest import require_tool
 
     cc = require_tool("cc")
     sources = _fused_sources(tmp_path)

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen import fused as F
-from codegen.hostfused import PARAM_ORDER
+from codegen.kernel import fused as F
+from codegen.kernel.hostfused import PARAM_ORDER
 from conftest import require_tool
 from kernelkit import write_fallback
 from test_fused import BOARD, EPS32, FCFG, KCFG, Q, _assert_heading_close
@@ -122,7 +122,7 @@ def test_fallback_fused_matches_reference_on_micropython(tmp_path):
 @pytest.mark.parametrize("median", [False, True])
 def test_fallback_fused_matches_c(tmp_path, median):
     require_tool("micropython")
-    from codegen.hostfused import load_fused
+    from codegen.kernel.hostfused import load_fused
 
     params = replace(FCFG, median=1.0) if median else None
     write_fallback(tmp_path)

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from codegen.board.loader import bundled_boards, load_board
 from codegen.generate import render_tree
-from codegen.loader import bundled_boards, load_board
 
 GOLDEN = Path(__file__).parent / "golden"
 UPDATE = os.environ.get("DEADRECKON_UPDATE_GOLDEN") == "1"

@@ -9,10 +9,10 @@ import subprocess
 
 import pytest
 
+from codegen.board.loader import bundled_boards, load_board
 from codegen.errors import UserError
 from codegen.generate import render_tree
-from codegen.hostkernel import KERNEL_SOURCES, kernel_sources, load_kernel
-from codegen.loader import bundled_boards, load_board
+from codegen.kernel.hostkernel import KERNEL_SOURCES, kernel_sources, load_kernel
 from conftest import require_tool
 
 BOARDS = [name for name, _, _ in bundled_boards()]
@@ -62,10 +62,10 @@ def test_compiler_error_names_the_rendered_file_and_line(tmp_path, monkeypatch):
 
 def test_build_is_cached_by_source_hash(tmp_path, monkeypatch):
     require_tool("cc")
-    import codegen.hostkernel
+    import codegen.kernel.hostkernel
 
     monkeypatch.setenv("DEADRECKON_CACHE", str(tmp_path))
-    monkeypatch.setattr(codegen.hostkernel, "_MODULES", {})  # forget builds other tests loaded from elsewhere
+    monkeypatch.setattr(codegen.kernel.hostkernel, "_MODULES", {})  # forget builds other tests loaded from elsewhere
     first = load_kernel()
     assert str(first.path).startswith(str(tmp_path))
     assert load_kernel().lib is first.lib  # the same imported module: no rebuild, no re-import

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from codegen.hostkernel import KERNEL_SOURCES, kernel_sources
+from codegen.kernel.hostkernel import KERNEL_SOURCES, kernel_sources
 from codegen.paths import native_ext_dir
 from conftest import require_tool
 

@@ -13,9 +13,18 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from codegen import reference as ref
+from codegen.kernel import reference as ref
 from conftest import require_tool
-from kernelkit import U, Case, make_window, run_c, run_driver, run_reference, window_bound, write_fallback
+from kernelkit import (
+    Case,
+    U,
+    make_window,
+    run_c,
+    run_driver,
+    run_reference,
+    window_bound,
+    write_fallback,
+)
 
 DEFAULT = ref.KernelConfig()
 
@@ -23,7 +32,7 @@ DEFAULT = ref.KernelConfig()
 @pytest.fixture(scope="module")
 def kernel():
     require_tool("cc")
-    from codegen.hostkernel import load_kernel
+    from codegen.kernel.hostkernel import load_kernel
 
     return load_kernel()
 
@@ -192,7 +201,7 @@ def test_rotate_heading_and_latlon(kernel):
     windows=st.integers(1, 2),
 )
 def test_c_matches_reference(kernel, b, blocks, accel_range, gyro_range, jitter, gravity_axis, seed, deadband, windows):
-    from codegen.board import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS
+    from codegen.board.model import ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS
 
     if b == "n":  # one block spanning the whole window
         b = n = 16 * blocks
@@ -247,7 +256,8 @@ def test_fallback_on_micropython_matches_reference_and_c(kernel, tmp_path):
 
 
 def test_fallback_errors_on_micropython(tmp_path):
-    require_tool("micropython")
+    micropython = require_tool("micropython")
+    import os
     import subprocess
 
     write_fallback(tmp_path)
@@ -258,8 +268,7 @@ def test_fallback_errors_on_micropython(tmp_path):
         "except ValueError as e:\n    print('ValueError', e)\n"
         "try:\n    dr.init(s, 16, 500, 16384.0, 131.0, 0.03125, 0.02)\nexcept ValueError as e:\n    print('ValueError', e)\n"
     )
-    done = subprocess.run(["micropython", "-c", script], capture_output=True, text=True,
-                          env={"MICROPYPATH": str(tmp_path), "PATH": "/usr/bin:/bin"} | __import__("os").environ
-                          | {"MICROPYPATH": str(tmp_path)})
+    done = subprocess.run([micropython, "-c", script], capture_output=True, text=True,
+                          env=os.environ | {"MICROPYPATH": str(tmp_path)})
     assert done.stdout.count("ValueError") == 2, done.stdout + done.stderr
     assert "multiple of block" in done.stdout

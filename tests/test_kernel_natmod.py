@@ -23,8 +23,8 @@ from test_kernel_equivalence import _mp_cases
 
 def native_tree(folder: Path) -> Path:
     """OUT/native/ as `deadreckon generate` writes it for the default board."""
+    from codegen.board.loader import load_board
     from codegen.generate import render_tree
-    from codegen.loader import load_board
 
     native = folder / "native"
     for name, rendered in render_tree(load_board()).items():
@@ -46,7 +46,7 @@ def test_x64_natmod_equals_cffi_kernel(tmp_path):
     mpy_dir()
     require_tool("make")
     require_tool("micropython")
-    from codegen.hostkernel import load_kernel
+    from codegen.kernel.hostkernel import load_kernel
 
     native = native_tree(tmp_path)
     done = make(native, "x64")

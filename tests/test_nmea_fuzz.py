@@ -7,8 +7,8 @@ import sys
 
 import pytest
 
+from codegen.sim.harness import generate_app, run_script, sentence
 from conftest import ROOT, require_tool
-from mpsim.harness import generate_app, run_script, sentence
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from nmea_fuzz import run_fuzz  # noqa: E402

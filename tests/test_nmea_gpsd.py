@@ -12,8 +12,8 @@ from datetime import datetime, timezone
 
 import pytest
 
+from codegen.sim.harness import generate_app, run_script
 from conftest import require_shared_data, require_tool
-from mpsim.harness import generate_app, run_script
 
 CAPTURES = ["gr601-w", "ublox-lea-5h", "haicom-305N", "bt451", "nmea-fuzzy-cases"]
 

@@ -120,8 +120,9 @@ def test_other_mounting_and_seed_no_delay():
 
 def test_standing_still_holds_yaw_and_flags_the_intervals():
     """No horizontal acceleration: roll and pitch from gravity alone, yaw held and flagged, never a guess."""
-    from codegen.post.model import GpsSeries, ImuSeries, PostLog
     from scipy.spatial.transform import Rotation
+
+    from codegen.post.model import GpsSeries, ImuSeries, PostLog
 
     t = np.arange(0.0, 60.0, 0.02)
     rot = Rotation.from_euler("ZYX", [40.0, 3.0, -5.0], degrees=True)

@@ -8,7 +8,7 @@ import struct
 import numpy as np
 import pytest
 
-from codegen.board import STANDARD_GRAVITY
+from codegen.board.model import STANDARD_GRAVITY
 from codegen.cli import main
 from codegen.post import PostOptions, load_log, process
 from codegen.post.orientation import wrap
@@ -144,10 +144,18 @@ def test_device_log_without_fix(tmp_path, capsys):
 
 
 def test_log_written_by_the_generated_app_on_micropython(tmp_path):
-    """The real writer: the generated T-Beam app on the unix-port MicroPython (tests/mpsim) logs a flat device that
+    """The real writer: the generated T-Beam app on the unix-port MicroPython (codegen/sim/mpsim) logs a flat device that
     is pushed East and stopped while the GPS reports the same motion; `post` reads that log and finds it flat."""
+    from codegen.sim.harness import (
+        generate_app,
+        imu_counts,
+        nmea_epoch,
+        run_app,
+        tbeam_scenario,
+        write_counts,
+        write_stream,
+    )
     from conftest import require_tool
-    from mpsim.harness import generate_app, imu_counts, nmea_epoch, run_app, tbeam_scenario, write_counts, write_stream
 
     micropython = require_tool("micropython")
     app = generate_app("ttgo-tbeam-v1.1", tmp_path / "out")

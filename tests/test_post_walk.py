@@ -7,11 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from conftest import require_shared_data
-
 from codegen.cli import main
 from codegen.post import load_log
 from codegen.post.rtklib import read_sf_imu, read_tag
+from conftest import require_shared_data
 
 
 @pytest.fixture(scope="module")

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from codegen.board.loader import load_board
 from codegen.cli import main
-from codegen.loader import load_board
 from codegen.sim import methods as methods_mod
 from codegen.sim.mpu6050 import MpuErrors
 from codegen.sim.run import RunData, build_run, evaluate, format_table
@@ -68,7 +68,7 @@ def test_seed_method_from_its_own_pipeline(board):
 
 
 def test_fast_orientation_matches_the_reference(walk_run, board):
-    from codegen import reference
+    from codegen.kernel import reference
 
     cfg = reference.KernelConfig.from_board(board)
     samples = walk_run.counts[3000:5000]
@@ -82,7 +82,7 @@ def test_fast_orientation_matches_the_reference(walk_run, board):
 
 
 def test_all_starts_integration_equals_the_reference(walk_run):
-    from codegen import reference
+    from codegen.kernel import reference
 
     t, held, dt = methods_mod.seed_acceleration(walk_run)
     t_start = np.array([t[400] - 0.002, t[3000]])
@@ -104,12 +104,12 @@ def test_metrics_table(walk_run):
     for name in ("seed", "const-velocity", "hold-last-fix"):
         assert name in text
     # the error at the moment of loss is the last fix's own error, identical for every method but fused, which
-    # starts from the fix smoothed with the Doppler (codegen.fused.position_update): metres from it, not more
+    # starts from the fix smoothed with the Doppler (codegen.kernel.fused.position_update): metres from it, not more
     zero = {name: err[:, 0] for name, err in result.errors.items()}
     for name, err in zero.items():
         if name != "fused":
             np.testing.assert_allclose(err, zero["hold-last-fix"], atol=1e-9)
-    from codegen import fused
+    from codegen.kernel import fused
 
     idx = walk_run.gps.last_valid_before(result.starts)
     t_fix = walk_run.gps.t[idx][:, None]
@@ -158,9 +158,8 @@ def test_on_micropython_the_app_follows_the_reference(capsys, tmp_path):
     from conftest import require_tool
 
     require_tool("micropython")
-    from codegen.sim.onmicropython import run_on_micropython
-
     from codegen.sim import trajectory
+    from codegen.sim.onmicropython import run_on_micropython
 
     # a quick run: 2 s calibration (a board extending the default), walking from 4 s, GPS lost at 8.5 s
     yaml = tmp_path / "fastcal.yaml"

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from codegen import reference
-from codegen.board import ACCEL_LSB_PER_G, STANDARD_GRAVITY
-from codegen.loader import load_board
+from codegen.board.loader import load_board
+from codegen.board.model import ACCEL_LSB_PER_G, STANDARD_GRAVITY
+from codegen.kernel import reference
 from codegen.sim import mpu6050, neo6m, trajectory
 from codegen.sim.mpu6050 import MpuErrors, simulate_imu
 

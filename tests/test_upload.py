@@ -8,9 +8,9 @@ import sys
 
 import pytest
 
-from codegen.build import build
+from codegen.deploy.build import build
+from codegen.deploy.upload import RawRepl, open_port, upload
 from codegen.errors import UserError
-from codegen.upload import RawRepl, open_port, upload
 from conftest import require
 from peers.repl_peer import ReplPeer, missing_reason
 from peers.trees import default_board, make_tree

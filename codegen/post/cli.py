@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen.board import STANDARD_GRAVITY
+from codegen.board.model import STANDARD_GRAVITY
 from codegen.errors import UserError
 
 

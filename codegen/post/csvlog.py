@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen.board import STANDARD_GRAVITY
+from codegen.board.model import STANDARD_GRAVITY
 from codegen.post.model import GpsSeries, ImuSeries, PostLog
 from codegen.post.table import check_increasing, read_table
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen.board import STANDARD_GRAVITY
+from codegen.board.model import STANDARD_GRAVITY
 from codegen.errors import Location, UserError
 from codegen.post.csvlog import average_duplicate_epochs
 from codegen.post.model import GpsSeries, ImuSeries, PostLog

@@ -28,8 +28,8 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation, Slerp
 
-from codegen.board import STANDARD_GRAVITY
-from codegen.reference import integrate_zoh
+from codegen.board.model import STANDARD_GRAVITY
+from codegen.kernel.reference import integrate_zoh
 
 UP = np.array([0.0, 0.0, 1.0])
 ACCEL_MEAN_NOISE = 0.01  # m/s^2, 1-sigma floor for an interval's mean accelerometer vector

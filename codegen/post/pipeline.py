@@ -8,7 +8,7 @@ from typing import Callable, Optional
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from codegen.board import STANDARD_GRAVITY
+from codegen.board.model import STANDARD_GRAVITY
 from codegen.errors import UserError
 from codegen.post.delay import DelayEstimate, estimate_delay
 from codegen.post.geodesy import geodetic_to_enu

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen.board import STANDARD_GRAVITY
+from codegen.board.model import STANDARD_GRAVITY
 from codegen.errors import Location, UserError
 from codegen.post.model import GpsSeries, ImuSeries, PostLog
 from codegen.post.table import read_text

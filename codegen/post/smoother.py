@@ -6,7 +6,7 @@ Each ENU axis is an independent three-state model driven by the rotated, gravity
 
 Nodes are a regular grid (`rate`) merged with the GPS epochs (an epoch is processed at its own time, not at the
 nearest sample). Between nodes the IMU samples enter as their exact zero-order-hold velocity and position increments
-(codegen.reference.integrate_zoh), so the filter's cost does not grow with the IMU rate. GPS velocities, and
+(codegen.kernel.reference.integrate_zoh), so the filter's cost does not grow with the IMU rate. GPS velocities, and
 positions where given, update the state with their own 1-sigma.
 """
 
@@ -18,7 +18,7 @@ from typing import Optional
 import numpy as np
 
 from codegen.post.orientation import sample_edges
-from codegen.reference import integrate_zoh
+from codegen.kernel.reference import integrate_zoh
 
 
 @dataclass

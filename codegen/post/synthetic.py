@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from codegen.board import ACCEL_LSB_PER_G, STANDARD_GRAVITY
+from codegen.board.model import ACCEL_LSB_PER_G, STANDARD_GRAVITY
 from codegen.post.geodesy import enu_to_geodetic
 from codegen.post.model import GpsSeries, ImuSeries, PostLog
 

@@ -11,30 +11,25 @@ keeps the comparison honest: for outage i a method may use every IMU sample, but
 every registered method by corrupting the GPS after the start. Working on all outages at once lets a method share
 work that does not depend on the GPS (the seed's orientation and ENU accelerations), so the benchmark stays fast.
 
-Register a new method with the decorator; modules named in PLUGIN_MODULES are imported by `registered_methods()`
-if they exist, so a method that lives elsewhere (the fused algorithm of issue 8) joins every table by adding its
-module name there, or by being imported before the benchmark runs:
+The baselines and the seed method are defined here; the fused reference (codegen.kernel.fused) provides its own
+`estimate` with this contract and is registered below, so the specification does not depend on the simulator.
+A new method joins every table with the decorator:
 
-    from codegen.sim.methods import register
-
-    @register("fused")
-    def fused(run, starts, times): ...
+    @register("name")
+    def name(run, starts, times): ...
 """
 
 from __future__ import annotations
 
-import importlib
-import warnings
 from typing import Callable
 
 import numpy as np
 
-from codegen import reference
-from codegen.reference import KernelConfig
+from codegen.kernel import fused, reference
+from codegen.kernel.reference import KernelConfig
 
 Method = Callable[..., np.ndarray]
 METHODS: dict[str, Method] = {}
-PLUGIN_MODULES = ("codegen.sim.fused", "codegen.fused")
 
 
 def register(name: str) -> Callable[[Method], Method]:
@@ -46,14 +41,6 @@ def register(name: str) -> Callable[[Method], Method]:
 
 
 def registered_methods() -> dict[str, Method]:
-    for module in PLUGIN_MODULES:
-        try:
-            importlib.import_module(module)
-        except ModuleNotFoundError as error:
-            if error.name != module:
-                warnings.warn(f"method plug-in {module} failed to import: {error}", stacklevel=2)
-        except Exception as error:  # a broken plug-in must not take the baselines down with it
-            warnings.warn(f"method plug-in {module} failed to import: {error!r}", stacklevel=2)
     return dict(METHODS)
 
 
@@ -109,7 +96,7 @@ def enu_acceleration(samples, dt, q0, gyro_bias_lsb, cfg):
 def seed_acceleration(run):
     """The seed's IMU pipeline over the whole run (it does not depend on GPS), cached on the run.
 
-    Calibration on the first `algorithm.calibration_s` seconds (tilt, gyro bias), then codegen.reference steps 1-5
+    Calibration on the first `algorithm.calibration_s` seconds (tilt, gyro bias), then codegen.kernel.reference steps 1-5
     over the rest: gyro-only orientation from the calibration tilt (yaw 0: the seed never knew North), rotation to
     "ENU", gravity removal, block medians on blocks aligned with the windows, deadband. Returns
     (t (M+1,) s sample times, held (M, 3) m/s^2, dt (M,) s), held[k] acting from t[k] to t[k+1].
@@ -153,3 +140,6 @@ def seed_method(run, starts, times):
     t, held, dt = seed_acceleration(run)
     t_fix = run.gps.t[idx]
     return run.gps.enu[idx, None, :2] + zoh_from(t, held, dt, t_fix, run.gps.device_velocity()[idx], times)
+
+
+register("fused")(fused.estimate)

@@ -7,7 +7,7 @@
 
 This is the stream the app's emulated MPU-6050 (issue 4) serves from its registers, and what the reference
 pipeline consumes. The board's `imu.axes` remap is undone here (the truth is in the board frame; the chip reports
-its own axes), so `codegen.reference.remap_axes` brings the counts back to the board frame.
+its own axes), so `codegen.kernel.reference.remap_axes` brings the counts back to the board frame.
 
 The error model (`MpuErrors`, defaults from the MPU-6050 product specification rev 3.4 unless marked):
 - white noise: accel 400 ug/sqrt(Hz), gyro 0.005 deg/s/sqrt(Hz), one-sided densities; added at the 1 kHz internal
@@ -20,7 +20,7 @@ The error model (`MpuErrors`, defaults from the MPU-6050 product specification r
 - DLPF: second-order Butterworth at the DLPF_CFG bandwidth (260/184/94/44/21/10/5 Hz), run at the 1 kHz rate;
 - sampling: the app reads the registers every 1/sample_rate_hz s with timing jitter (Gaussian, sigma 100 us,
   our choice) and gets the latest 1 kHz output sample; timestamps are the read times, as ticks_us gives them;
-- quantisation to int16 at the configured range (LSB per g / per deg/s from codegen.board), saturation at
+- quantisation to int16 at the configured range (LSB per g / per deg/s from codegen.board.model), saturation at
   -32768 / +32767.
 
 `MpuErrors.ideal()` switches every error off (exact quantised truth, no jitter), for invariant tests.
@@ -33,7 +33,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.signal import butter, lfilter, lfilter_zi
 
-from codegen.board import ACCEL_LSB_PER_G, DLPF_BANDWIDTH_HZ, GYRO_LSB_PER_DPS, STANDARD_GRAVITY
+from codegen.board.model import (
+    ACCEL_LSB_PER_G,
+    DLPF_BANDWIDTH_HZ,
+    GYRO_LSB_PER_DPS,
+    STANDARD_GRAVITY,
+)
 
 INT16_MIN, INT16_MAX = -32768, 32767
 
@@ -127,7 +132,7 @@ def read_times(duration_s: float, rate_hz: float, jitter_us: float, rng: np.rand
 def simulate_imu(trajectory, board, seed: int = 0, errors: MpuErrors | None = None, device: DeviceErrors | None = None):
     """Raw MPU-6050 samples for `trajectory` as the board's app would read them.
 
-    board: a codegen.board.Board (ranges, DLPF, sample rate and axis remap come from board.imu).
+    board: a codegen.board.model.Board (ranges, DLPF, sample rate and axis remap come from board.imu).
     Returns (t_us (N,) int64, counts (N, 6) int16 [ax, ay, az, gx, gy, gz], sensor frame).
     """
     errors = MpuErrors() if errors is None else errors

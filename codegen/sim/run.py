@@ -31,7 +31,7 @@ class RunData:
     """Everything a method may see (IMU stream, GPS fixes) plus the truth it is judged against."""
 
     scenario: str
-    board: object  # codegen.board.Board
+    board: object  # codegen.board.model.Board
     seed: int
     t_us: np.ndarray  # (N,) int64
     counts: np.ndarray  # (N, 6) int16, sensor frame

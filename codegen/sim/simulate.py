@@ -9,7 +9,14 @@ from pathlib import Path
 from codegen.errors import UserError
 from codegen.sim import neo6m
 from codegen.sim.methods import registered_methods
-from codegen.sim.run import SCENARIOS, Result, build_run, evaluate, format_table, progress
+from codegen.sim.run import (
+    SCENARIOS,
+    Result,
+    build_run,
+    evaluate,
+    format_table,
+    progress,
+)
 
 STANDARD_HORIZONS = (10.0, 30.0, 60.0)
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import oaconvolve
 
-from codegen.board import STANDARD_GRAVITY
+from codegen.board.model import STANDARD_GRAVITY
 
 TRUTH_RATE_HZ = 1000.0
 SCENARIOS = ("static", "push", "walk", "car")

@@ -13,8 +13,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE.parent.parent), str(HERE.parent)]
 
-from codegen.build import build  # noqa: E402
-from codegen.flash import flash  # noqa: E402
+from codegen.deploy.build import build  # noqa: E402
+from codegen.deploy.flash import flash  # noqa: E402
 from peers.esp_rom import RomLoaderPeer  # noqa: E402
 from peers.trees import default_board, esp_image, make_tree  # noqa: E402
 

@@ -7,7 +7,7 @@ import json
 import struct
 from pathlib import Path
 
-from codegen.board import Board
+from codegen.board.model import Board
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_BOARD_YAML = ROOT / "board_configs" / "ttgo-tbeam-v1.1.yaml"

@@ -1,5 +1,5 @@
 """The fused C kernel (native_ext/dr_fused.c) on the host: compiled with cffi (API mode) from the board's rendered
-sources, cached by source hash like codegen.hostkernel, with a session class the equivalence tests drive exactly as
+sources, cached by source hash like codegen.kernel.hostkernel, with a session class the equivalence tests drive exactly as
 the app drives dr_native (calibrate, process windows, a GPS update per fix).
 
     fk = load_fused()                      # default board
@@ -13,8 +13,8 @@ from dataclasses import fields
 
 import numpy as np
 
-from codegen import hostkernel
-from codegen.fused import STATE_LEN, FusedConfig
+from codegen.kernel import hostkernel
+from codegen.kernel.fused import STATE_LEN, FusedConfig
 
 SOURCES = ("dr_kernel.c", "dr_median.c", "dr_geo.c", "dr_fused.c")
 HEADERS = ("dr_fused.h",)
@@ -86,7 +86,7 @@ class FusedSession:
         self.fk.lib.dr_fused_gps(self.cfg, self.st, float(ve), float(vn))
 
     def state_vector(self) -> np.ndarray:
-        """The state floats in the order of codegen.fused.STATE_FIELDS."""
+        """The state floats in the order of codegen.kernel.fused.STATE_FIELDS."""
         return np.array(list(self.fk.ffi.cast("float *", self.st)[0:STATE_LEN]), dtype=np.float32)
 
     def set_state_vector(self, values) -> None:

@@ -2,14 +2,21 @@
 
 Schemas are composed from reusable parts (a pin, an I2C bus, a UART, an I2C device), as ESPHome composes its
 components. This module only describes shapes and per-field ranges; rules that need the whole board (a pin used
-twice, an address collision, a rail nobody enables, chip pin capabilities) live in `codegen.rules`.
+twice, an address collision, a rail nobody enables, chip pin capabilities) live in `codegen.board.rules`.
 """
 
 from __future__ import annotations
 
 from typing import Annotated, Literal, Optional
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, WithJsonSchema, field_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    WithJsonSchema,
+    field_validator,
+)
 
 STANDARD_GRAVITY = 9.80665  # m/s^2
 FUSED_MEDIAN_MAX = 32  # samples: the longest block the fused median option keeps (dr_fused.h DR_FUSED_MEDIAN_MAX)
@@ -234,7 +241,7 @@ class Algorithm(Part):
     motion_threshold_g: float = Field(
         0.02, gt=0, description="accel standard deviation above this during calibration means 'moved'"
     )
-    # mode "fused" (codegen/fused.py, native_ext/dr_fused.c): defaults tuned on the simulator's walk/car scenarios
+    # mode "fused" (codegen/kernel/fused.py, native_ext/dr_fused.c): defaults tuned on the simulator's walk/car scenarios
     fused_tilt_tau_s: float = Field(100.0, gt=0, description="s: tilt correction time constant while GPS fixes arrive")
     fused_accel_reject_g: float = Field(0.1, gt=0, description="g: no tilt correction while ||f| - g| exceeds this")
     fused_tilt_tau_dark_s: float = Field(0.0, ge=0, description="s: tilt correction time constant without GPS (0: none)")

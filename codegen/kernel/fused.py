@@ -97,7 +97,7 @@ Tried and dropped, each measured on walk seeds 101-112 (or 101-136) and the repl
 
 The state is a flat vector of floats (the C kernel's caller-owned buffer holds the same fields in the same order);
 FusedState below names them. One GPS-free pass over the IMU and the GPS updates at their epochs is exactly what the
-device does; `estimate` runs it for the simulator's benchmark and registers the method as "fused".
+device does; `estimate` runs it for the simulator's benchmark (codegen.sim.methods registers it as "fused").
 """
 
 from __future__ import annotations
@@ -107,8 +107,13 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from codegen.board import FUSED_MEDIAN_MAX
-from codegen.reference import STANDARD_GRAVITY, KernelConfig, remap_axes, tilt_from_gravity
+from codegen.board.model import FUSED_MEDIAN_MAX
+from codegen.kernel.reference import (
+    STANDARD_GRAVITY,
+    KernelConfig,
+    remap_axes,
+    tilt_from_gravity,
+)
 
 
 @dataclass(frozen=True)
@@ -655,10 +660,3 @@ def estimate(run, starts, times, fcfg: FusedConfig | None = None):
             out[i, h] = base + (st.pe, st.pn)
     return out
 
-
-try:  # join the simulator's benchmark table
-    from codegen.sim.methods import register
-
-    register("fused")(estimate)
-except ImportError:  # pragma: no cover - the simulator is optional for the kernel itself
-    pass

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
-from codegen.board import Board
-from codegen.chips import CHIPS
+from codegen.board.chips import CHIPS
+from codegen.board.model import Board
 from codegen.errors import UserError
 
 FAST_BAUD = 460800
@@ -269,7 +269,7 @@ def flash(out: Path, port: str, firmware: Optional[Path] = None, erase: bool = F
           board: Optional[Board] = None, stub: bool = True, compress: Optional[bool] = None,
           progress: Progress = print) -> FlashResult:
     """Write OUT/build/fs.img (and the firmware) to the board on `port`, verified; raise UserError on failure."""
-    from codegen.build import IMAGE_NAME, load_tree
+    from codegen.deploy.build import IMAGE_NAME, load_tree
 
     tree = load_tree(Path(out), board)
     board = tree.board

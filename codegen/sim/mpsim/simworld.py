@@ -1,4 +1,4 @@
-"""The emulated world behind tests/mpsim/machine.py: scenario, trace and peripheral models.
+"""The emulated world behind mpsim/machine.py: scenario, trace and peripheral models.
 
 The scenario is a JSON file named by the MPSIM_SCENARIO environment variable (written by the test on the host):
 

@@ -67,7 +67,7 @@ def open_port(port: str, baud: int = 115200):
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         return handle
     except (serial.SerialException, OSError, ValueError) as exc:
-        from codegen.flash import _busy_hint, _ports_hint
+        from codegen.deploy.flash import _busy_hint, _ports_hint
 
         text = str(exc)
         lower = text.lower()
@@ -380,7 +380,7 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
 def upload(out: Path, port: str, force: bool = False, use_raw_paste: bool = True,
            progress: Progress = print) -> UploadResult:
     """Upload OUT/build/app (from `deadreckon build OUT`) to the board on `port`."""
-    from codegen.build import BUILD_DIR
+    from codegen.deploy.build import BUILD_DIR
 
     app_dir = Path(out) / BUILD_DIR / "app"
     if not app_dir.is_dir():

@@ -87,8 +87,8 @@ def cache_dir() -> Path:
 def kernel_sources(loaded=None, extra: tuple[str, ...] = ()) -> dict[str, bytes]:
     """The kernel's C files (name -> content) exactly as `deadreckon generate` renders them for the board, plus
     the `extra` files named (the fused kernel's)."""
+    from codegen.board.loader import load_board
     from codegen.generate import render_tree
-    from codegen.loader import load_board
 
     tree = render_tree(loaded if loaded is not None else load_board())
     wanted = set(KERNEL_SOURCES) | set(KERNEL_HEADERS) | set(extra)
@@ -176,7 +176,7 @@ class KernelSession:
                 self.cfg.axis_sign[i] = float(sign)
         if any(v is not None for v in (block, window, accel_lsb_per_g, gyro_lsb_per_dps, deadband_g,
                                        motion_threshold_g)):
-            from codegen.reference import STANDARD_GRAVITY
+            from codegen.kernel.reference import STANDARD_GRAVITY
 
             b = self.cfg.block if block is None else int(block)
             n = window if window is not None else (b if block is not None else self.cfg.window)
@@ -319,7 +319,7 @@ def build_module(prefix: str, files: dict[str, bytes], sources: tuple[str, ...],
 
 
 def load_kernel(loaded=None, files: Optional[dict[str, bytes]] = None) -> HostKernel:
-    """Compile (or find in the cache) the kernel for a board (a codegen.loader.LoadedBoard; None = the default
+    """Compile (or find in the cache) the kernel for a board (a codegen.board.loader.LoadedBoard; None = the default
     board), or for explicit `files` (name -> content, as kernel_sources returns)."""
     files = files if files is not None else kernel_sources(loaded)
     module, path = build_module(

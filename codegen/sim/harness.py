@@ -1,7 +1,7 @@
-"""Host side of the MicroPython end-to-end tests: generate an app, write a scenario, run it, read the trace.
+"""Host side of the emulated board: generate an app, write a scenario, run it on the unix-port MicroPython with
+the emulated peripherals of codegen/sim/mpsim/ ahead of the app, read the trace.
 
-Runs on CPython only (it lives beside the emulated modules so the pieces of the emulator stay together; MicroPython
-never imports it).
+Runs on CPython only; `deadreckon simulate --on-micropython` and the app tests both drive the board through it.
 """
 
 from __future__ import annotations
@@ -12,14 +12,14 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
-MPSIM = Path(__file__).resolve().parent
+MPSIM = Path(__file__).resolve().parent / "mpsim"  # MicroPython modules: machine, time, simworld
 TICKS_PERIOD = 1 << 30
 
 
 def generate_app(board: str | Path, out: Path) -> Path:
     """`deadreckon generate BOARD -o OUT` through the library; returns OUT."""
+    from codegen.board.loader import load_board
     from codegen.generate import generate
-    from codegen.loader import load_board
 
     generate(load_board(board), out, force=True)
     return out
@@ -65,7 +65,8 @@ def run_app(
     timeout: float = 600,
     extra_path: list[Path] | None = None,
 ) -> Run:
-    """Run OUT/app/main.py (or `script`) under the unix-port MicroPython with tests/mpsim ahead of the app."""
+    """Run OUT/app/main.py (or `script`) under the unix-port MicroPython with the emulated board (mpsim) ahead of
+    the app."""
     work.mkdir(parents=True, exist_ok=True)
     scenario = dict(scenario)
     scenario.setdefault("trace", str(work / "trace.jsonl"))

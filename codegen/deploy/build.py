@@ -2,7 +2,7 @@
 
     OUT/app/*.py         (generated)  ->  OUT/build/app/*.mpy   mpy-cross for the board's arch and MicroPython
     OUT/native/Makefile  (generated)  ->  OUT/build/app/dr_native.mpy, where MPY_DIR and a cross compiler exist
-    OUT/build/app/                    ->  OUT/build/fs.img      LittleFS image of the vfs partition (codegen.fsimage)
+    OUT/build/app/                    ->  OUT/build/fs.img      LittleFS image of the vfs partition (codegen.deploy.fsimage)
 
 `main.py` and `boot.py` stay source: MicroPython only runs those two names as `.py`. Everything else under app/
 that is Python becomes `.mpy`; other files are copied. Nothing is written outside OUT/build/.
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
-from codegen.board import Board
+from codegen.board.model import Board
 from codegen.errors import UserError
 from codegen.tools import find_tool, micropython_tree, tool_env
 
@@ -92,7 +92,7 @@ def load_tree(out: Path, board: Optional[Board] = None) -> GeneratedTree:
 def _manifest_board(out: Path) -> Board:
     """The board the tree was generated from: its file (found beside OUT, in the working folder or among the bundled
     boards), checked against the manifest's board_sha256 so a board file edited since `generate` is not used."""
-    from codegen.loader import load_board
+    from codegen.board.loader import load_board
     from codegen.paths import board_configs_dir
 
     manifest_path = out / "MANIFEST.json"
@@ -193,7 +193,7 @@ def build_native(tree: GeneratedTree, target_dir: Path, progress: Progress) -> t
 
 def build(out: Path, board: Optional[Board] = None, progress: Progress = print, image: bool = True) -> BuildResult:
     """Compile OUT/app into OUT/build/app and make OUT/build/fs.img; return what was built."""
-    from codegen.fsimage import make_image
+    from codegen.deploy.fsimage import make_image
 
     tree = load_tree(out, board)
     board = tree.board

@@ -21,11 +21,17 @@ from typing import Any, Optional, TextIO
 
 from pydantic import BaseModel, ValidationError
 
-from codegen.board import Board
-from codegen.diagnostics import Diagnostic, DiagnosticsError, error, print_all, sort_key
+from codegen.board.diagnostics import (
+    Diagnostic,
+    DiagnosticsError,
+    error,
+    print_all,
+    sort_key,
+)
+from codegen.board.model import Board
+from codegen.board.yamlsource import KeyPath, SourceMap, read_yaml
 from codegen.errors import Location, UserError
 from codegen.paths import board_configs_dir, default_board_path
-from codegen.yamlsource import KeyPath, SourceMap, read_yaml
 
 MAX_EXTENDS_DEPTH = 8
 
@@ -295,7 +301,7 @@ def load_board_report(board: Optional[str | Path] = None) -> BoardReport:
         diagnostics = sorted(_schema_diagnostics(exc, data, source), key=sort_key)
         return BoardReport(name, diagnostics, lines_by_file)
 
-    from codegen.rules import check_board
+    from codegen.board.rules import check_board
 
     diagnostics = sorted(check_board(model, source), key=sort_key)
     loaded = LoadedBoard(model, source, chain, data, lines_by_file)

@@ -1,6 +1,6 @@
 """An emulated `machine` module for running the generated app on the unix-port MicroPython.
 
-Put tests/mpsim first on MICROPYPATH: `machine` and `time` here replace the unix port's own. The peripherals
+Put this folder (codegen/sim/mpsim) first on MICROPYPATH: `machine` and `time` here replace the unix port's own. The peripherals
 (see simworld.py) come from the scenario named by MPSIM_SCENARIO.
 """
 

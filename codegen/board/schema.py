@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Any, Iterator
 
-from codegen.board import Board
-from codegen.loader import LoadedBoard
-from codegen.yamlsource import KeyPath
+from codegen.board.loader import LoadedBoard
+from codegen.board.model import Board
+from codegen.board.yamlsource import KeyPath
 
 # Keys whose numbers read best in hexadecimal
 HEX_KEYS = {"address", "offset", "size", "bootloader", "partition_table", "app"}

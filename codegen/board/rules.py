@@ -1,6 +1,6 @@
 """Phase two of validation: rules over the whole board (each part already passed its own schema).
 
-Pins are checked against the chip's capability table in `codegen.chips`; buses, addresses, power rails and the
+Pins are checked against the chip's capability table in `codegen.board.chips`; buses, addresses, power rails and the
 algorithm's numbers against each other. Every finding is a located `Diagnostic`.
 """
 
@@ -10,10 +10,10 @@ import difflib
 from dataclasses import dataclass
 from typing import Iterator, Optional
 
-from codegen.board import FUSED_MEDIAN_MAX, Board, PinSpec
-from codegen.chips import CHIPS, PMU_RAILS, ChipPins
-from codegen.diagnostics import Diagnostic, error, warning
-from codegen.yamlsource import KeyPath, SourceMap
+from codegen.board.chips import CHIPS, PMU_RAILS, ChipPins
+from codegen.board.diagnostics import Diagnostic, error, warning
+from codegen.board.model import FUSED_MEDIAN_MAX, Board, PinSpec
+from codegen.board.yamlsource import KeyPath, SourceMap
 
 MPU6050_ADDRESSES = (0x68, 0x69)
 MPU6050_MAX_ACCEL_RATE_HZ = 1000.0

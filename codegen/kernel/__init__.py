@@ -1,0 +1,3 @@
+"""The algorithms the device runs: the float64 references that specify them (reference: the seed windows; fused:
+the GPS-aided method) and their C kernel compiled on the host with cffi (hostkernel, hostfused) for equivalence
+tests and benchmarks."""
