@@ -4,8 +4,9 @@
     templates/native/NAME.j2       ->  OUT/native/NAME
     native_ext/*                   ->  OUT/native/*   (copied byte for byte: the C kernel is not a template)
 
-Rendering is pure (`render_tree`) and deterministic: same board content, byte-identical tree. While a template
-renders, every board key it reads is recorded, so the manifest can say which keys produced which file.
+Rendering is pure (`render_tree`) and deterministic: same board content, byte-identical tree. A template sees the
+board and `layout`, the kernels' declaration (codegen/kernel/layout.py: state fields, parameters, flags). While a
+template renders, every board key it reads is recorded, so the manifest can say which keys produced which file.
 `generate` writes the tree, and refuses to touch a folder it did not generate or files the user edited since.
 """
 
@@ -24,6 +25,7 @@ from pydantic import BaseModel
 from codegen import __version__
 from codegen.board.loader import LoadedBoard
 from codegen.errors import UserError
+from codegen.kernel.layout import LAYOUT
 from codegen.paths import native_ext_dir, templates_dir
 
 MANIFEST = "MANIFEST.json"
@@ -137,7 +139,7 @@ def render_tree(loaded: LoadedBoard) -> dict[str, RenderedFile]:
             recorder = _KeyRecorder(loaded.board)
             env.recorder = recorder
             try:
-                text = env.get_template(name).render(board=loaded.board, banner=_banner(loaded, name))
+                text = env.get_template(name).render(board=loaded.board, layout=LAYOUT, banner=_banner(loaded, name))
             except jinja2.TemplateError as problem:
                 line = getattr(problem, "lineno", None)
                 raise UserError(

@@ -9,99 +9,23 @@
 
 #define DR_FUSED_SUM_CHUNK (1024) /* samples summed in int32 before moving to float (1024 * 32768 < 2^31) */
 
-/* Returns 1/x for x > 0, else 0 (a time constant of 0 switches its term off). */
-static float dr_fused_rate(float tau) {
-    return tau > 0.0f ? dr_recip(tau) : 0.0f;
-}
-
 void dr_fused_config_init(dr_fused_config *cfg) {
     float p[DR_FUSED_PARAMS];
-    p[0] = DR_FUSED_TILT_TAU_S;
-    p[1] = DR_FUSED_ACCEL_REJECT_G;
-    p[2] = DR_FUSED_TILT_TAU_DARK_S;
-    p[3] = DR_FUSED_STEADY_ACCEL_MS2;
-    p[4] = DR_FUSED_SPEED_TAU_S;
-    p[5] = DR_FUSED_GPS_TIMEOUT_S;
-    p[6] = DR_FUSED_STAT_TAU_S;
-    p[7] = DR_FUSED_REST_ACCEL_G;
-    p[8] = DR_FUSED_REST_GYRO_DPS;
-    p[9] = DR_FUSED_REST_TIME_S;
-    p[10] = DR_FUSED_BIAS_TAU_S;
-    p[11] = DR_FUSED_WALK_ACCEL_G;
-    p[12] = DR_FUSED_MIN_SPEED_MS;
-    p[13] = DR_FUSED_HEADING_GAIN;
-    p[14] = DR_FUSED_ALIGN_FORGET;
-    p[15] = DR_FUSED_SPEED_GAIN;
-    p[16] = DR_FUSED_BIAS_GAIN;
-    p[17] = DR_FUSED_WALK_SPEED_GAIN;
-    p[18] = DR_FUSED_KF_BIAS_INIT_G;
-    p[19] = DR_FUSED_KF_BIAS_NOISE;
-    p[20] = DR_FUSED_KF_TILT_NOISE;
-    p[21] = DR_FUSED_KF_TURN_NOISE;
-    p[22] = DR_FUSED_KF_VEL_SIGMA_MS;
-    p[23] = DR_FUSED_KF_ALIGN_MIN;
-    p[24] = DR_FUSED_MEDIAN;
-    p[25] = DR_FUSED_POS_SIGMA_M;
-    p[26] = DR_FUSED_POS_TAU_S;
-    p[27] = DR_FUSED_POS_STEP_SIGMA_MS;
-    p[28] = DR_FUSED_TURN_HOLD_TAU_S;
-    p[29] = DR_FUSED_TURN_START_DPS;
-    p[30] = DR_FUSED_TURN_END_DPS;
+    dr_fused_params_board(p);
     (void)dr_fused_config_set(cfg, p);
 }
 
 int dr_fused_config_set(dr_fused_config *cfg, const float p[DR_FUSED_PARAMS]) {
-    float rest_a, rest_w, walk_a;
-    if (!(p[0] > 0.0f) || !(p[6] > 0.0f) || p[2] < 0.0f || p[4] < 0.0f || p[10] < 0.0f || p[18] < 0.0f ||
-        !(p[22] > 0.0f) || p[25] < 0.0f || !(p[26] > 0.0f) || p[28] < 0.0f || !(p[30] <= p[29])) {
-        return DR_ERR_RANGE;
+    int code = dr_fused_params_check(p);
+    if (code != DR_OK) {
+        return code;
     }
-    rest_a = p[7] * DR_GRAVITY_MS2;
-    rest_w = p[8] * DR_RAD_PER_DEG;
-    walk_a = p[11] * DR_GRAVITY_MS2;
-    cfg->kp = dr_recip(p[0]);
-    cfg->reject_ms2 = p[1] * DR_GRAVITY_MS2;
-    cfg->kp_dark = dr_fused_rate(p[2]);
-    cfg->steady_ms2 = p[3];
-    cfg->inv_speed_tau = dr_fused_rate(p[4]);
-    cfg->gps_timeout_s = p[5];
-    cfg->inv_stat_tau = dr_recip(p[6]);
-    cfg->rest_var = rest_a * rest_a;
-    cfg->rest_w2 = rest_w * rest_w;
-    cfg->rest_time_s = p[9];
-    cfg->inv_bias_tau = dr_fused_rate(p[10]);
-    cfg->walk_var = walk_a * walk_a;
-    cfg->min_speed_ms = p[12];
-    cfg->heading_gain = p[13];
-    cfg->align_forget = p[14];
-    cfg->speed_gain = p[15];
-    cfg->bias_gain = p[16];
-    cfg->walk_speed_gain = p[17];
-    cfg->kf_bias_var = p[18] * DR_GRAVITY_MS2 * p[18] * DR_GRAVITY_MS2;
-    cfg->kf_bias_q = p[19] * p[19];
-    cfg->kf_tilt_q = p[20] * p[20];
-    cfg->kf_turn_q = p[21] * p[21];
-    cfg->kf_vel_r = 2.0f * p[22] * p[22];
-    cfg->kf_align_min = p[23];
-    cfg->median = p[24];
-    cfg->pos_var = p[25] * p[25];
-    cfg->inv_pos_tau = dr_recip(p[26]);
-    cfg->pos_step_q = p[27] * p[27];
-    cfg->hold_rate = dr_fused_rate(p[28]);
-    cfg->turn_start = p[29] * DR_RAD_PER_DEG;
-    cfg->turn_end = p[30] * DR_RAD_PER_DEG;
+    dr_fused_params_store(cfg, p);
     return DR_OK;
 }
 
 void dr_fused_state_init(dr_fused_state *st) {
-    float *f = (float *)st;
-    uint32_t i;
-    for (i = 0; i < sizeof(dr_fused_state) / sizeof(float); i++) {
-        f[i] = 0.0f;
-    }
-    st->q[0] = 1.0f;
-    st->ux = 1.0f;
-    st->cos_t = 1.0f;
+    dr_fused_state_start(st);
 }
 
 int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t *samples, int32_t count) {

@@ -20,38 +20,16 @@ void dr_config_init(dr_config *cfg) {
 
 int dr_config_set(dr_config *cfg, int32_t block, int32_t window, float accel_lsb_per_g, float gyro_lsb_per_dps,
                   float deadband_g, float motion_threshold_g) {
-    int32_t rest;
-    float limit_lsb;
-    if (block < 1) {
-        return DR_ERR_BLOCK;
+    int code = dr_params_check(block, window, accel_lsb_per_g, gyro_lsb_per_dps, deadband_g, motion_threshold_g);
+    if (code != DR_OK) {
+        return code;
     }
-    for (rest = window; rest >= block; rest -= block) { /* no `%`: the Cortex-M0+ has no divide instruction */
-    }
-    if (window < 1 || rest != 0) {
-        return DR_ERR_WINDOW;
-    }
-    if (!(accel_lsb_per_g > 0.0f) || !(gyro_lsb_per_dps > 0.0f) || !(deadband_g >= 0.0f) ||
-        !(motion_threshold_g > 0.0f)) {
-        return DR_ERR_RANGE;
-    }
-    cfg->block = block;
-    cfg->window = window;
-    cfg->accel_ms2_per_lsb = DR_GRAVITY_MS2 * dr_recip(accel_lsb_per_g);
-    cfg->gyro_rads_per_lsb = DR_RAD_PER_DEG * dr_recip(gyro_lsb_per_dps);
-    cfg->deadband_ms2 = deadband_g * DR_GRAVITY_MS2;
-    limit_lsb = motion_threshold_g * accel_lsb_per_g;
-    cfg->motion_limit_lsb2 = limit_lsb * limit_lsb;
+    dr_params_store(cfg, block, window, accel_lsb_per_g, gyro_lsb_per_dps, deadband_g, motion_threshold_g);
     return DR_OK;
 }
 
 void dr_state_init(dr_state *st) {
-    int i;
-    st->q[0] = 1.0f;
-    st->q[1] = st->q[2] = st->q[3] = 0.0f;
-    for (i = 0; i < 3; i++) {
-        st->v[i] = 0.0f;
-        st->gyro_bias_lsb[i] = 0.0f;
-    }
+    dr_state_start(st);
 }
 
 /* Returns 1 if cfg can index samples and scratch safely (it may come from a caller's buffer), else 0. */

@@ -2,7 +2,8 @@
  * dr_kernel.h: the dead-reckoning kernel. One window of raw MPU-6050 samples in, ENU displacement and velocity out.
  *
  * Float32 only, no allocation, no global or static mutable state: the caller owns a dr_config, a dr_state and a
- * scratch area of DR_SCRATCH_FLOATS(block) floats. codegen/kernel/reference.py is the specification; the steps are
+ * scratch area of DR_SCRATCH_FLOATS(block) floats. Their fields are declared in codegen/kernel/layout.py and rendered
+ * into dr_layout.h. codegen/kernel/reference.py is the specification; the steps are
  *   1. gyro bias subtraction and scaling to rad/s, accel scaling to m/s^2 (after the board's axis remap);
  *   2. orientation q (body -> ENU) from the gyro: q <- q (x) exp(omega dt / 2), kept at unit length;
  *   3. a = R(q) f - [0, 0, g];
@@ -14,44 +15,18 @@
 #ifndef DR_KERNEL_H
 #define DR_KERNEL_H
 
-#include <stdint.h>
-
-/* Return codes. */
-#define DR_OK (0)
-#define DR_MOVED (1)          /* dr_calibrate: an accel axis' standard deviation exceeded the motion threshold */
-#define DR_ERR_BLOCK (-1)     /* block < 1 */
-#define DR_ERR_WINDOW (-2)    /* window < 1 or not a multiple of block */
-#define DR_ERR_COUNT (-3)     /* sample count < 1 or not a multiple of block */
-#define DR_ERR_RANGE (-4)     /* a scale or threshold is not positive, the deadband negative, or (dr_calibrate,
-                                 * dr_process) the config is unusable: block < 1 or an axis source outside 0..2 */
+/* The structs dr_config and dr_state, the return codes DR_OK, DR_MOVED, DR_ERR_*: rendered from the declaration. */
+#include "dr_layout.h"
 
 /* Floats of scratch dr_process needs for block size b: one block of ENU accelerations per axis. */
 #define DR_SCRATCH_FLOATS(block) (3 * (block))
-
-/* The run-time parameters. dr_config_init() fills them from the board header; every field is 4 bytes. */
-typedef struct {
-    int32_t block;             /* b: samples per block median */
-    int32_t window;            /* n: samples per window (a multiple of b; the caller's buffer size) */
-    int32_t axis_source[3];    /* body axis i <- sensor axis axis_source[i] (0..2), for accel and gyro alike */
-    float axis_sign[3];        /* ... times axis_sign[i] (+1 or -1) */
-    float accel_ms2_per_lsb;   /* m/s^2 per accel count */
-    float gyro_rads_per_lsb;   /* rad/s per gyro count */
-    float deadband_ms2;        /* l in m/s^2: a block median with |a| below it becomes 0 */
-    float motion_limit_lsb2;   /* calibration "moved" when an accel variance exceeds this, counts^2 */
-} dr_config;
-
-/* What the kernel carries from window to window. */
-typedef struct {
-    float q[4];                /* orientation, unit quaternion w, x, y, z turning body vectors into ENU */
-    float v[3];                /* velocity East, North, Up, m/s */
-    float gyro_bias_lsb[3];    /* body-frame gyro bias, counts */
-} dr_state;
 
 /* Fills cfg from the board constants of dr_board.h. */
 void dr_config_init(dr_config *cfg);
 
 /* Sets cfg's numeric parameters: block b and window n (samples), ranges in counts per g and counts per degree/s,
- * deadband and motion threshold in g. Returns DR_OK, or DR_ERR_BLOCK/DR_ERR_WINDOW/DR_ERR_RANGE (cfg unchanged). */
+ * deadband and motion threshold in g. Returns DR_OK, or DR_ERR_BLOCK/DR_ERR_WINDOW/DR_ERR_RANGE (cfg unchanged)
+ * for the first outside its limits (dr_params_check). */
 int dr_config_set(dr_config *cfg, int32_t block, int32_t window, float accel_lsb_per_g, float gyro_lsb_per_dps,
                   float deadband_g, float motion_threshold_g);
 

@@ -67,6 +67,17 @@ static inline float dr_recip(float x) {
     return x < 0.0f ? -y : y;
 }
 
+/* Returns 1 if a is a positive multiple of b >= 1, else 0 (by subtraction: the Cortex-M0+ has no divide). */
+static inline int dr_is_multiple(int32_t a, int32_t b) {
+    if (a < 1 || b < 1) {
+        return 0;
+    }
+    while (a >= b) {
+        a -= b;
+    }
+    return a == 0;
+}
+
 /* Returns x rounded to the nearest integer, halves away from zero; |x| must fit an int32. */
 static inline int32_t dr_round(float x) {
     return (int32_t)(x < 0.0f ? x - 0.5f : x + 0.5f);

@@ -5,7 +5,9 @@
  * linked into the firmware (micropython.mk / micropython.cmake). Each function parses its buffers (array('f') state
  * and out, array('h') samples, array('i') intervals), calls the kernel and returns; nothing is allocated per sample.
  *
- * state buffer layout (floats): dr_state (q w,x,y,z | v E,N,U | gyro bias x,y,z), dr_config, scratch 3 * block.
+ * state buffer layout (floats): dr_state, dr_config, scratch 3 * block; the fused buffer: dr_fused_state,
+ * dr_fused_config, dr_config. Their lengths and the offsets the module exports (DR_HEADER_FLOATS, DR_STATE_Q, ...)
+ * come from dr_layout.h, rendered from the declaration in codegen/kernel/layout.py.
  */
 #if MICROPY_ENABLE_DYNRUNTIME
 #include "py/dynruntime.h"
@@ -22,10 +24,9 @@
 #include "dr_kernel.h"
 #include "dr_median.h"
 
-#define DR_STATE_FLOATS ((mp_int_t)(sizeof(dr_state) / sizeof(float)))
-#define DR_CONFIG_FLOATS ((mp_int_t)(sizeof(dr_config) / sizeof(float)))
-#define DR_HEADER_FLOATS (DR_STATE_FLOATS + DR_CONFIG_FLOATS)
-#define DR_OUT_FLOATS (6)
+typedef char dr_header_is_state_and_config[DR_HEADER_FLOATS == DR_STATE_FLOATS + DR_CONFIG_FLOATS ? 1 : -1];
+typedef char dr_fused_buffer_is_three_structs[
+    DR_FUSED_BUFFER_FLOATS == DR_FUSED_STATE_FLOATS + DR_FUSED_CONFIG_FLOATS + DR_CONFIG_FLOATS ? 1 : -1];
 
 /* The buffer of obj with the given array typecode, or a TypeError. */
 static void dr_get_array(mp_obj_t obj, mp_buffer_info_t *info, mp_uint_t flags, char typecode) {
@@ -57,7 +58,7 @@ static float *dr_unpack(mp_obj_t state_obj, dr_state **st, dr_config **cfg, mp_i
     float *base;
     dr_get_array(state_obj, &info, MP_BUFFER_RW, 'f');
     *floats = (mp_int_t)(info.len / sizeof(float));
-    if (*floats < DR_HEADER_FLOATS) {
+    if (*floats < (mp_int_t)DR_HEADER_FLOATS) {
         mp_raise_ValueError(MP_ERROR_TEXT("state buffer shorter than state_len(block)"));
     }
     base = (float *)info.buf;
@@ -221,21 +222,18 @@ static mp_obj_t dr_block_median_fn(mp_obj_t values_obj, mp_obj_t block_obj, mp_o
 static MP_DEFINE_CONST_FUN_OBJ_3(dr_block_median_obj, dr_block_median_fn);
 
 /* ---- algorithm: fused (dr_fused.h). Its own state buffer: dr_fused_state | dr_fused_config | dr_config. ---- */
-#define DR_FUSED_STATE_FLOATS ((mp_int_t)(sizeof(dr_fused_state) / sizeof(float)))
-#define DR_FUSED_CONFIG_FLOATS ((mp_int_t)(sizeof(dr_fused_config) / sizeof(float)))
-#define DR_FUSED_LEN (DR_FUSED_STATE_FLOATS + DR_FUSED_CONFIG_FLOATS + DR_CONFIG_FLOATS)
 
 static void dr_fused_unpack(mp_obj_t obj, dr_fused_state **st, dr_fused_config **cfg, dr_config **kcfg) {
     mp_buffer_info_t info;
     float *base;
     dr_get_array(obj, &info, MP_BUFFER_RW, 'f');
-    if ((mp_int_t)(info.len / sizeof(float)) < DR_FUSED_LEN) {
+    if ((mp_int_t)(info.len / sizeof(float)) < (mp_int_t)DR_FUSED_BUFFER_FLOATS) {
         mp_raise_ValueError(MP_ERROR_TEXT("fused state buffer shorter than FUSED_STATE_LEN"));
     }
     base = (float *)info.buf;
     *st = (dr_fused_state *)base;
-    *cfg = (dr_fused_config *)(base + DR_FUSED_STATE_FLOATS);
-    *kcfg = (dr_config *)(base + DR_FUSED_STATE_FLOATS + DR_FUSED_CONFIG_FLOATS);
+    *cfg = (dr_fused_config *)(base + DR_FUSED_CONFIG_AT);
+    *kcfg = (dr_config *)(base + DR_FUSED_KERNEL_CONFIG_AT);
 }
 
 /* fused_init(fstate): the board's configuration, a fresh state */
@@ -313,7 +311,6 @@ static mp_obj_t dr_fused_position_fn(size_t n_args, const mp_obj_t *args) {
     return mp_const_none;
 }
 static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_fused_position_obj, 5, 5, dr_fused_position_fn);
-#define DR_FUSED_FIX_AE ((mp_int_t)(offsetof(dr_fused_state, fix_ae) / sizeof(float)))
 
 #if MICROPY_ENABLE_DYNRUNTIME
 
@@ -332,16 +329,16 @@ mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *a
     mp_store_global(MP_QSTR_BLOCK, MP_OBJ_NEW_SMALL_INT(DR_BLOCK_SAMPLES));
     mp_store_global(MP_QSTR_WINDOW, MP_OBJ_NEW_SMALL_INT(DR_WINDOW_SAMPLES));
     mp_store_global(MP_QSTR_CALIBRATION_SAMPLES, MP_OBJ_NEW_SMALL_INT(DR_CALIBRATION_SAMPLES));
-    mp_store_global(MP_QSTR_Q, MP_OBJ_NEW_SMALL_INT(0));
-    mp_store_global(MP_QSTR_V, MP_OBJ_NEW_SMALL_INT(4));
-    mp_store_global(MP_QSTR_GYRO_BIAS, MP_OBJ_NEW_SMALL_INT(7));
+    mp_store_global(MP_QSTR_Q, MP_OBJ_NEW_SMALL_INT(DR_STATE_Q));
+    mp_store_global(MP_QSTR_V, MP_OBJ_NEW_SMALL_INT(DR_STATE_V));
+    mp_store_global(MP_QSTR_GYRO_BIAS, MP_OBJ_NEW_SMALL_INT(DR_STATE_GYRO_BIAS_LSB));
     mp_store_global(MP_QSTR_fused_init, MP_OBJ_FROM_PTR(&dr_fused_init_obj));
     mp_store_global(MP_QSTR_fused_calibrate, MP_OBJ_FROM_PTR(&dr_fused_calibrate_obj));
     mp_store_global(MP_QSTR_fused_process, MP_OBJ_FROM_PTR(&dr_fused_process_obj));
     mp_store_global(MP_QSTR_fused_gps, MP_OBJ_FROM_PTR(&dr_fused_gps_obj));
     mp_store_global(MP_QSTR_fused_position, MP_OBJ_FROM_PTR(&dr_fused_position_obj));
-    mp_store_global(MP_QSTR_FIX_AE, MP_OBJ_NEW_SMALL_INT(DR_FUSED_FIX_AE));
-    mp_store_global(MP_QSTR_FUSED_STATE_LEN, MP_OBJ_NEW_SMALL_INT(DR_FUSED_LEN));
+    mp_store_global(MP_QSTR_FIX_AE, MP_OBJ_NEW_SMALL_INT(DR_FUSED_STATE_FIX_AE));
+    mp_store_global(MP_QSTR_FUSED_STATE_LEN, MP_OBJ_NEW_SMALL_INT(DR_FUSED_BUFFER_FLOATS));
     MP_DYNRUNTIME_INIT_EXIT
 }
 
@@ -357,30 +354,23 @@ static const mp_rom_map_elem_t dr_native_globals_table[] = {
     { MP_ROM_QSTR(MP_QSTR_rotate_heading), MP_ROM_PTR(&dr_rotate_heading_obj) },
     { MP_ROM_QSTR(MP_QSTR_offset_latlon), MP_ROM_PTR(&dr_offset_latlon_obj) },
     { MP_ROM_QSTR(MP_QSTR_block_median), MP_ROM_PTR(&dr_block_median_obj) },
-    /* sizeof(dr_state) + sizeof(dr_config) = 22 floats (checked below) */
-    { MP_ROM_QSTR(MP_QSTR_STATE_LEN), MP_ROM_INT(22 + 3 * DR_BLOCK_SAMPLES) },
+    { MP_ROM_QSTR(MP_QSTR_STATE_LEN), MP_ROM_INT(DR_HEADER_FLOATS + 3 * DR_BLOCK_SAMPLES) },
     { MP_ROM_QSTR(MP_QSTR_OUT_LEN), MP_ROM_INT(DR_OUT_FLOATS) },
     { MP_ROM_QSTR(MP_QSTR_BLOCK), MP_ROM_INT(DR_BLOCK_SAMPLES) },
     { MP_ROM_QSTR(MP_QSTR_WINDOW), MP_ROM_INT(DR_WINDOW_SAMPLES) },
     { MP_ROM_QSTR(MP_QSTR_CALIBRATION_SAMPLES), MP_ROM_INT(DR_CALIBRATION_SAMPLES) },
-    { MP_ROM_QSTR(MP_QSTR_Q), MP_ROM_INT(0) },
-    { MP_ROM_QSTR(MP_QSTR_V), MP_ROM_INT(4) },
-    { MP_ROM_QSTR(MP_QSTR_GYRO_BIAS), MP_ROM_INT(7) },
+    { MP_ROM_QSTR(MP_QSTR_Q), MP_ROM_INT(DR_STATE_Q) },
+    { MP_ROM_QSTR(MP_QSTR_V), MP_ROM_INT(DR_STATE_V) },
+    { MP_ROM_QSTR(MP_QSTR_GYRO_BIAS), MP_ROM_INT(DR_STATE_GYRO_BIAS_LSB) },
     { MP_ROM_QSTR(MP_QSTR_fused_init), MP_ROM_PTR(&dr_fused_init_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_calibrate), MP_ROM_PTR(&dr_fused_calibrate_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_process), MP_ROM_PTR(&dr_fused_process_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_gps), MP_ROM_PTR(&dr_fused_gps_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_position), MP_ROM_PTR(&dr_fused_position_obj) },
-    { MP_ROM_QSTR(MP_QSTR_FIX_AE), MP_ROM_INT(50) },
-    /* sizeof(dr_fused_state) + sizeof(dr_fused_config) + sizeof(dr_config) = 95 + 31 + 12 floats (checked below) */
-    { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(138) },
+    { MP_ROM_QSTR(MP_QSTR_FIX_AE), MP_ROM_INT(DR_FUSED_STATE_FIX_AE) },
+    { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(DR_FUSED_BUFFER_FLOATS) },
 };
 static MP_DEFINE_CONST_DICT(dr_native_globals, dr_native_globals_table);
-
-/* the ROM table's 22, 138 and 50 must match the structs */
-typedef char dr_fused_floats_is_138[DR_FUSED_LEN == 138 ? 1 : -1];
-typedef char dr_fused_fix_ae_is_50[DR_FUSED_FIX_AE == 50 ? 1 : -1];
-typedef char dr_header_floats_is_22[(sizeof(dr_state) + sizeof(dr_config)) == 22 * sizeof(float) ? 1 : -1];
 
 const mp_obj_module_t dr_native_user_cmodule = {
     .base = { &mp_type_module },

@@ -15,11 +15,13 @@ from pydantic import (
     ConfigDict,
     Field,
     WithJsonSchema,
+    create_model,
     field_validator,
 )
 
+from codegen.kernel.layout import FUSED, FUSED_MEDIAN_MAX  # noqa: F401  (FUSED_MEDIAN_MAX: for the rules)
+
 STANDARD_GRAVITY = 9.80665  # m/s^2
-FUSED_MEDIAN_MAX = 32  # samples: the longest block the fused median option keeps (dr_fused.h DR_FUSED_MEDIAN_MAX)
 
 ACCEL_RANGES_G = (2, 4, 8, 16)
 GYRO_RANGES_DPS = (250, 500, 1000, 2000)
@@ -227,7 +229,9 @@ class Led(Part):
     active_low: bool = False
 
 
-class Algorithm(Part):
+class _AlgorithmKeys(Part):
+    """The algorithm's keys the seed mode reads; Algorithm adds one key per fused parameter."""
+
     mode: Literal["seed", "fused"] = Field(
         "fused",
         description="seed: the seed's windows (block median, deadband, double integration); fused: tilt kept by "
@@ -241,38 +245,21 @@ class Algorithm(Part):
     motion_threshold_g: float = Field(
         0.02, gt=0, description="accel standard deviation above this during calibration means 'moved'"
     )
-    # mode "fused" (codegen/kernel/fused.py, native_ext/dr_fused.c): defaults tuned on the simulator's walk/car scenarios
-    fused_tilt_tau_s: float = Field(100.0, gt=0, description="s: tilt correction time constant while GPS fixes arrive")
-    fused_accel_reject_g: float = Field(0.1, gt=0, description="g: no tilt correction while ||f| - g| exceeds this")
-    fused_tilt_tau_dark_s: float = Field(0.0, ge=0, description="s: tilt correction time constant without GPS (0: none)")
-    fused_steady_accel_ms2: float = Field(0.3, gt=0, description="m/s^2: tilt corrected only while the GPS acceleration changes less between fixes")
-    fused_speed_tau_s: float = Field(0.0, ge=0, description="s: a vehicle's speed relaxes towards the last GPS speed (0: never)")
-    fused_gps_timeout_s: float = Field(2.0, gt=0, description="s: GPS counts as lost this long after its last fix")
-    fused_stat_tau_s: float = Field(0.5, gt=0, description="s: time constant of the motion statistics")
-    fused_rest_accel_g: float = Field(0.01, gt=0, description="g: |f| standard deviation below which the device may be at rest")
-    fused_rest_gyro_dps: float = Field(0.5, gt=0, description="degree/s: rate below which the device may be at rest")
-    fused_rest_time_s: float = Field(0.4, ge=0, description="s: both below their limits this long means at rest")
-    fused_bias_tau_s: float = Field(30.0, ge=0, description="s: gyro bias re-estimation time constant at rest (0: off)")
-    fused_walk_accel_g: float = Field(0.03, gt=0, description="g: |f| standard deviation above which a walker carries the device")
-    fused_min_speed_ms: float = Field(0.5, ge=0, description="m/s: GPS speeds below this carry no course")
-    fused_heading_gain: float = Field(0.3, ge=0, le=1, description="per fix: pull of the travel direction towards the GPS course")
-    fused_align_forget: float = Field(0.98, ge=0, le=1, description="per fix: forgetting factor of the heading alignment")
-    fused_speed_gain: float = Field(0.5, ge=0, le=1, description="per fix: pull of the speed towards the GPS speed")
-    fused_bias_gain: float = Field(0.1, ge=0, le=1, description="per fix: along-track accel bias correction gain")
-    fused_walk_speed_gain: float = Field(0.2, ge=0, le=1, description="per fix: pull of the walking speed towards the GPS speed")
-    fused_kf_bias_init_g: float = Field(0.05, ge=0, description="g: initial sigma of the horizontal accelerometer offsets (0: no tilt/offset filter)")
-    fused_kf_bias_noise: float = Field(0.001, ge=0, description="m/s^2/sqrt(s): random walk of those offsets")
-    fused_kf_tilt_noise: float = Field(0.002, ge=0, description="m/s^2/sqrt(s): random walk of the gravity leak (tilt error times g)")
-    fused_kf_turn_noise: float = Field(0.1, ge=0, description="m/s^2 per rad: gravity leak a turn may add (gyro scale and cross-axis errors)")
-    fused_kf_vel_sigma_ms: float = Field(0.15, gt=0, description="m/s: GPS Doppler velocity error per axis, with unmodelled motion")
-    fused_kf_align_min: float = Field(20.0, ge=0, description="(m/s)^2: heading alignment sums needed before the filter updates")
-    fused_pos_sigma_m: float = Field(2.1, ge=0, description="m: the receiver's position error per axis, for smoothing the fix an outage starts from (0: raw fixes)")
-    fused_pos_tau_s: float = Field(60.0, gt=0, description="s: correlation time of that error")
-    fused_pos_step_sigma_ms: float = Field(0.1, gt=0, description="m/s: error of the step between fixes (Doppler trapezoid + IMU), per second")
-    fused_turn_hold_tau_s: float = Field(10.0, ge=0, description="s: a walker's slow rotations about Up (the hand swinging about the course) reach the travel direction over this; turns at once (0: everything at once)")
-    fused_turn_start_dps: float = Field(12.0, gt=0, description="degree/s: a walker's turn starts when the smoothed rate about Up exceeds this")
-    fused_turn_end_dps: float = Field(7.0, ge=0, description="degree/s: and ends when it falls below this (at most fused_turn_start_dps)")
-    fused_median: bool = Field(False, description="a vehicle's along-track acceleration is the median of the last b (block) samples: the seed's block median, sliding (b <= 32)")
+
+
+def algorithm_model(kernel=FUSED) -> type:
+    """The `algorithm` section: the seed's keys, and for mode "fused" (codegen/kernel/fused.py, native_ext/dr_fused.c)
+    one key `fused_<name>` per parameter of the kernel's declaration (codegen/kernel/layout.py), with its default,
+    unit and limits from there."""
+    keys = {}
+    for p in kernel.params:
+        kind = {"float": float, "int": int, "bool": bool}[p.kind]
+        description = f"{p.unit}: {p.doc}" if p.unit else p.doc
+        keys[kernel.board_key(p)] = (kind, Field(p.default, gt=p.gt, ge=p.ge, le=p.le, description=description))
+    return create_model("Algorithm", __base__=_AlgorithmKeys, __module__=__name__, **keys)
+
+
+Algorithm = algorithm_model()
 
 
 class Logging(Part):

@@ -12,7 +12,7 @@ from typing import Iterator, Optional
 
 from codegen.board.chips import CHIPS, PMU_RAILS, ChipPins
 from codegen.board.diagnostics import Diagnostic, error, warning
-from codegen.board.model import FUSED_MEDIAN_MAX, Board, PinSpec
+from codegen.board.model import FUSED, FUSED_MEDIAN_MAX, Board, PinSpec
 from codegen.board.yamlsource import KeyPath, SourceMap
 
 MPU6050_ADDRESSES = (0x68, 0x69)
@@ -239,13 +239,18 @@ def _check_algorithm(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
             source.value(("algorithm", "block")),
             f"use b <= {FUSED_MEDIAN_MAX}, or fused_median: false",
         )
-    if algorithm.fused_turn_end_dps > algorithm.fused_turn_start_dps:
-        yield error(
-            f"algorithm.fused_turn_end_dps: a turn that ends at {algorithm.fused_turn_end_dps:g} degree/s cannot "
-            f"start at the lower {algorithm.fused_turn_start_dps:g} degree/s",
-            source.value(("algorithm", "fused_turn_end_dps")),
-            "use fused_turn_end_dps <= fused_turn_start_dps (the defaults are 7 and 12)",
-        )
+    for p in FUSED.params:  # a fused parameter declared at most another (codegen/kernel/layout.py)
+        if p.at_most is None:
+            continue
+        key, other = FUSED.board_key(p), FUSED.param(p.at_most)
+        value, limit = getattr(algorithm, key), getattr(algorithm, FUSED.board_key(other))
+        if value > limit:
+            why = p.at_most_why or "{value:g} {unit} is above {other} ({limit:g} {unit})"
+            yield error(
+                f"algorithm.{key}: " + why.format(value=value, limit=limit, unit=p.unit, other=FUSED.board_key(other)),
+                source.value(("algorithm", key)),
+                f"use {key} <= {FUSED.board_key(other)} (the defaults are {p.default:g} and {other.default:g})",
+            )
     if algorithm.deadband_g >= imu.accel_range_g:
         yield error(
             f"algorithm.deadband_g: l = {algorithm.deadband_g} g is not below the accelerometer range "

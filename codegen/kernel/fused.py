@@ -1,113 +1,26 @@
 """The fused real-time algorithm (`algorithm: fused`, issue 8): the executable specification, float64.
 
-The seed integrated gravity-removed ENU accelerations twice from a gyro-only orientation that never knew North. The
-fused method keeps the same front end (calibration, gyro bias, quaternion body -> kernel ENU) and adds, per sample:
+Per sample (`process`): tilt corrected towards gravity, motion statistics (rest, walking), a travel direction turned
+by the gyro (a walker's slow swings held back) and a speed along it, the position in true ENU. At each GPS fix
+(`position_update`, then `gps_update`): the fix smoothed with the Doppler and the IMU, the heading alignment of the
+kernel frame to North, the travel direction, the speed, the along-track bias, the walking speed, and a 4-state
+Kalman filter of the tilt and the accelerometer's offsets (`tilt_and_offset_update`). docs/fused.md gives the
+equations and how the defaults were tuned; native_ext/dr_fused.c and the fallback's fused_* are the same steps in
+float32.
 
-1. tilt kept honest by gravity: a Mahony-type correction of the gyro rate towards the measured specific force,
-       omega_c = omega + Kp (f_c/|f_c| x up_body),   up_body = R(q)^T [0, 0, 1],   Kp = 1 / tilt_tau_s
-   where f_c = f - R^T [acc_e, acc_n, 0] subtracts the motion acceleration the last two GPS fixes showed, applied
-   only while | |f_c| - g | < accel_reject_g g and that acceleration is steady (changed by less than
-   steady_accel_ms2 between fixes): acceleration rejection. Without GPS (gps_timeout_s after the last fix) the
-   gain is 1 / tilt_tau_dark_s, 0 by default: a car's sustained accelerations would pull the tilt away;
-2. motion statistics as exponential moving averages over stat_tau_s: the mean and variance of |f| and the mean of
-   |omega|^2. Rest = variance below rest_accel_g^2, rate below rest_gyro_dps and the horizontal acceleration
-   |a_h| below the board's deadband (a smooth push is no rest), all for rest_time_s: zero-velocity
-   update (speed 0) and the gyro bias re-estimated towards the raw gyro counts (time constant bias_tau_s).
-   Walking = the |f| variance above walk_accel_g^2 (the steps shake the device);
-3. a travel direction u (unit, horizontal, in the kernel's earth frame) turned by the gyro's rate about Up,
-       r = up_body . omega,   u <- u rotated by r dt
-   except that a walker's slow rotations are held back: the hand swings the device about the course (the walker
-   goes straight), while a walker's turns are quick. While walking, r dt goes into a held angle h; a turn starts
-   when r smoothed over stat_tau_s exceeds turn_start_dps and ends when it falls below turn_end_dps (hysteresis,
-   so the turn keeps its gentle ends); during a turn u takes h at once, otherwise h dt / turn_hold_tau_s of it
-   (a swing that returns cancels in h before u takes much of it; a slow curve still arrives, late). Measured on
-   walk seeds 101-136 (10 / 30 / 60 s medians): 3.13 / 6.85 / 11.97 -> 3.04 / 6.83 / 12.36 m, the 10 s drift
-   2.24 -> 1.79 m; the replayed real walk unchanged at 10 and 30 s (2.98 / 3.66 -> 2.99 / 3.61 m); no vehicle
-   is walking, so the car is untouched;
-   and a speed s >= 0 along it: at rest s = 0; walking s = the learned walking speed, and 0 on the sample the
-   steps stop (a walker who stops stepping has stopped; the hand still moves, so rest alone misses it: on walk
-   seeds 101-112 that took the 10 / 30 / 60 s medians from 3.4 / 7.9 / 13.4 to 3.2 / 7.0 / 12.3 m, and the
-   replayed real walk's 60 s from 6.1 to 5.2 m); otherwise (a vehicle)
-       s <- s + (D(u . a_h - b) + (s_gps - s) / speed_tau_s) dt,   a = R(q) f - [0, 0, g],
-   D the board's deadband (|x| < algorithm.deadband_g becomes 0: it stops a slow tilt leak from building speed),
-   applied after the optional median of the last b along-track accelerations (`median`, off by default),
-   b the along-track accelerometer bias, s_gps the last GPS speed (an optional prior, off by default: it pulls
-   a car that brakes or speeds up during the outage back to its old speed);
-4. position in true ENU: p += s (A u) dt, with A the rotation by theta from the kernel's frame to true ENU
-   (the kernel's yaw after calibration is arbitrary).
-
-And at each GPS fix with Doppler velocity g (true ENU, m/s), `gps_update`:
-- heading alignment (a running 2-D Wahba problem): with dv_imu = the integral of a_h since the previous fix and
-  dv_gps = the change of the GPS velocity, accumulate C <- lambda C + dv_imu . dv_gps, S <- lambda S + dv_imu x dv_gps;
-  (cos theta, sin theta) = (C, S) / |(C, S)|;
-- travel direction: u <- normalise(u + heading_gain (A^T g/|g| - u)) while |g| >= min_speed_ms;
-- speed and along-track bias: a steady-state two-state Kalman filter (alpha-beta form) on e = |g| - s:
-  s <- s + speed_gain e, b <- b - bias_gain e / T (T: seconds since the previous fix);
-- walking speed: while walking, s_walk <- s_walk + walk_speed_gain (|g| - s_walk);
-- (before gps_update, position_update) the fix's position smoothed with the Doppler and the IMU's step between
-  fixes: a 2-state Kalman filter per axis of the true position and the receiver's slowly wandering error
-  (Gauss-Markov, pos_sigma_m, pos_tau_s), so an outage starts from a better point than the raw fix (0 s medians:
-  car 2.8 -> 2.2 m, replayed walk 2.3 -> 1.8 m, simulated walk 3.0 -> 2.2 m);
-- the tilt and the accelerometer's horizontal offsets, a 4-state Kalman filter (tilt_and_offset_update): the
-  difference between the IMU's and the GPS's velocity change over the interval is the gravity leak (g times the
-  tilt error, fixed in the earth frame) plus the body-frame offsets seen through R(q). Calibration folds the
-  offsets into the tilt, which is harmless until the device turns: after a 90 degree turn a 50 mg offset leaks
-  ~0.7 m/s^2 into the horizontal. The filter starts knowing that fold (leak = -R_h b) and separates the two as
-  the device turns under GPS; both are fed back (the offsets subtracted from every sample, the leak rotated out
-  of q), so an outage starts with the true tilt and offsets, and later turns leak nothing.
-
-Tuning (FusedConfig defaults = the board's algorithm.fused_* defaults): chosen on simulator seeds 101-106 (walk,
-car) and replay degradations 101-103, never on the seeds benchmarks/accuracy.py reports (0-2, replay 0-4). What
-mattered: rest needs a gyro limit of 0.5 degree/s (a car cruising smoothly looked "at rest" at 2 degree/s and the
-zero-velocity update stopped it); walking shows as |f| standard deviation above 0.03 g (hand-held real walk
-0.04-0.09 g, cars below 0.006 g), and a walker's speed is best held at the learned walking speed rather than
-integrated. For the car, the error budget (one MPU-6050 error source at a time) showed that with ideal sensors the
-speed prior alone cost 101 m at 60 s (13 m without it: speed_tau_s 0), and that of the sensor errors the
-accelerometer offset dominated (102 of 122 m on seeds 104-106); the tilt/offset filter took the car from 122 to
-26 m at 60 s there. With the filter on, the Mahony correction while fixes arrive only fights it (21 m with
-tilt_tau_s 100 s, 26 m with 20 s), so it is kept weak; none without GPS (a car's sustained accelerations would
-pull the tilt away). The board's deadband (0.03125 g) on the along-track acceleration still helps the car (60 s
-median 22 -> 34 m with 0.01 g) and leaves the walks unchanged, so it stays. The block median stays available as
-`median` (board fused_median: true): a per-sample filter has no blocks, so it is the seed's median of b samples
-made sliding, on a vehicle's along-track acceleration (the ring restarts after rest or walking). On car seeds
-101-106 it moved the 30 / 60 s medians from 7.5 / 21.6 m to 7.9 / 22.1 m: the MPU-6050 model's noise is
-Gaussian, without the spikes (a door slam, a pothole) a median is for, so it is off by default.
-
-The walk's limit: the fix an outage starts from is already ~2.2 m off (the receiver's slowly wandering error, which
-the position filter can only partly average out: with a 60 s correlation time a 300 s run holds only a few
-independent draws of it, so 10 s medians move by +-0.1-0.2 m between seed sets; compare variants on 36 seeds),
-and the hand's slow yaw swings (the simulator's +-10 degrees about the course) turn u although the walker goes
-straight; with them switched off in the simulator the 10 s drift falls from 2.1 to 1.2 m. The turn hold (step 3)
-takes back part of that. Its settings, 10 s (60 s) medians on walk seeds 101-136, the rate smoothed over 0.3 s:
-- turn end 4 degree/s, turn_hold_tau_s 5 / 10 / 20 s: 3.07 / 3.06 / 3.04 m (11.7 / 12.2 / 12.8 m: a slow curve
-  arrives later); hold 10 s, end 2 / 4 / 7 / 10 degree/s: 3.06 / 3.06 / 3.01 / 3.01 m; start 8 / 12 / 16
-  degree/s: 3.07 / 3.06 / 3.06 m; end 7, hold 8 / 10 / 15 s: 3.04 / 3.01 / 2.99 m (12.1 / 12.2 / 12.6 m);
-- the rate smoothed over stat_tau_s (0.5 s) instead: 3.04 m, within the noise, and one parameter fewer.
-Tried and dropped, each measured on walk seeds 101-112 (or 101-136) and the replayed real walk:
-- no turn while the smoothed rate about Up stays below 7 degree/s (10 s 3.5 -> 3.2 m, but 30 / 60 s
-  7.4 -> 8.3 / 14.3 -> 19.9 m: real turns lose their gentle ends);
-- the hand's offset from the course (what the GPS pulls on u add up to, less their mean) decaying back to its
-  mean during an outage, as a Gauss-Markov process would (time constants 3-20 s): 10 s 3.2 -> 3.2-3.7 m, since
-  the pulls see the offset late and noisily (its correlation with the true offset is 0.55);
-- ending the walk earlier (a higher variance limit to stop, or a faster variance for it, 0.3 s): within 0.05 m;
-- the walker's axis as the principal axis of the horizontal acceleration (the steps surge forwards): exact on
-  the simulator's gait (8 degrees), but on the real walk's IMU the axis is 64 degrees off the course in the median
-  (its sway and the vertical bob leaking through the tilt dominate): a simulator artefact, not used;
-- heading gains 0.08-1.0 (0.3 is best), walking speed gains 0.1-0.3 (0.2 is best).
-
-The state is a flat vector of floats (the C kernel's caller-owned buffer holds the same fields in the same order);
-FusedState below names them. One GPS-free pass over the IMU and the GPS updates at their epochs is exactly what the
-device does; `estimate` runs it for the simulator's benchmark (codegen.sim.methods registers it as "fused").
+The state is a flat vector of floats and the parameters a FusedConfig, both from the declaration
+(codegen/kernel/layout.py) that also lays out the C kernel's caller-owned buffer and the fallback's offsets: FusedState
+names its fields, STATE_FIELDS lists them in memory order.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import field, make_dataclass
 
 import numpy as np
 
-from codegen.board.model import FUSED_MEDIAN_MAX
+from codegen.kernel.layout import FUSED, FUSED_MEDIAN_MAX
 from codegen.kernel.reference import (
     STANDARD_GRAVITY,
     KernelConfig,
@@ -115,89 +28,33 @@ from codegen.kernel.reference import (
     tilt_from_gravity,
 )
 
-
-@dataclass(frozen=True)
-class FusedConfig:
-    """The fused method's parameters (board `algorithm.fused_*`, the C `dr_fused_config`), with units."""
-
-    tilt_tau_s: float = 100.0  # s, time constant of the tilt correction towards gravity (Kp = 1/tau)
-    accel_reject_g: float = 0.1  # g, no tilt correction while | |f| - g | exceeds this
-    tilt_tau_dark_s: float = 0.0  # s, the same without GPS (no motion acceleration to subtract); 0: none
-    steady_accel_ms2: float = 0.3  # m/s^2, the tilt is corrected only while the GPS acceleration changes less
-    speed_tau_s: float = 0.0  # s, a vehicle's speed relaxes towards the last GPS speed (0: never)
-    gps_timeout_s: float = 2.0  # s, the GPS counts as lost this long after its last fix
-    stat_tau_s: float = 0.5  # s, time constant of the motion statistics
-    rest_accel_g: float = 0.01  # g, standard deviation of |f| below which the device may be at rest
-    rest_gyro_dps: float = 0.5  # degree/s, rate below which the device may be at rest
-    rest_time_s: float = 0.4  # s, both below their limits this long = at rest
-    bias_tau_s: float = 30.0  # s, time constant of the gyro bias re-estimation at rest
-    walk_accel_g: float = 0.03  # g, standard deviation of |f| above which the device is carried by a walker
-    min_speed_ms: float = 0.5  # m/s, GPS speeds below this carry no course
-    heading_gain: float = 0.3  # per fix, pull of the travel direction towards the GPS course
-    align_forget: float = 0.98  # per fix, forgetting factor of the heading alignment sums
-    speed_gain: float = 0.5  # per fix, pull of the speed towards the GPS speed
-    bias_gain: float = 0.1  # per fix, along-track bias correction per m/s of speed error (times 1/T)
-    walk_speed_gain: float = 0.2  # per fix, pull of the walking speed towards the GPS speed
-    kf_bias_init_g: float = 0.05  # g, initial sigma of the horizontal accelerometer offsets (body x, y); 0: no filter
-    kf_bias_noise: float = 0.001  # m/s^2/sqrt(s), random walk of those offsets
-    kf_tilt_noise: float = 0.002  # m/s^2/sqrt(s), random walk of the gravity leak (tilt error times g)
-    kf_turn_noise: float = 0.1  # m/s^2 per rad, gravity leak a turn adds (gyro cross-axis and scale errors)
-    kf_vel_sigma_ms: float = 0.15  # m/s, GPS Doppler velocity error per axis (with unmodelled motion)
-    kf_align_min: float = 20.0  # (m/s)^2, heading alignment sums needed before the filter trusts the frame
-    median: float = 0.0  # 1: a vehicle's along-track acceleration is the median of the last b (algorithm.block)
-    pos_sigma_m: float = 2.1  # m, the receiver's position error per axis (Gauss-Markov sigma); 0: no smoothing
-    pos_tau_s: float = 60.0  # s, its correlation time
-    pos_step_sigma_ms: float = 0.1  # m/s, error of the step between fixes (Doppler trapezoid + IMU), per second
-    turn_hold_tau_s: float = 10.0  # s, a walker's slow rotations about Up reach u over this (0: at once)
-    turn_start_dps: float = 12.0  # degree/s, a walker's turn starts when the smoothed rate about Up exceeds this
-    turn_end_dps: float = 7.0  # degree/s, and ends when it falls below this
-
-    @classmethod
-    def from_board(cls, board) -> "FusedConfig":
-        alg = board.algorithm
-        values = {}
-        for f in fields(cls):
-            name = "fused_" + f.name
-            if hasattr(alg, name):
-                values[f.name] = float(getattr(alg, name))
-        return cls(**values)
+AT_REST, WALKING, TURNING = (next(f.value for f in FUSED.flags if f.name == name)
+                             for name in ("AT_REST", "WALKING", "TURNING"))
 
 
-# The state vector: name -> offset (the C struct dr_fused_state has the same fields in this order).
-STATE_FIELDS = (
-    "qw", "qx", "qy", "qz",  # orientation body -> kernel ENU
-    "bgx", "bgy", "bgz",  # gyro bias, counts (body frame)
-    "mean_f", "var_f", "w2",  # motion statistics: |f| m/s^2, its variance (m/s^2)^2, |omega|^2 (rad/s)^2
-    "acc_e", "acc_n",  # motion acceleration from the GPS, kernel frame m/s^2 (the tilt reference subtracts it)
-    "steady",  # > 0 while that acceleration changed less than steady_accel_ms2: steady^2 - change^2
-    "rest_s",  # s the device has looked at rest
-    "ux", "uy",  # travel direction, kernel frame (unit)
-    "speed", "bias",  # speed along u m/s, along-track accel bias m/s^2
-    "walk_speed",  # m/s, learned walking speed
-    "cos_t", "sin_t",  # rotation kernel frame -> true ENU
-    "align_c", "align_s",  # heading alignment sums, (m/s)^2
-    "dvx", "dvy",  # integral of the kernel-frame horizontal acceleration since the last fix, m/s
-    "since_fix",  # s since the last GPS update
-    "gps_ve", "gps_vn",  # previous fix's velocity, m/s (true ENU)
-    "gps_speed",  # m/s, the last fix's speed (a vehicle's speed relaxes towards it)
-    "gps_ok",  # > 0 if the previous fix's velocity has a course: its speed - min_speed_ms
-    "pe", "pn",  # position accumulated since the last reset, true ENU m
-    "flags",  # 1 at rest, 2 walking, 4 turning (bit field, last sample)
-    "bax", "bay",  # accelerometer offsets, body x and y, m/s^2 (subtracted from every sample)
-    "m00", "m01", "m10", "m11",  # integral of the horizontal rows of R(q) since the last fix, s
-    "turn",  # integral of |rate about Up| since the last fix, rad
-    "p00", "p01", "p02", "p03", "p11", "p12", "p13", "p22", "p23", "p33",  # the filter's covariance (upper)
-    "fix_ae", "fix_an",  # smoothed position minus the last fix's, true ENU m (where an outage starts from)
-    "fix_ee", "fix_en",  # the receiver's position error estimated at the last fix, m
-    "fix_pxx", "fix_pxe", "fix_pee",  # their covariance (the same for East and North), m^2
-    "dpx", "dpy",  # integral of dvx, dvy since the last fix, m (after the fields the app reads: their offsets stay)
-    "rate_up",  # rad/s, the rate about Up smoothed over stat_tau_s
-    "held",  # rad, rotation about Up a walker's u has not taken yet
-    "med_i", "med_n",  # the median option's ring: next slot, slots filled
-) + tuple(f"med{k}" for k in range(FUSED_MEDIAN_MAX))  # the last along-track accelerations (a ring), m/s^2
-IDX = {name: i for i, name in enumerate(STATE_FIELDS)}
+def _from_board(cls, board) -> "FusedConfig":
+    """The board's algorithm.fused_* values."""
+    return cls(**{p.name: p.number(getattr(board.algorithm, FUSED.board_key(p))) for p in FUSED.params})
+
+
+FusedConfig = make_dataclass(
+    "FusedConfig",
+    [(p.name, float, field(default=p.number(p.default))) for p in FUSED.params],
+    frozen=True,
+    namespace={
+        "__doc__": "The fused method's parameters in their declared units (codegen/kernel/layout.py: board "
+        "`algorithm.fused_<name>`, the C dr_fused_config_set's array in this order); a bool option is 1.0 or 0.0.",
+        "from_board": classmethod(_from_board),
+    },
+)
+FusedConfig.__module__ = __name__
+
+# The state vector: every value's name in memory order (the C struct dr_fused_state, the fallback's offsets).
+STATE_FIELDS = FUSED.element_names()
+IDX = FUSED.element_offsets()
 STATE_LEN = len(STATE_FIELDS)
 OUT_LEN = 6
+_INITIAL = {f.element_names()[i]: x for f, i, x in FUSED.initial_values()}
 
 
 class FusedState:
@@ -207,10 +64,7 @@ class FusedState:
 
     def __init__(self):
         for name in STATE_FIELDS:
-            setattr(self, name, 0.0)
-        self.qw = 1.0
-        self.ux = 1.0
-        self.cos_t = 1.0
+            setattr(self, name, _INITIAL.get(name, 0.0))
 
     def copy(self) -> "FusedState":
         other = FusedState.__new__(FusedState)
@@ -264,8 +118,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         raise ValueError(f"the median option takes algorithm.block <= {FUSED_MEDIAN_MAX}, not {median}")
     ring = [getattr(st, f"med{k}") for k in range(FUSED_MEDIAN_MAX)]
     flags = np.zeros(len(dts), dtype=np.int8)
-    was_walking = bool(int(st.flags) & 2)
-    turning = bool(int(st.flags) & 4)
+    was_walking = bool(int(st.flags) & WALKING)
+    turning = bool(int(st.flags) & TURNING)
     hold_rate = 1.0 / fcfg.turn_hold_tau_s if fcfg.turn_hold_tau_s > 0.0 else 0.0
     turn_start = math.radians(fcfg.turn_start_dps)
     turn_end = math.radians(fcfg.turn_end_dps)
@@ -329,7 +183,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
             turning = False
             da += st.held
             st.held = 0.0
-        flags[k] = (1 if rest else 0) | (2 if walking else 0) | (4 if turning else 0)
+        flags[k] = (AT_REST if rest else 0) | (WALKING if walking else 0) | (TURNING if turning else 0)
         # u rotated by da (to second order: a turn's held part can be tens of degrees)
         cd = 1.0 - 0.5 * da * da
         sd = da * (1.0 - da * da * (1.0 / 6.0))
@@ -500,11 +354,11 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
         norm = math.sqrt(ux * ux + uy * uy)
         if norm > 0.0:
             st.ux, st.uy = ux / norm, uy / norm
-        if int(st.flags) & 2:
+        if int(st.flags) & WALKING:
             st.walk_speed += fcfg.walk_speed_gain * (speed - st.walk_speed)
     e = speed - st.speed
     st.speed += fcfg.speed_gain * e
-    if t > 0.0 and not int(st.flags) & 3:
+    if t > 0.0 and not int(st.flags) & (AT_REST | WALKING):
         st.bias -= fcfg.bias_gain * e / t
     if st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s:
         # the motion acceleration over the last interval, into the kernel frame (A^T)
@@ -528,7 +382,7 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
 
 
 # the covariance's upper triangle in STATE_FIELDS order: (row, column) -> field
-COVARIANCE_FIELDS = ("p00", "p01", "p02", "p03", "p11", "p12", "p13", "p22", "p23", "p33")
+COVARIANCE_FIELDS = FUSED.field("p").element_names()
 _PIJ = {(i, j): COVARIANCE_FIELDS[n] for n, (i, j) in enumerate((i, j) for i in range(4) for j in range(i, 4))}
 
 

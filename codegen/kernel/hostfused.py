@@ -9,36 +9,31 @@ the app drives dr_native (calibrate, process windows, a GPS update per fix).
 
 from __future__ import annotations
 
-from dataclasses import fields
-
 import numpy as np
 
+from codegen.errors import UserError
 from codegen.kernel import hostkernel
-from codegen.kernel.fused import STATE_LEN, FusedConfig
+from codegen.kernel.layout import FUSED
 
 SOURCES = ("dr_kernel.c", "dr_median.c", "dr_geo.c", "dr_fused.c")
 HEADERS = ("dr_fused.h",)
-PARAM_ORDER = tuple(f.name for f in fields(FusedConfig))  # dr_fused_config_set's order
+PARAM_ORDER = FUSED.param_names  # dr_fused_config_set's order (DR_FUSED_P_*)
+STATE_LEN = FUSED.state_floats
 
 CDEF = hostkernel.CONFIG_CDEF + """
 typedef struct { ...; } dr_fused_config;
 typedef struct { ...; } dr_fused_state;
 void dr_fused_config_init(dr_fused_config *cfg);
-int dr_fused_config_set(dr_fused_config *cfg, const float p[%d]);
+int dr_fused_config_set(dr_fused_config *cfg, const float *p);
 void dr_fused_state_init(dr_fused_state *st);
 int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t *samples, int32_t count);
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
                      const int32_t *dt_us, int32_t count, float out[6]);
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn);
 void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn);
-""" % len(PARAM_ORDER)
+"""
 
-C_SOURCE = """
-#include "dr_fused.h"
-typedef char dr_fused_state_is_%(state)d_floats[sizeof(dr_fused_state) == %(state)d * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_has_%(params)d_floats[sizeof(dr_fused_config) == %(params)d * sizeof(float) ? 1 : -1];
-typedef char dr_fused_params_match[DR_FUSED_PARAMS == %(params)d ? 1 : -1];
-""" % {"state": STATE_LEN, "params": len(PARAM_ORDER)}
+C_SOURCE = '#include "dr_fused.h"\n'
 
 
 class FusedSession:
@@ -99,6 +94,10 @@ class HostFused:
     def __init__(self, module):
         self.ffi = module.ffi
         self.lib = module.lib
+        floats = self.ffi.sizeof("dr_fused_state") // self.ffi.sizeof("float")
+        if floats != STATE_LEN:  # dr_layout.h asserts its own sizes; this catches sources from another declaration
+            raise UserError(f"the compiled dr_fused_state holds {floats} floats, the declaration {STATE_LEN}",
+                            hint="regenerate the native sources from codegen/kernel/layout.py")
 
     def session(self, params=None) -> FusedSession:
         return FusedSession(self, params)

@@ -30,9 +30,11 @@ import numpy as np
 from codegen.errors import Location, UserError
 
 KERNEL_SOURCES = ("dr_kernel.c", "dr_median.c", "dr_geo.c")
-KERNEL_HEADERS = ("dr_kernel.h", "dr_median.h", "dr_geo.h", "dr_math.h", "dr_board.h")
+KERNEL_HEADERS = ("dr_kernel.h", "dr_layout.h", "dr_median.h", "dr_geo.h", "dr_math.h", "dr_board.h")
 C_FLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2", "-fPIC")
 
+# The structs' fields the wrappers touch; `...;` lets cffi take the layout from the rendered dr_layout.h, so a field
+# added to the declaration (codegen/kernel/layout.py) needs no change here.
 CONFIG_CDEF = """
 typedef struct {
     int32_t block;
@@ -43,6 +45,7 @@ typedef struct {
     float gyro_rads_per_lsb;
     float deadband_ms2;
     float motion_limit_lsb2;
+    ...;
 } dr_config;
 void dr_config_init(dr_config *cfg);
 """
@@ -52,6 +55,7 @@ typedef struct {
     float q[4];
     float v[3];
     float gyro_bias_lsb[3];
+    ...;
 } dr_state;
 int dr_config_set(dr_config *cfg, int32_t block, int32_t window, float accel_lsb_per_g, float gyro_lsb_per_dps,
                   float deadband_g, float motion_threshold_g);

@@ -1,0 +1,466 @@
+"""One declaration of the kernels' memory: the state fields, the configuration slots (with units and limits), the
+flags and the return codes of the seed kernel (C prefix `dr`) and of the fused method (`dr_fused`).
+
+Rendered, never copied by hand, into
+- the C header `native/dr_layout.h` (templates/native/dr_layout.h.j2): the structs, their lengths and the offsets
+  of their fields, the parameter checks and the parameters' conversion into the configuration the loop reads;
+- the board constants `native/dr_board.h` (the fused parameters' board values);
+- the MicroPython fallback `app/dr_fallback.py` (templates/micropython/dr_fallback.py.j2): the offsets as `const()`,
+  the lengths, the board's parameters and the same checks and conversions;
+and read by the float64 reference (codegen/kernel/fused.py: FusedConfig, FusedState, STATE_FIELDS), the board model
+(codegen/board/model.py: one key `algorithm.fused_<name>` per fused parameter, with its default, unit and limits) and
+the board rules (a parameter `at_most` another). The arithmetic of every step stays hand-written in each language.
+
+Adding a state field is one `Field(...)` line here plus the algorithm's lines; adding a parameter is one
+`Param(...)` line plus the algorithm's lines (docs/kernel-layout.md says where those go).
+
+Every field is 4 bytes (float or int32), so a struct is also a run of floats in a caller's array('f'): offsets are
+counted in floats. The order here is the order in memory; the fields the app reads (`public`) keep their offsets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Union
+
+Number = Union[float, int, bool]
+
+# Named constants a conversion may multiply by, with their values: DR_<NAME> in C (dr_math.h), _<NAME> in the
+# fallback (dr_fallback.py).
+CONSTANTS = {"GRAVITY_MS2": 9.80665, "RAD_PER_DEG": 0.017453292519943295}
+
+
+@dataclass(frozen=True)
+class Field:
+    """A state or configuration field: `length` 4-byte values (`ctype` float or int32_t)."""
+
+    name: str  # the C struct member; the reference's attribute when length is 1
+    unit: str
+    doc: str
+    length: int = 1
+    elements: tuple[str, ...] = ()  # the reference's attribute of each value when length > 1 (default name0..)
+    initial: tuple[float, ...] = ()  # values after *_state_init, from the first element (the rest 0)
+    ctype: str = "float"  # "float" or "int32_t"
+    public: str = ""  # the name under which dr_native and dr_fallback export the offset ("" = private)
+
+    def element_names(self) -> tuple[str, ...]:
+        if self.length == 1:
+            return (self.name,)
+        return self.elements or tuple(f"{self.name}{k}" for k in range(self.length))
+
+
+@dataclass(frozen=True)
+class Store:
+    """How a parameter is kept in the configuration struct the loop reads: `field = form(value)` with
+      copy  value                       scale  value * factor
+      recip factor / value (value > 0)  rate   1 / value, or 0 when value is 0 (a time constant of 0 = off)
+      square times * (value * factor)^2
+    factor: a name of CONSTANTS, another parameter's name, or None (1)."""
+
+    field: str
+    unit: str
+    form: str = "copy"
+    factor: Optional[str] = None
+    times: float = 1.0
+
+
+@dataclass(frozen=True)
+class Param:
+    """A configuration slot as the caller sets it (board key, dr_*_config_set argument), in the unit it is given in.
+    Limits: gt/ge/le as in pydantic; at_most: another parameter's name it may not exceed; multiple_of: another
+    (integer) parameter's name it must be a positive multiple of. A failed check returns DR_<error>."""
+
+    name: str
+    unit: str
+    doc: str
+    store: Store
+    default: Optional[Number] = None  # the board's default (None: the board model declares the key itself)
+    kind: str = "float"  # "float", "int" (int32_t in C) or "bool" (0.0 / 1.0 in a parameter array)
+    gt: Optional[float] = None
+    ge: Optional[float] = None
+    le: Optional[float] = None
+    at_most: Optional[str] = None
+    at_most_why: str = ""  # the board rule's message, formatted with value, limit and unit
+    multiple_of: Optional[str] = None
+    error: str = "ERR_RANGE"
+
+    def limits_text(self) -> str:
+        """The limits in words, for error messages: '> 0', '>= 0 and <= 1', 'a positive multiple of block'."""
+        parts = []
+        if self.multiple_of:
+            parts.append(f"a positive multiple of {self.multiple_of}")
+        for symbol, bound in (("> ", self.gt), (">= ", self.ge), ("<= ", self.le)):
+            if bound is not None and not (self.multiple_of and symbol == ">= "):
+                parts.append(f"{symbol}{bound:g}")
+        if self.at_most:
+            parts.append(f"<= {self.at_most}")
+        return " and ".join(parts)
+
+    @property
+    def ctype(self) -> str:
+        """The C type of the argument (a parameter array holds floats whatever the kind)."""
+        return "int32_t" if self.kind == "int" else "float"
+
+    def number(self, value: Number) -> float:
+        """The value as a kernel parameter (a float; a bool is 1.0 or 0.0)."""
+        return float(value)
+
+
+@dataclass(frozen=True)
+class Flag:
+    name: str
+    value: int
+    doc: str
+
+
+@dataclass(frozen=True)
+class Code:
+    name: str
+    value: int
+    doc: str
+
+
+@dataclass(frozen=True)
+class Kernel:
+    """One kernel's memory. C names: `<c_prefix>_state`, `<c_prefix>_config`, macros `<C_PREFIX>_...`; the fallback's
+    offsets `<py_prefix>_<FIELD>`. The configuration struct holds each parameter's stored field, in parameter order,
+    then `config_extra` (fields only *_config_init sets, from the board)."""
+
+    title: str
+    c_prefix: str
+    py_prefix: str
+    state: tuple[Field, ...]
+    params: tuple[Param, ...]
+    config_extra: tuple[Field, ...] = ()
+    flags: tuple[Flag, ...] = ()
+    board_prefix: str = ""  # the board keys of the parameters: algorithm.<board_prefix><name> ("" = not generated)
+    param_array: bool = False  # C: *_config_set takes the parameters as one float array (else as arguments)
+
+    @property
+    def macro(self) -> str:
+        return self.c_prefix.upper()
+
+    @property
+    def config(self) -> tuple[Field, ...]:
+        stored = tuple(
+            Field(p.store.field, p.store.unit, f"from {p.name}" + (f" ({p.unit})" if p.unit else ""),
+                  ctype=p.ctype)
+            for p in self.params
+        )
+        return stored + self.config_extra
+
+    @property
+    def state_floats(self) -> int:
+        return sum(f.length for f in self.state)
+
+    @property
+    def config_floats(self) -> int:
+        return sum(f.length for f in self.config)
+
+    def offsets(self, fields: tuple[Field, ...]) -> dict[str, int]:
+        """Field name -> offset in floats from the start of its struct."""
+        out, at = {}, 0
+        for f in fields:
+            out[f.name] = at
+            at += f.length
+        return out
+
+    @property
+    def state_offsets(self) -> dict[str, int]:
+        return self.offsets(self.state)
+
+    @property
+    def config_offsets(self) -> dict[str, int]:
+        return self.offsets(self.config)
+
+    def element_names(self) -> tuple[str, ...]:
+        """Every state value's name, in memory order (the reference's flat view)."""
+        return tuple(name for f in self.state for name in f.element_names())
+
+    def element_offsets(self) -> dict[str, int]:
+        return {name: i for i, name in enumerate(self.element_names())}
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.params)
+
+    def field(self, name: str) -> Field:
+        for f in self.state:
+            if f.name == name:
+                return f
+        raise KeyError(name)
+
+    def param(self, name: str) -> Param:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+    def board_key(self, p: Param) -> str:
+        return self.board_prefix + p.name
+
+    def initial_values(self) -> tuple[tuple[Field, int, float], ...]:
+        """(field, element index, value) of every non-zero value after *_state_init."""
+        return tuple((f, i, float(v)) for f in self.state for i, v in enumerate(f.initial) if v)
+
+
+RETURN_CODES = (
+    Code("OK", 0, "done"),
+    Code("MOVED", 1, "calibration: an accel axis' standard deviation exceeded the motion threshold"),
+    Code("ERR_BLOCK", -1, "block < 1 (or, fused, longer than the median option's ring)"),
+    Code("ERR_WINDOW", -2, "window < 1 or not a multiple of block"),
+    Code("ERR_COUNT", -3, "sample count < 1 or not a multiple of block"),
+    Code("ERR_RANGE", -4, "a parameter outside its limits, or (dr_calibrate, dr_process) an unusable configuration: "
+         "block < 1 or an axis source outside 0..2"),
+)
+OUT_FLOATS = 6  # floats *_process writes: displacement East, North, Up (m), velocity East, North, Up (m/s)
+FUSED_MEDIAN_MAX = 32  # samples: the longest block the fused median option's ring keeps
+
+SEED = Kernel(
+    title="the seed kernel (dr_kernel.c, codegen/kernel/reference.py)",
+    c_prefix="dr",
+    py_prefix="_S",
+    state=(
+        Field("q", "", "orientation, unit quaternion w, x, y, z turning body vectors into ENU", 4,
+              initial=(1.0,), public="Q"),
+        Field("v", "m/s", "velocity East, North, Up", 3, public="V"),
+        Field("gyro_bias_lsb", "counts", "body-frame gyro bias", 3, public="GYRO_BIAS"),
+    ),
+    params=(
+        Param("block", "samples", "b: samples per block median", Store("block", "samples"), kind="int", ge=1,
+              error="ERR_BLOCK"),
+        Param("window", "samples", "n: samples per window (the caller's buffer size)", Store("window", "samples"),
+              kind="int", ge=1, multiple_of="block", error="ERR_WINDOW"),
+        Param("accel_lsb_per_g", "counts per g", "accelerometer sensitivity",
+              Store("accel_ms2_per_lsb", "m/s^2 per count", "recip", "GRAVITY_MS2"), gt=0),
+        Param("gyro_lsb_per_dps", "counts per degree/s", "gyroscope sensitivity",
+              Store("gyro_rads_per_lsb", "rad/s per count", "recip", "RAD_PER_DEG"), gt=0),
+        Param("deadband_g", "g", "l: a block median with |a| below it becomes 0",
+              Store("deadband_ms2", "m/s^2", "scale", "GRAVITY_MS2"), ge=0),
+        Param("motion_threshold_g", "g", "calibration 'moved' when an accel axis' standard deviation exceeds this",
+              Store("motion_limit_lsb2", "counts^2", "square", "accel_lsb_per_g"), gt=0),
+    ),
+    config_extra=(
+        Field("axis_source", "", "body axis i <- sensor axis axis_source[i] (0..2), for accel and gyro alike", 3,
+              ctype="int32_t"),
+        Field("axis_sign", "", "... times axis_sign[i] (+1 or -1)", 3),
+    ),
+)
+
+FUSED = Kernel(
+    title="the fused method (dr_fused.c, codegen/kernel/fused.py)",
+    c_prefix="dr_fused",
+    py_prefix="_F",
+    board_prefix="fused_",
+    param_array=True,
+    state=(
+        Field("q", "", "orientation w, x, y, z: body -> kernel ENU", 4, ("qw", "qx", "qy", "qz"), initial=(1.0,)),
+        Field("gyro_bias_lsb", "counts", "gyro bias (body frame)", 3, ("bgx", "bgy", "bgz")),
+        Field("mean_f", "m/s^2", "mean |f| (motion statistics)"),
+        Field("var_f", "(m/s^2)^2", "variance of |f|"),
+        Field("w2", "(rad/s)^2", "mean |omega|^2"),
+        Field("acc_e", "m/s^2", "GPS motion acceleration East, kernel frame (the tilt reference subtracts it)"),
+        Field("acc_n", "m/s^2", "GPS motion acceleration North, kernel frame"),
+        Field("steady", "(m/s^2)^2", "> 0 while that acceleration is steady: steady_accel_ms2^2 - its change^2"),
+        Field("rest_s", "s", "how long the device has looked at rest"),
+        Field("ux", "", "travel direction, kernel frame x (unit)", initial=(1.0,)),
+        Field("uy", "", "travel direction, kernel frame y"),
+        Field("speed", "m/s", "speed along the travel direction"),
+        Field("bias", "m/s^2", "along-track accelerometer bias"),
+        Field("walk_speed", "m/s", "learned walking speed"),
+        Field("cos_t", "", "rotation kernel frame -> true ENU: cosine", initial=(1.0,)),
+        Field("sin_t", "", "rotation kernel frame -> true ENU: sine"),
+        Field("align_c", "(m/s)^2", "heading alignment sum, cosine part"),
+        Field("align_s", "(m/s)^2", "heading alignment sum, sine part"),
+        Field("dvx", "m/s", "kernel-frame horizontal velocity change since the last fix, x"),
+        Field("dvy", "m/s", "kernel-frame horizontal velocity change since the last fix, y"),
+        Field("since_fix", "s", "time since the last GPS update"),
+        Field("gps_ve", "m/s", "the last fix's velocity East (true ENU)"),
+        Field("gps_vn", "m/s", "the last fix's velocity North (true ENU)"),
+        Field("gps_speed", "m/s", "the last fix's speed (a vehicle's speed relaxes towards it)"),
+        Field("gps_ok", "m/s", "> 0 if the last fix had a course: its speed - min_speed_ms"),
+        Field("pe", "m", "true ENU position East accumulated since fused_init (the caller may reset it)"),
+        Field("pn", "m", "true ENU position North accumulated since fused_init"),
+        Field("flags", "", "the last sample's AT_REST | WALKING | TURNING (a whole number)"),
+        Field("bax", "m/s^2", "accelerometer offset of the body x axis (subtracted from every sample)"),
+        Field("bay", "m/s^2", "accelerometer offset of the body y axis"),
+        Field("m", "s", "integral of R(q)'s horizontal rows r00, r01, r10, r11 since the last fix", 4,
+              ("m00", "m01", "m10", "m11")),
+        Field("turn", "rad", "integral of |rate about Up| since the last fix"),
+        Field("p", "", "the tilt/offset filter's covariance, upper triangle row by row (m/s^2 squared)", 10,
+              ("p00", "p01", "p02", "p03", "p11", "p12", "p13", "p22", "p23", "p33")),
+        Field("fix_ae", "m", "smoothed position minus the last fix's, East (where an outage starts from)",
+              public="FIX_AE"),
+        Field("fix_an", "m", "smoothed position minus the last fix's, North"),
+        Field("fix_ee", "m", "the receiver's position error estimated at the last fix, East"),
+        Field("fix_en", "m", "the receiver's position error estimated at the last fix, North"),
+        Field("fix_pxx", "m^2", "covariance of the position filter: position, position (East and North alike)"),
+        Field("fix_pxe", "m^2", "covariance of the position filter: position, receiver error"),
+        Field("fix_pee", "m^2", "covariance of the position filter: receiver error, receiver error"),
+        Field("dpx", "m", "integral of dvx since the last fix"),
+        Field("dpy", "m", "integral of dvy since the last fix"),
+        Field("rate_up", "rad/s", "the rate about Up smoothed over stat_tau_s"),
+        Field("held", "rad", "rotation about Up a walker's travel direction has not taken yet"),
+        Field("med_i", "", "the median option's ring: next slot (a whole number)"),
+        Field("med_n", "", "the median option's ring: slots filled (a whole number)"),
+        Field("med", "m/s^2", "the median option's ring: the last along-track accelerations", FUSED_MEDIAN_MAX),
+    ),
+    params=(
+        Param("tilt_tau_s", "s", "tilt correction time constant while GPS fixes arrive", Store("kp", "1/s", "recip"),
+              100.0, gt=0),
+        Param("accel_reject_g", "g", "no tilt correction while ||f| - g| exceeds this",
+              Store("reject_ms2", "m/s^2", "scale", "GRAVITY_MS2"), 0.1, gt=0),
+        Param("tilt_tau_dark_s", "s", "tilt correction time constant without GPS (0: none)",
+              Store("kp_dark", "1/s", "rate"), 0.0, ge=0),
+        Param("steady_accel_ms2", "m/s^2",
+              "tilt corrected only while the GPS acceleration changes less between fixes",
+              Store("steady_ms2", "m/s^2"), 0.3, gt=0),
+        Param("speed_tau_s", "s", "a vehicle's speed relaxes towards the last GPS speed (0: never)",
+              Store("inv_speed_tau", "1/s", "rate"), 0.0, ge=0),
+        Param("gps_timeout_s", "s", "GPS counts as lost this long after its last fix", Store("gps_timeout_s", "s"),
+              2.0, gt=0),
+        Param("stat_tau_s", "s", "time constant of the motion statistics", Store("inv_stat_tau", "1/s", "recip"),
+              0.5, gt=0),
+        Param("rest_accel_g", "g", "|f| standard deviation below which the device may be at rest",
+              Store("rest_var", "(m/s^2)^2", "square", "GRAVITY_MS2"), 0.01, gt=0),
+        Param("rest_gyro_dps", "degree/s", "rate below which the device may be at rest",
+              Store("rest_w2", "(rad/s)^2", "square", "RAD_PER_DEG"), 0.5, gt=0),
+        Param("rest_time_s", "s", "both below their limits this long means at rest", Store("rest_time_s", "s"),
+              0.4, ge=0),
+        Param("bias_tau_s", "s", "gyro bias re-estimation time constant at rest (0: off)",
+              Store("inv_bias_tau", "1/s", "rate"), 30.0, ge=0),
+        Param("walk_accel_g", "g", "|f| standard deviation above which a walker carries the device",
+              Store("walk_var", "(m/s^2)^2", "square", "GRAVITY_MS2"), 0.03, gt=0),
+        Param("min_speed_ms", "m/s", "GPS speeds below this carry no course", Store("min_speed_ms", "m/s"), 0.5, ge=0),
+        Param("heading_gain", "per fix", "pull of the travel direction towards the GPS course",
+              Store("heading_gain", "per fix"), 0.3, ge=0, le=1),
+        Param("align_forget", "per fix", "forgetting factor of the heading alignment", Store("align_forget", "per fix"),
+              0.98, ge=0, le=1),
+        Param("speed_gain", "per fix", "pull of the speed towards the GPS speed", Store("speed_gain", "per fix"), 0.5,
+              ge=0, le=1),
+        Param("bias_gain", "per fix", "along-track accel bias correction gain (m/s^2 per m/s of speed error per s)",
+              Store("bias_gain", "per fix"), 0.1, ge=0, le=1),
+        Param("walk_speed_gain", "per fix", "pull of the walking speed towards the GPS speed",
+              Store("walk_speed_gain", "per fix"), 0.2, ge=0, le=1),
+        Param("kf_bias_init_g", "g",
+              "initial sigma of the horizontal accelerometer offsets (0: no tilt/offset filter)",
+              Store("kf_bias_var", "(m/s^2)^2", "square", "GRAVITY_MS2"), 0.05, ge=0),
+        Param("kf_bias_noise", "m/s^2/sqrt(s)", "random walk of those offsets",
+              Store("kf_bias_q", "(m/s^2)^2/s", "square"), 0.001, ge=0),
+        Param("kf_tilt_noise", "m/s^2/sqrt(s)", "random walk of the gravity leak (tilt error times g)",
+              Store("kf_tilt_q", "(m/s^2)^2/s", "square"), 0.002, ge=0),
+        Param("kf_turn_noise", "m/s^2 per rad", "gravity leak a turn may add (gyro scale and cross-axis errors)",
+              Store("kf_turn_q", "(m/s^2/rad)^2", "square"), 0.1, ge=0),
+        Param("kf_vel_sigma_ms", "m/s", "GPS Doppler velocity error per axis, with unmodelled motion",
+              Store("kf_vel_r", "(m/s)^2", "square", times=2.0), 0.15, gt=0),
+        Param("kf_align_min", "(m/s)^2", "heading alignment sums needed before the filter updates",
+              Store("kf_align_min", "(m/s)^2"), 20.0, ge=0),
+        Param("median", "", "a vehicle's along-track acceleration is the median of the last b (block) samples: the "
+              f"seed's block median, sliding (b <= {FUSED_MEDIAN_MAX})", Store("median", "1: on"), False, kind="bool"),
+        Param("pos_sigma_m", "m",
+              "the receiver's position error per axis, for smoothing the fix an outage starts from (0: raw fixes)",
+              Store("pos_var", "m^2", "square"), 2.1, ge=0),
+        Param("pos_tau_s", "s", "correlation time of that error", Store("inv_pos_tau", "1/s", "recip"), 60.0, gt=0),
+        Param("pos_step_sigma_ms", "m/s",
+              "error of the step between fixes (Doppler trapezoid + IMU), per second",
+              Store("pos_step_q", "(m/s)^2", "square"), 0.1, gt=0),
+        Param("turn_hold_tau_s", "s", "a walker's slow rotations about Up (the hand swinging about the course) "
+              "reach the travel direction over this; turns at once (0: everything at once)",
+              Store("hold_rate", "1/s", "rate"), 10.0, ge=0),
+        Param("turn_start_dps", "degree/s", "a walker's turn starts when the smoothed rate about Up exceeds this",
+              Store("turn_start", "rad/s", "scale", "RAD_PER_DEG"), 12.0, gt=0),
+        Param("turn_end_dps", "degree/s", "and ends when it falls below this (at most fused_turn_start_dps)",
+              Store("turn_end", "rad/s", "scale", "RAD_PER_DEG"), 7.0, ge=0, at_most="turn_start_dps",
+              at_most_why="a turn that ends at {value:g} {unit} cannot start at the lower {limit:g} {unit}"),
+    ),
+    flags=(
+        Flag("AT_REST", 1, "the last sample was at rest"),
+        Flag("WALKING", 2, "the last sample looked like a walker's"),
+        Flag("TURNING", 4, "the walker was turning"),
+    ),
+)
+
+
+
+@dataclass(frozen=True)
+class Layout:
+    """What the templates render from: both kernels, and the buffers dr_native and dr_fallback hand the app
+    (the seed's: dr_state | dr_config | scratch; the fused one's: dr_fused_state | dr_fused_config | dr_config)."""
+
+    seed: Kernel
+    fused: Kernel
+    codes: tuple[Code, ...] = RETURN_CODES
+    out_floats: int = OUT_FLOATS
+    median_max: int = FUSED_MEDIAN_MAX
+    constants: dict = field(default_factory=lambda: dict(CONSTANTS))
+
+    @property
+    def kernels(self) -> tuple[Kernel, ...]:
+        return (self.seed, self.fused)
+
+    @property
+    def seed_header_floats(self) -> int:
+        """Floats of the seed buffer before its scratch (state_len(block) = this + 3 * block)."""
+        return self.seed.state_floats + self.seed.config_floats
+
+    @property
+    def fused_config_at(self) -> int:
+        return self.fused.state_floats
+
+    @property
+    def fused_kernel_config_at(self) -> int:
+        return self.fused.state_floats + self.fused.config_floats
+
+    @property
+    def fused_buffer_floats(self) -> int:
+        return self.fused_kernel_config_at + self.seed.config_floats
+
+    def fused_config_in_buffer(self) -> dict[str, int]:
+        """dr_fused_config field -> its offset in the fused buffer."""
+        return {name: self.fused_config_at + at for name, at in self.fused.config_offsets.items()}
+
+
+def check(kernel: Kernel) -> None:
+    """Raise ValueError where the declaration contradicts itself (a deadreckon bug, caught on import)."""
+    names = [f.name for f in kernel.state]
+    stored = [f.name for f in kernel.config]
+    params = kernel.param_names
+    elements = kernel.element_names()
+    for what, seen in (("state field", names), ("configuration field", stored), ("parameter", params),
+                       ("state value", elements)):
+        twice = sorted({n for n in seen if seen.count(n) > 1})
+        if twice:
+            raise ValueError(f"{kernel.c_prefix}: {what} declared twice: {', '.join(twice)}")
+    for f in kernel.state + kernel.config:
+        if f.ctype not in ("float", "int32_t") or f.length < 1 or len(f.initial) > f.length:
+            raise ValueError(f"{kernel.c_prefix}: field {f.name}: ctype, length or initial values wrong")
+        if f.elements and len(f.elements) != f.length:
+            raise ValueError(f"{kernel.c_prefix}: field {f.name} names {len(f.elements)} of {f.length} elements")
+    for p in kernel.params:
+        s = p.store
+        if s.form not in ("copy", "scale", "recip", "rate", "square"):
+            raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: unknown form {s.form!r}")
+        if s.factor is not None and s.factor not in CONSTANTS and s.factor not in params:
+            raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: factor {s.factor!r} is neither a constant "
+                             "nor a parameter")
+        if s.form == "recip" and not (p.gt is not None and p.gt >= 0):
+            raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: a reciprocal needs gt >= 0")
+        if s.form == "rate" and s.factor is not None:
+            raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: a rate takes no factor")
+        for other in (p.at_most, p.multiple_of):
+            if other is not None and other not in params[:params.index(p.name)]:
+                raise ValueError(f"{kernel.c_prefix}: parameter {p.name} refers to {other!r}, not an earlier "
+                                 "parameter")
+        if p.kind not in ("float", "int", "bool") or (p.kind == "bool" and (p.gt, p.ge, p.le) != (None,) * 3):
+            raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: kind {p.kind!r} or its limits wrong")
+        if p.error not in {c.name for c in RETURN_CODES}:
+            raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: unknown return code {p.error!r}")
+        if kernel.board_prefix and p.default is None:
+            raise ValueError(f"{kernel.c_prefix}: parameter {p.name} has a board key but no default")
+    if any(f.ctype != "float" for f in kernel.state):
+        raise ValueError(f"{kernel.c_prefix}: state fields are floats (the reference's flat view)")
+
+
+LAYOUT = Layout(SEED, FUSED)
+for _kernel in LAYOUT.kernels:
+    check(_kernel)
