@@ -1,6 +1,8 @@
 # Runs under MicroPython (not collected by pytest): micropython mp_fused_driver.py MODULE INPUT.json
-# Drives the fused algorithm of dr_fallback or dr_native as the app does (calibrate, windows, one GPS update per fix)
-# and prints one JSON line: the calibration verdict and, after every step, out and the whole fused state.
+# Drives the fused algorithm of dr_fallback or dr_native as the app does and prints one JSON line: the state after
+# fused_init (and the starting state, if given) or after fused_calibrate, then out and the whole fused state after
+# every step. Steps: ["p", samples, dt_us] fused_process; ["g", ve, vn, de, dn] fused_position then fused_gps (a fix);
+# ["v", ve, vn] fused_gps alone; ["x", ve, vn, de, dn] fused_position alone.
 import json
 import sys
 from array import array
@@ -14,12 +16,23 @@ if "params" in data:
     dr.fused_init(st, data["params"])
 else:
     dr.fused_init(st)
-answer = {"moved": dr.fused_calibrate(st, array("h", data["calib"])), "steps": []}
+answer = {"moved": None, "steps": []}
+if "state" in data:
+    for i, x in enumerate(data["state"]):
+        st[i] = x
+if data.get("calib") is not None:
+    answer["moved"] = dr.fused_calibrate(st, array("h", data["calib"]))
+answer["start"] = [st[i] for i in range(data["state_len"])]
 for step in data["steps"]:
-    if step[0] == "p":
+    kind = step[0]
+    if kind == "p":
         dr.fused_process(st, array("h", step[1]), array("i", step[2]), out)
-    else:
+    elif kind == "g":
         dr.fused_position(st, step[1], step[2], step[3], step[4])
         dr.fused_gps(st, step[1], step[2])
+    elif kind == "v":
+        dr.fused_gps(st, step[1], step[2])
+    else:
+        dr.fused_position(st, step[1], step[2], step[3], step[4])
     answer["steps"].append([list(out), [st[i] for i in range(data["state_len"])]])
 print(json.dumps(answer))

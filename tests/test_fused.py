@@ -1,6 +1,7 @@
 """The fused algorithm (issue 8): reference (codegen/kernel/fused.py, float64) vs the C kernel (native_ext/dr_fused.c,
 float32, through cffi), on simulated streams driven exactly as the app drives the kernel (calibrate, windows of
-samples, one GPS update per fix), plus analytic cases.
+samples, one GPS update per fix); the filters against the truth of a simulated car and receiver; the C as C
+(sanitizers, the ESP32 object). Each step's test from physics, on every implementation: tests/test_fused_physics.py.
 
 Tolerances, derived rather than picked: the C kernel rounds every operation to float32 (relative eps 2^-24 ~ 6e-8).
 The orientation and the filters are contracting (tilt correction, renormalisation, gains < 1), so their rounding
@@ -121,193 +122,6 @@ def _rest_samples(n, tilt=(0.0, 0.0, 0.0), gyro=(0, 0, 0)):
     return np.tile(np.concatenate([np.round(f), gyro]).astype(np.int16), (n, 1))
 
 
-def test_at_rest_nothing_moves(fk):
-    samples = _rest_samples(2000, tilt=(0.1, -0.05, 0.0), gyro=(12, -7, 3))
-    dt = np.full(len(samples), 5000, dtype=np.int32)
-    ref = F.FusedState()
-    F.calibrate(ref, samples, KCFG)
-    out_r, flags = F.process(ref, samples, dt, KCFG, FCFG)
-    c = fk.session()
-    c.calibrate(samples)
-    out_c = c.process(samples, dt)
-    # float32 rounding of the calibrated tilt leaves ~1e-7 m/s^2 until rest is declared (rest_time_s): nanometres
-    assert np.all(np.abs(out_r) < 1e-9) and np.all(np.abs(out_c) < 1e-6)
-    assert flags[-1] == 1 and int(c.state_vector()[F.IDX["flags"]]) == 1
-
-
-def test_tilt_converges_to_gravity_with_gps(fk):
-    """Start 5 degrees off; at rest with GPS fixes arriving, the Mahony correction (alone: no offset filter)
-    removes the error."""
-    mahony = replace(FCFG, tilt_tau_s=20.0, kf_bias_init_g=0.0)
-    samples = _rest_samples(200)
-    dt = np.full(200, 5000, dtype=np.int32)
-    q0 = quat_from_rotvec(np.radians([5.0, -3.0, 0.0]))
-    ref = F.FusedState()
-    ref.qw, ref.qx, ref.qy, ref.qz = q0
-    ref.mean_f = 9.80665
-    ref.steady = 1.0  # > 0: steady
-    c = fk.session(mahony)
-    c.set_state_vector(ref.vector())
-    for _ in range(120):  # 120 s, six time constants of 20 s
-        F.process(ref, samples, dt, KCFG, mahony)
-        F.gps_update(ref, 0.0, 0.0, mahony)
-        c.process(samples, dt)
-        c.gps(0.0, 0.0)
-    for q in (ref.vector()[Q], c.state_vector()[Q]):
-        up = quat_to_matrix(q)[2]
-        assert math.degrees(math.acos(min(1.0, up[2]))) < 5.0 * math.exp(-5)
-
-
-def test_turn_rotates_the_travel_direction(fk):
-    """A turn of 90 degrees (counter-clockwise) about Up at 0.5 rad/s turns the travel direction with it."""
-    rate_counts = round(math.degrees(0.5) * KCFG.gyro_lsb_per_dps)
-    rate = rate_counts / KCFG.gyro_lsb_per_dps * math.pi / 180
-    steps = round(math.pi / 2 / rate / 0.005)
-    samples = _rest_samples(steps, gyro=(0, 0, rate_counts))
-    dt = np.full(steps, 5000, dtype=np.int32)
-    ref = F.FusedState()
-    ref.mean_f = 9.80665
-    c = fk.session()
-    c.set_state_vector(ref.vector())
-    F.process(ref, samples, dt, KCFG, FCFG)
-    c.process(samples, dt)
-    turned = rate * steps * 0.005
-    for ux, uy in ((ref.ux, ref.uy), tuple(c.state_vector()[[F.IDX["ux"], F.IDX["uy"]]])):
-        assert math.atan2(uy, ux) == pytest.approx(turned, abs=1e-3)
-
-
-def test_walker_stops_when_the_steps_stop(fk):
-    """5 s of steps (|f| swinging 0.15 g at 2 Hz) at the learned walking speed, then 3 s without steps while the
-    hand still turns the device back and forth (1 degree/s: no rest). The speed drops to 0 with the steps, in the
-    reference and the C, and the position stops; before, it went on at the walking speed."""
-    t = np.arange(1600) * 0.005
-    f = KCFG.accel_lsb_per_g * (1.0 + np.where(t < 5.0, 0.15 * np.sin(2 * np.pi * 2.0 * t), 0.0))
-    rate = np.round(np.where((t // 0.5) % 2 == 0, 1.0, -1.0) * KCFG.gyro_lsb_per_dps)
-    zero = np.zeros_like(t)
-    samples = np.stack([zero, zero, np.round(f), rate, zero, zero], axis=-1).astype(np.int16)
-    dt = np.full(len(t), 5000, dtype=np.int32)
-    ref = F.FusedState()
-    ref.mean_f = 9.80665
-    ref.walk_speed = 1.4
-    c = fk.session()
-    c.set_state_vector(ref.vector())
-    walk, fading, still = slice(0, 1000), slice(1000, 1400), slice(1400, None)
-    out_r, flags = F.process(ref, samples[walk], dt[walk], KCFG, FCFG)
-    out_c = c.process(samples[walk], dt[walk])
-    assert flags[-1] == 2 and ref.speed == pytest.approx(1.4) and out_r[0] > 5.0  # it walked
-    assert c.state_vector()[F.IDX["speed"]] == pytest.approx(1.4) and out_c[0] == pytest.approx(out_r[0], rel=1e-5)
-    # the variance of |f| (a 0.5 s moving average) falls below the walking limit ~1.3 s after the last step
-    _, flags = F.process(ref, samples[fading], dt[fading], KCFG, FCFG)
-    c.process(samples[fading], dt[fading])
-    assert flags[0] == 2 and flags[-1] == 0
-    out_r, flags = F.process(ref, samples[still], dt[still], KCFG, FCFG)
-    out_c = c.process(samples[still], dt[still])
-    assert not np.any(flags)  # neither walking nor at rest
-    for out, speed in ((out_r, ref.speed), (out_c, c.state_vector()[F.IDX["speed"]])):
-        assert speed == 0.0 and np.hypot(out[0], out[1]) < 1e-3  # 1 s without steps: no metre more
-
-
-def _u_angles(process, samples, dt, chunk=20):
-    """Degrees of the travel direction after every chunk of samples (process(samples, dt) -> the state vector)."""
-    out = []
-    for k in range(0, len(samples), chunk):
-        st = process(samples[k:k + chunk], dt[k:k + chunk])
-        out.append(math.degrees(math.atan2(st[F.IDX["uy"]], st[F.IDX["ux"]])))
-    return np.array(out)
-
-
-def test_walker_holds_the_hands_swing_and_takes_a_turn_at_once(fk):
-    """Walking (steps at 2 Hz), the device level: 1 s straight; the hand swings it 9 degrees left and back (6
-    degree/s for 1.5 s each way, below the 7 degree/s a turn ends at); a 90 degree turn at 45 degree/s; 1 s straight.
-    The travel direction keeps the course through the swing (under 2 degrees where the gyro moved 9: the held angle,
-    a triangle up to 9 degrees over 3 s, leaks into u at a tenth per second, about 1.2 degrees at most) and
-    takes the turn with what it held, ending on the device's heading; reference and C. Without the hold
-    (turn_hold_tau_s 0) u follows the hand all the way."""
-    t = np.arange(2000) * 0.005
-    rate_dps = np.select([(t >= 1.0) & (t < 2.5), (t >= 2.5) & (t < 4.0), (t >= 4.0) & (t < 6.0)], [6.0, -6.0, 45.0])
-    counts = np.round(rate_dps * KCFG.gyro_lsb_per_dps)
-    f = np.round(KCFG.accel_lsb_per_g * (1.0 + 0.15 * np.sin(2 * np.pi * 2.0 * t)))
-    zero = np.zeros_like(t)
-    samples = np.stack([zero, zero, f, zero, zero, counts], axis=-1).astype(np.int16)
-    dt = np.full(len(t), 5000, dtype=np.int32)
-    heading = np.degrees(np.cumsum(counts / KCFG.gyro_lsb_per_dps * np.radians(1.0) * 0.005))[19::20]
-
-    def start():
-        st = F.FusedState()
-        st.mean_f = 9.80665
-        st.var_f = (0.1 * 9.80665) ** 2  # already walking
-        st.walk_speed = 1.4
-        return st
-
-    def reference(fcfg):
-        st = start()
-
-        def step(s, d):
-            flags = F.process(st, s, d, KCFG, fcfg)[1]
-            assert np.all(flags & 2)
-            return st.vector()
-        return step
-
-    c = fk.session()
-    c.set_state_vector(start().vector())
-
-    def c_step(s, d):
-        c.process(s, d)
-        return c.state_vector()
-
-    swing, after = (t[19::20] >= 1.0) & (t[19::20] < 4.0), t[19::20] >= 6.5
-    assert np.max(np.abs(heading[swing])) == pytest.approx(9.0, abs=0.1)  # what the gyro saw
-    for u in (_u_angles(reference(FCFG), samples, dt), _u_angles(c_step, samples, dt)):
-        assert np.max(np.abs(u[swing])) < 2.0
-        assert np.all(np.abs(u[after] - heading[after]) < 0.05) and heading[-1] == pytest.approx(90.0, abs=0.1)
-    follows = _u_angles(reference(replace(FCFG, turn_hold_tau_s=0.0)), samples, dt)
-    assert np.allclose(follows, heading, atol=0.05)
-
-
-def test_position_step_adds_the_imu_to_the_doppler_trapezoid(fk):
-    """Level, accelerating East at a = j t (j = 2 m/s^3) for 1 s between two fixes with velocities 0 and j/2: the
-    trapezoid T (v0 + v1) / 2 = j/4 m overshoots the true j/6 m by 17 cm; the IMU's correction takes it out, so a
-    fix at the true position is no surprise to the position filter (reference and C)."""
-    j = 2.0
-    t = (np.arange(200) + 0.5) * 0.005
-    ax = np.round(j * t / 9.80665 * KCFG.accel_lsb_per_g)
-    zero = np.zeros_like(t)
-    samples = np.stack([ax, zero, np.full_like(t, KCFG.accel_lsb_per_g), zero, zero, zero], axis=-1).astype(np.int16)
-    dt = np.full(len(t), 5000, dtype=np.int32)
-    ref = F.FusedState()
-    ref.mean_f = 9.80665
-    F.position_update(ref, 0.0, 0.0, 0.0, 0.0, FCFG)  # the filter starts at this fix
-    c = fk.session()
-    c.set_state_vector(ref.vector())
-    F.process(ref, samples, dt, KCFG, FCFG)
-    c.process(samples, dt)
-    F.position_update(ref, j / 2, 0.0, j / 6, 0.0, FCFG)
-    c.position(j / 2, 0.0, j / 6, 0.0)
-    # what remains: the counts' rounding (0.6 mm/s^2 per count) integrated twice over 1 s, well under a millimetre
-    for st in (ref.vector(), c.state_vector()):
-        assert abs(st[F.IDX["fix_ae"]]) < 1e-3 and abs(st[F.IDX["fix_an"]]) < 1e-6
-    without = F.FusedState()  # the same fix, had the step been the trapezoid alone: the filter moves by cm
-    F.position_update(without, 0.0, 0.0, 0.0, 0.0, FCFG)
-    without.since_fix = 1.0
-    F.position_update(without, j / 2, 0.0, j / 6, 0.0, FCFG)
-    assert abs(without.fix_ae) > 0.02
-
-
-def test_gps_sets_speed_and_course(fk):
-    """Fixes at a steady 1.4 m/s heading North-East: the speed and the true-frame velocity follow them."""
-    ref = F.FusedState()
-    c = fk.session()
-    c.set_state_vector(ref.vector())
-    ve = vn = 1.4 / math.sqrt(2)
-    for _ in range(40):
-        F.gps_update(ref, ve, vn, FCFG)
-        c.gps(ve, vn)
-    for st in (ref.vector(), c.state_vector()):
-        assert st[F.IDX["speed"]] == pytest.approx(1.4, rel=1e-5)
-        ux, uy, ct, stt = st[F.IDX["ux"]], st[F.IDX["uy"]], st[F.IDX["cos_t"]], st[F.IDX["sin_t"]]
-        assert math.atan2(stt * ux + ct * uy, ct * ux - stt * uy) == pytest.approx(math.pi / 4, abs=1e-4)
-
-
 def test_config_rejects_a_zero_time_constant(fk):
     with pytest.raises(ValueError):
         fk.session(replace(FCFG, tilt_tau_s=0.0))
@@ -315,26 +129,6 @@ def test_config_rejects_a_zero_time_constant(fk):
         fk.session(replace(FCFG, kf_vel_sigma_ms=0.0))
     with pytest.raises(ValueError):
         fk.session(replace(FCFG, turn_start_dps=5.0, turn_end_dps=8.0))
-
-
-@pytest.mark.parametrize("median", [False, True])
-def test_median_option_ignores_a_spike(fk, median):
-    """A vehicle cruising level at 10 m/s East; one sample carries a 0.5 g jolt along the track. Without the median
-    it adds 0.5 g x 5 ms to the speed; the median of the last b = 16 along-track accelerations ignores it."""
-    fcfg = replace(FCFG, median=1.0 if median else 0.0, rest_time_s=1e9)
-    samples = _rest_samples(64)
-    samples[40, 0] += int(0.5 * KCFG.accel_lsb_per_g)
-    dt = np.full(len(samples), 5000, dtype=np.int32)
-    ref = F.FusedState()
-    ref.speed = 10.0
-    ref.mean_f = 9.80665
-    c = fk.session(fcfg)
-    c.set_state_vector(ref.vector())
-    F.process(ref, samples, dt, KCFG, fcfg)
-    c.process(samples, dt)
-    jolt = 0.5 * 9.80665 * 0.005
-    for speed in (ref.speed, float(c.state_vector()[F.IDX["speed"]])):
-        assert speed == pytest.approx(10.0 if median else 10.0 + jolt, abs=1e-4)
 
 
 def test_median_option_refuses_a_block_longer_than_its_ring(fk):
@@ -389,15 +183,6 @@ def test_position_filter_smooths_the_fixes_and_the_c_kernel_agrees(fk):
     # the realised RMS is itself uncertain by ~20%), and that is well below the raw fixes' error
     assert rms_smooth == pytest.approx(math.sqrt(ref.fix_pxx), rel=0.2), (rms_smooth, math.sqrt(ref.fix_pxx))
     assert rms_smooth < 0.85 * rms_raw, (rms_smooth, rms_raw)
-
-
-def test_position_filter_restarts_after_an_outage():
-    st = F.FusedState()
-    st.fix_pxx, st.fix_pxe, st.fix_pee, st.fix_ae = 1.0, -0.5, 2.0, 0.7
-    st.since_fix = 5.0  # beyond gps_timeout_s: the Doppler cannot carry the position across
-    F.position_update(st, 1.0, 0.0, 500.0, 0.0, FCFG)
-    assert (st.fix_ae, st.fix_an, st.fix_ee, st.fix_en) == (0.0, 0.0, 0.0, 0.0)
-    assert st.fix_pxx == st.fix_pee == -st.fix_pxe == pytest.approx(FCFG.pos_sigma_m**2)
 
 
 def _car_with_offsets(offset_ms2, seed=5, duration=240.0):

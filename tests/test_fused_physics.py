@@ -1,0 +1,356 @@
+"""The fused algorithm's steps against physics and closed forms, each on every implementation on its own.
+
+Every test here states what a step must do to a known motion (a known rotation, a constant acceleration, a stop, a
+steady speed error, a turned frame) and checks each implementation against that, not against another implementation:
+`impl` is the float64 reference (codegen/kernel/fused.py), the float32 C kernel through cffi (native_ext/dr_fused.c)
+or the generated fallback on the unix-port `micropython` (dr_fallback.py), driven by tests/fusedkit.py. Tolerances
+are the physics' (counts quantisation, the method's own approximations) plus float32 rounding where stated.
+docs/fused.md lists the steps and their tests. The equivalence of the implementations on simulated runs is
+tests/test_fused.py's and tests/test_fused_micropython.py's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from codegen.kernel import fused as F
+from codegen.kernel.reference import STANDARD_GRAVITY, quat_from_rotvec, quat_multiply, quat_to_matrix
+from fusedkit import FCFG, IMPLEMENTATIONS, KCFG, chunks, run
+
+G = STANDARD_GRAVITY
+EPS32 = 2.0**-24
+DT_US = 5000
+ONE_G = KCFG.accel_lsb_per_g  # counts
+QUAT = slice(0, 4)
+
+
+@pytest.fixture(params=IMPLEMENTATIONS)
+def impl(request):
+    if request.param == "c":
+        from conftest import require_tool
+
+        require_tool("cc")
+    return request.param
+
+
+def _samples(n, accel_g=(0.0, 0.0, 1.0), gyro=(0, 0, 0)):
+    """n identical raw samples: the specific force in g (body frame) and the gyro in counts; dt 5 ms each."""
+    acc = np.round(np.asarray(accel_g, dtype=float) * ONE_G)
+    row = np.concatenate([acc, gyro]).astype(np.int16)
+    return np.tile(row, (n, 1)), np.full(n, DT_US, dtype=np.int32)
+
+
+def _still(**fields) -> F.FusedState:
+    """A starting state: level, |f| averaged at 1 g, GPS lost long ago (no tilt correction), and `fields`."""
+    st = F.FusedState()
+    st.mean_f = G
+    st.since_fix = 10.0
+    for name, value in fields.items():
+        setattr(st, name, value)
+    return st
+
+
+def _rotation_angle(q, expected) -> float:
+    """Radians between two unit quaternions' rotations."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q)
+    return 2.0 * math.acos(min(1.0, abs(float(np.dot(q, expected)))))
+
+
+# ------------------------------------------------------------------------------------------------ calibration
+def test_calibration_levels_gravity_and_takes_the_gyro_bias(impl, tmp_path):
+    """At rest, tilted by a known rotation, the gyro reading constant counts: the calibrated orientation turns the
+    measured specific force onto Up, the gyro bias is those counts, the mean |f| is the counts' 1 g. Shaken (0.05 g
+    noise on x, above the 0.02 g motion threshold), the calibration says the device moved."""
+    tilt = quat_to_matrix(quat_from_rotvec(np.array([0.3, -0.2, 0.0])))
+    f = np.round(tilt.T @ [0.0, 0.0, ONE_G])  # gravity's counts in a body tilted by `tilt`
+    gyro = np.array([40, -25, 7])
+    rest = np.tile(np.concatenate([f, gyro]).astype(np.int16), (500, 1))
+    trace = run(impl, [], tmp_path, calib=rest)
+    assert trace.moved is False
+    up = quat_to_matrix(trace.start[QUAT]) @ (f / np.linalg.norm(f))
+    np.testing.assert_allclose(up, [0.0, 0.0, 1.0], atol=1e-6)
+    # the mean of constant counts; the C multiplies the sum by 1/count (dr_recip: a few float32 ulp)
+    np.testing.assert_allclose(trace.start[[F.IDX[n] for n in ("bgx", "bgy", "bgz")]], gyro, rtol=4 * EPS32)
+    assert trace.start[F.IDX["mean_f"]] == pytest.approx(np.linalg.norm(f) * KCFG.accel_ms2_per_lsb, rel=1e-6)
+    shaken = rest.copy()
+    shaken[:, 0] += np.round(np.random.default_rng(1).normal(0.0, 0.05 * ONE_G, len(rest))).astype(np.int16)
+    assert run(impl, [], tmp_path, calib=shaken).moved is True
+
+
+# ------------------------------------------------------------------------------------------------ orientation
+def test_gyro_turns_the_orientation_by_omega_t(impl, tmp_path):
+    """90 degrees in 1 s about the body axis (1, 2, 2)/3, from a tilted start: q = q0 (x) exp(theta n / 2) (a body
+    rate composes on the right). No GPS for longer than gps_timeout_s and tilt_tau_dark_s 0: no tilt correction.
+    The step q (x) [1, h], renormalised, turns by 2 atan|h| instead of 2|h| (|h| = omega dt / 2 = 3.9e-3 rad), 8e-6
+    rad short over the 200 samples; float32 rounds each of the 200 products and renormalisations (~1e-7 rad each)."""
+    counts = np.array([3930, 7860, 7860])  # |counts| = 11790 = 90 degree/s at 131 counts per degree/s
+    rate = math.radians(np.linalg.norm(counts) / KCFG.gyro_lsb_per_dps)
+    q0 = quat_from_rotvec(np.array([0.3, -0.2, 0.5]))
+    start = _still(qw=q0[0], qx=q0[1], qy=q0[2], qz=q0[3])
+    samples, dt = _samples(200, gyro=counts)
+    trace = run(impl, [("p", samples, dt)], tmp_path, start=start)
+    theta = rate * 1.0
+    half = np.concatenate([[math.cos(theta / 2)], math.sin(theta / 2) * counts / np.linalg.norm(counts)])
+    assert theta == pytest.approx(math.pi / 2)
+    assert _rotation_angle(trace.states[-1][QUAT], quat_multiply(q0, half)) < 8e-6 + 200 * 4 * EPS32 * 2 + 1e-6
+
+
+def test_tilt_converges_to_gravity_with_gps(impl, tmp_path):
+    """Started 5.8 degrees off level, at rest with GPS fixes (standing still) arriving: the Mahony correction alone
+    (tilt_tau_s 20 s, no offset filter) takes the tilt error down as exp(-t / 20 s): below 5.8 e^-5 degrees after
+    120 s (six time constants, with margin for its start-up)."""
+    mahony = replace(FCFG, tilt_tau_s=20.0, kf_bias_init_g=0.0)
+    q0 = quat_from_rotvec(np.radians([5.0, -3.0, 0.0]))
+    start = _still(qw=q0[0], qx=q0[1], qy=q0[2], qz=q0[3], since_fix=0.0, steady=1.0)
+    samples, dt = _samples(200)
+    steps = [step for _ in range(120) for step in (("p", samples, dt), ("v", 0.0, 0.0))]
+    trace = run(impl, steps, tmp_path, params=mahony, start=start)
+    up = quat_to_matrix(trace.states[-1][QUAT])[2]
+    assert math.degrees(math.acos(min(1.0, up[2]))) < 5.0 * math.exp(-5)
+    assert math.degrees(math.acos(min(1.0, quat_to_matrix(trace.states[0][QUAT])[2][2]))) > 4.0  # it started off
+
+
+# ------------------------------------------------------------------------------------------------ rest
+def test_at_rest_nothing_moves(impl, tmp_path):
+    """Calibrated at rest, tilted, with a gyro bias: 10 s more at rest moves nothing and the flags say at rest."""
+    tilt = quat_to_matrix(quat_from_rotvec(np.array([0.1, -0.05, 0.0])))
+    f = np.round(tilt.T @ [0.0, 0.0, ONE_G])
+    rest = np.tile(np.concatenate([f, [12, -7, 3]]).astype(np.int16), (2000, 1))
+    dt = np.full(len(rest), DT_US, dtype=np.int32)
+    trace = run(impl, [("p", rest, dt)], tmp_path, calib=rest)
+    # float32 rounding of the calibrated tilt leaves ~1e-7 m/s^2 until rest is declared (rest_time_s): nanometres
+    bound = 1e-9 if impl == "reference" else 1e-6
+    assert np.all(np.abs(trace.outs[-1]) < bound)
+    assert int(trace.at(-1, "flags")) == F.AT_REST
+
+
+def test_a_vehicle_that_stops_comes_to_rest(impl, tmp_path):
+    """A vehicle rolling at 10 m/s East stops dead (the IMU level and still from then on): with no GPS it rolls on at
+    10 m/s until the device has looked still for rest_time_s (0.4 s: 80 samples, 4.0 m), then the zero-velocity
+    update sets the speed to 0 and nothing moves any more."""
+    start = _still(speed=10.0)
+    samples, dt = _samples(400)
+    trace = run(impl, chunks(samples, dt, 20), tmp_path, start=start)
+    flags = trace.series("flags").astype(int)
+    first_rest = int(np.argmax(flags == F.AT_REST))
+    assert first_rest == 80 // 20 - 1 or first_rest == 80 // 20  # the chunk holding sample 80 (or 81: float32)
+    pe = trace.series("pe")
+    assert 3.95 - 1e-4 <= pe[-1] <= 4.0 + 1e-4  # 79 or 80 samples of 5 cm
+    assert np.all(pe[first_rest + 1:] == pe[-1]) and trace.at(-1, "speed") == 0.0 and abs(trace.at(-1, "pn")) < 1e-9
+
+
+def test_rest_pulls_the_gyro_bias_with_its_time_constant(impl, tmp_path):
+    """At rest the gyro bias estimate moves towards the raw counts with the time constant bias_tau_s (30 s): an
+    estimate 20 counts off about Up (the yaw it turns keeps gravity vertical, so the device stays at rest) is off by
+    20 (1 - dt / 30 s)^n after n samples at rest, n = 2000 - 79 (rest from sample 80; float32: 81)."""
+    true_z = 5
+    start = _still(bgz=true_z + 20.0)
+    samples, dt = _samples(2000, gyro=(0, 0, true_z))
+    trace = run(impl, [("p", samples, dt)], tmp_path, start=start)
+    decay = 1.0 - 0.005 / FCFG.bias_tau_s
+    left = trace.at(-1, "bgz") - true_z
+    assert int(trace.at(-1, "flags")) == F.AT_REST
+    assert min(20 * decay ** 1921, 20 * decay ** 1920) * (1 - 1e-4) <= left <= max(20 * decay ** 1921,
+                                                                                    20 * decay ** 1920) * (1 + 1e-4)
+    assert left == pytest.approx(20 * math.exp(-9.6 / FCFG.bias_tau_s), rel=1e-3)  # ~ e^(-t / tau)
+
+
+# ------------------------------------------------------------------------------------------------ travel direction
+def test_turn_rotates_the_travel_direction(impl, tmp_path):
+    """A turn of 90 degrees (counter-clockwise) about Up at 0.5 rad/s turns the travel direction with it."""
+    rate_counts = round(math.degrees(0.5) * KCFG.gyro_lsb_per_dps)
+    rate = math.radians(rate_counts / KCFG.gyro_lsb_per_dps)
+    steps = round(math.pi / 2 / rate / 0.005)
+    samples, dt = _samples(steps, gyro=(0, 0, rate_counts))
+    trace = run(impl, [("p", samples, dt)], tmp_path, start=_still())
+    turned = rate * steps * 0.005
+    assert math.atan2(trace.at(-1, "uy"), trace.at(-1, "ux")) == pytest.approx(turned, abs=1e-3)
+
+
+def _walking(samples_t, rate_dps):
+    """Steps at 2 Hz (|f| swinging 0.15 g), the device level, turned about Up at rate_dps (degree/s) per sample."""
+    counts = np.round(rate_dps * KCFG.gyro_lsb_per_dps)
+    f = np.round(ONE_G * (1.0 + 0.15 * np.sin(2 * np.pi * 2.0 * samples_t)))
+    zero = np.zeros_like(samples_t)
+    return np.stack([zero, zero, f, zero, zero, counts], axis=-1).astype(np.int16), counts
+
+
+def test_walker_holds_the_hands_swing_and_takes_a_turn_at_once(impl, tmp_path):
+    """Walking (steps at 2 Hz), the device level: 1 s straight; the hand swings it 9 degrees left and back (6
+    degree/s for 1.5 s each way, below the 7 degree/s a turn ends at); a 90 degree turn at 45 degree/s; 1 s straight.
+    The travel direction keeps the course through the swing (under 2 degrees where the gyro moved 9: the held angle,
+    a triangle up to 9 degrees over 3 s, leaks into u at a tenth per second, about 1.2 degrees at most) and takes the
+    turn with what it held, ending on the device's heading. Without the hold (turn_hold_tau_s 0) u follows the hand
+    all the way."""
+    t = np.arange(2000) * 0.005
+    rate_dps = np.select([(t >= 1.0) & (t < 2.5), (t >= 2.5) & (t < 4.0), (t >= 4.0) & (t < 6.0)], [6.0, -6.0, 45.0])
+    samples, counts = _walking(t, rate_dps)
+    dt = np.full(len(t), DT_US, dtype=np.int32)
+    heading = np.degrees(np.cumsum(counts / KCFG.gyro_lsb_per_dps * np.radians(1.0) * 0.005))[19::20]
+    start = _still(var_f=(0.1 * G) ** 2, walk_speed=1.4)  # already walking
+
+    def u_angles(trace):
+        assert np.all(trace.series("flags").astype(int) & F.WALKING)
+        return np.degrees(np.arctan2(trace.series("uy"), trace.series("ux")))
+
+    swing, after = (t[19::20] >= 1.0) & (t[19::20] < 4.0), t[19::20] >= 6.5
+    assert np.max(np.abs(heading[swing])) == pytest.approx(9.0, abs=0.1)  # what the gyro saw
+    u = u_angles(run(impl, chunks(samples, dt, 20), tmp_path, start=start))
+    assert np.max(np.abs(u[swing])) < 2.0
+    assert np.all(np.abs(u[after] - heading[after]) < 0.05) and heading[-1] == pytest.approx(90.0, abs=0.1)
+    follows = u_angles(run(impl, chunks(samples, dt, 20), tmp_path, params=replace(FCFG, turn_hold_tau_s=0.0),
+                           start=start))
+    assert np.allclose(follows, heading, atol=0.05)
+
+
+def test_walker_stops_when_the_steps_stop(impl, tmp_path):
+    """5 s of steps at the learned walking speed (1.4 m/s, the device level, u East), then 3 s without steps while
+    the hand still turns the device back and forth (1 degree/s: no rest). Walking, the device goes 1.4 m/s; the speed
+    drops to 0 with the steps (the variance of |f|, a 0.5 s moving average, falls below the walking limit ~1.3 s
+    after the last step), and in the last second nothing moves; it never counted as at rest."""
+    t = np.arange(1600) * 0.005
+    f = np.round(ONE_G * (1.0 + np.where(t < 5.0, 0.15 * np.sin(2 * np.pi * 2.0 * t), 0.0)))
+    rate = np.round(np.where((t // 0.5) % 2 == 0, 1.0, -1.0) * KCFG.gyro_lsb_per_dps)
+    zero = np.zeros_like(t)
+    samples = np.stack([zero, zero, f, rate, zero, zero], axis=-1).astype(np.int16)
+    dt = np.full(len(t), DT_US, dtype=np.int32)
+    start = _still(walk_speed=1.4, var_f=(0.1 * G) ** 2)  # already walking
+    trace = run(impl, [("p", samples[:1000], dt[:1000]), ("p", samples[1000:1400], dt[1000:1400]),
+                       ("p", samples[1400:], dt[1400:])], tmp_path, start=start)
+    walked, fading, still = trace.outs
+    assert int(trace.at(0, "flags")) == F.WALKING and trace.at(0, "speed") == pytest.approx(1.4, rel=1e-6)
+    assert walked[0] == pytest.approx(1.4 * 5.0, rel=1e-3) and abs(walked[1]) < 1e-3
+    assert int(trace.at(1, "flags")) == 0 and trace.at(1, "speed") == 0.0
+    assert int(trace.at(2, "flags")) == 0 and np.hypot(still[0], still[1]) < 1e-6
+
+
+# ------------------------------------------------------------------------------------------------ speed
+def test_constant_along_track_acceleration_builds_speed_a_t(impl, tmp_path):
+    """A level vehicle heading East (u = East) under a constant 0.1 g along-track acceleration for 1 s (n = 200
+    samples of dt = 5 ms): the speed grows by a T, the position by the per-sample steps' sum a dt^2 n (n + 1) / 2
+    (= a T^2 / 2 (1 + 1/n)). A 0.02 g acceleration, inside the board's 0.03125 g deadband, builds nothing."""
+    counts = round(0.1 * ONE_G)
+    a = counts * KCFG.accel_ms2_per_lsb
+    samples, dt = _samples(200, accel_g=(counts / ONE_G, 0.0, 1.0))
+    trace = run(impl, [("p", samples, dt)], tmp_path, start=_still())
+    assert trace.at(-1, "speed") == pytest.approx(a * 1.0, rel=1e-5)
+    assert trace.outs[-1][0] == pytest.approx(a * 0.005**2 * 200 * 201 / 2, rel=1e-5)
+    assert abs(trace.outs[-1][1]) < 1e-6
+    samples, dt = _samples(200, accel_g=(0.02, 0.0, 1.0))
+    trace = run(impl, [("p", samples, dt)], tmp_path, start=_still())
+    assert trace.at(-1, "speed") == 0.0 and trace.outs[-1][0] == 0.0
+
+
+@pytest.mark.parametrize("median", [False, True])
+def test_median_option_ignores_a_spike(impl, tmp_path, median):
+    """A vehicle cruising level at 10 m/s East; one sample carries a 0.5 g jolt along the track. Without the median
+    it adds 0.5 g x 5 ms to the speed; the median of the last b = 16 along-track accelerations ignores it."""
+    fcfg = replace(FCFG, median=1.0 if median else 0.0, rest_time_s=1e9)
+    samples, dt = _samples(64)
+    samples[40, 0] += int(0.5 * ONE_G)
+    trace = run(impl, [("p", samples, dt)], tmp_path, params=fcfg, start=_still(speed=10.0))
+    jolt = 0.5 * G * 0.005
+    assert trace.at(-1, "speed") == pytest.approx(10.0 if median else 10.0 + jolt, abs=1e-4)
+
+
+def test_gps_sets_speed_and_course(impl, tmp_path):
+    """Fixes at a steady 1.4 m/s heading North-East: the speed and the true-frame course follow them."""
+    ve = vn = 1.4 / math.sqrt(2)
+    trace = run(impl, [("v", ve, vn)] * 40, tmp_path, start=F.FusedState())
+    assert trace.at(-1, "speed") == pytest.approx(1.4, rel=1e-5)
+    ux, uy, c, s = (trace.at(-1, n) for n in ("ux", "uy", "cos_t", "sin_t"))
+    assert math.atan2(s * ux + c * uy, c * ux - s * uy) == pytest.approx(math.pi / 4, abs=1e-4)
+
+
+def test_walking_speed_learns_the_gps_speed(impl, tmp_path):
+    """Walking, fixes at 1.3 m/s: the walking speed moves walk_speed_gain (0.2) of its error per fix,
+    w_n = 1.3 (1 - 0.8^n), and the speed speed_gain (0.5) of its own; the along-track bias is left alone."""
+    trace = run(impl, [("v", 1.3, 0.0)] * 10, tmp_path, start=_still(flags=float(F.WALKING), since_fix=0.0))
+    for n in range(1, 11):
+        assert trace.at(n - 1, "walk_speed") == pytest.approx(1.3 * (1 - 0.8**n), rel=1e-6)
+        assert trace.at(n - 1, "speed") == pytest.approx(1.3 * (1 - 0.5**n), rel=1e-6)
+    assert trace.at(-1, "bias") == 0.0
+
+
+def test_along_track_bias_is_learned_from_a_steady_speed_error(impl, tmp_path):
+    """A level vehicle at a steady 10 m/s East whose accelerometer reads 0.06 g (0.59 m/s^2) too much along the
+    track: integrated alone, that is 0.59 m/s of speed error a second. Fixes at 10 m/s East once a second drive the
+    along-track bias towards the offset until the remainder is inside the deadband (0.03125 g = 0.31 m/s^2: below
+    it the remainder builds no speed, so the fixes see no more error), and the speed back to 10 m/s. (No tilt
+    correction: it would take the offset as tilt.)"""
+    fcfg = replace(FCFG, tilt_tau_s=1e9)
+    offset = round(0.06 * ONE_G) * KCFG.accel_ms2_per_lsb
+    samples, dt = _samples(200, accel_g=(round(0.06 * ONE_G) / ONE_G, 0.0, 1.0))
+    start = _still(speed=10.0, gps_speed=10.0, gps_ve=10.0, gps_ok=9.5, since_fix=0.0)
+    trace = run(impl, [s for _ in range(40) for s in (("p", samples, dt), ("v", 10.0, 0.0))], tmp_path,
+                params=fcfg, start=start)
+    assert trace.at(0, "speed") == pytest.approx(10.0 + offset * 1.0, rel=1e-4)  # the first second, unlearned
+    left = offset - trace.at(-1, "bias")
+    assert 0.0 < left < KCFG.deadband_ms2
+    assert trace.at(-1, "speed") == pytest.approx(10.0, abs=1e-3) and trace.at(-2, "speed") == pytest.approx(10.0,
+                                                                                                             abs=2e-3)
+
+
+# ------------------------------------------------------------------------------------------------ GPS alignment
+def test_heading_alignment_finds_the_kernel_frame_rotation(impl, tmp_path):
+    """The kernel frame's yaw after calibration is arbitrary; here it is true ENU turned by -40 degrees (A, the
+    rotation kernel -> true, by +40). A vehicle at ~5 m/s accelerates 0.5 m/s^2 East for a second, then North, West,
+    South, twice over; the level IMU sees A^T a, the GPS a. From the velocity changes (a 2-D Wahba problem) the
+    alignment finds A: (cos_t, sin_t) = (cos 40, sin 40) degrees, to the counts' resolution (0.5 m/s^2 is 835.4
+    counts: the rounding turns it by < 0.1 degree)."""
+    theta = math.radians(40.0)
+    a_rot = np.array([[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]])
+    start = _still(gps_ve=5.0, gps_speed=5.0, gps_ok=4.5, since_fix=0.0)
+    v = np.array([5.0, 0.0])
+    steps = []
+    for j in range(8):
+        a_true = 0.5 * np.array([(1, 0), (0, 1), (-1, 0), (0, -1)][j % 4], dtype=float)
+        a_kernel = a_rot.T @ a_true
+        samples, dt = _samples(200, accel_g=(a_kernel[0] / G, a_kernel[1] / G, 1.0))
+        v = v + a_true
+        steps += [("p", samples, dt), ("v", float(v[0]), float(v[1]))]
+    trace = run(impl, steps, tmp_path, start=start)
+    for k in range(1, len(steps), 2):  # after every fix
+        angle = math.atan2(trace.at(k, "sin_t"), trace.at(k, "cos_t"))
+        assert math.degrees(angle) == pytest.approx(40.0, abs=0.1)
+
+
+# ------------------------------------------------------------------------------------------------ position at the fix
+def test_position_step_adds_the_imu_to_the_doppler_trapezoid(impl, tmp_path):
+    """Level, accelerating East at a = j t (j = 2 m/s^3) for 1 s between two fixes with velocities 0 and j/2: the
+    trapezoid T (v0 + v1) / 2 = j/4 m overshoots the true j/6 m by 17 cm; the IMU's correction takes it out, so a fix
+    at the true position is no surprise to the position filter. What remains: the counts' rounding (0.6 mm/s^2 per
+    count) integrated twice over 1 s, well under a millimetre. Had the step been the trapezoid alone (reference), the
+    filter would move by centimetres."""
+    j = 2.0
+    t = (np.arange(200) + 0.5) * 0.005
+    samples = np.stack([np.round(j * t / G * ONE_G), np.zeros_like(t), np.full_like(t, ONE_G), np.zeros_like(t),
+                        np.zeros_like(t), np.zeros_like(t)], axis=-1).astype(np.int16)
+    dt = np.full(len(t), DT_US, dtype=np.int32)
+    start = _still(since_fix=0.0)
+    trace = run(impl, [("x", 0.0, 0.0, 0.0, 0.0), ("p", samples, dt), ("x", j / 2, 0.0, j / 6, 0.0)], tmp_path,
+                start=start)
+    assert trace.at(0, "fix_pxx") == pytest.approx(FCFG.pos_sigma_m**2, rel=1e-6)  # the filter started at the fix
+    assert abs(trace.at(-1, "fix_ae")) < 1e-3 and abs(trace.at(-1, "fix_an")) < 1e-6
+    without = F.FusedState()
+    F.position_update(without, 0.0, 0.0, 0.0, 0.0, FCFG)
+    without.since_fix = 1.0
+    F.position_update(without, j / 2, 0.0, j / 6, 0.0, FCFG)
+    assert abs(without.fix_ae) > 0.02
+
+
+def test_position_filter_restarts_after_an_outage(impl, tmp_path):
+    """A fix 5 s after the previous one (beyond gps_timeout_s: the Doppler cannot carry the position across) restarts
+    the filter at the fix itself: offset 0, the position and receiver errors +-pos_sigma_m, perfectly anti-correlated."""
+    start = _still(fix_pxx=1.0, fix_pxe=-0.5, fix_pee=2.0, fix_ae=0.7, fix_en=0.3, since_fix=5.0)
+    trace = run(impl, [("x", 1.0, 0.0, 500.0, 0.0)], tmp_path, start=start)
+    assert [trace.at(0, n) for n in ("fix_ae", "fix_an", "fix_ee", "fix_en")] == [0.0, 0.0, 0.0, 0.0]
+    var = FCFG.pos_sigma_m**2
+    assert trace.at(0, "fix_pxx") == pytest.approx(var, rel=1e-6)
+    assert trace.at(0, "fix_pee") == pytest.approx(var, rel=1e-6)
+    assert trace.at(0, "fix_pxe") == pytest.approx(-var, rel=1e-6)
