@@ -134,12 +134,14 @@ def case_to_json(case: Case) -> dict:
 
 
 def run_driver(module: str, module_dir: Path, cases: list[Case], medians: list | None = None, work: Path = None,
-               timeout: float = 600) -> dict:
+               timeout: float = 600, latlon: list | None = None) -> dict:
     """Run tests/mp_kernel_driver.py under `micropython` with `module` (dr_fallback or dr_native) importable from
-    module_dir. medians: [(values float32 array, b)]. Returns the driver's JSON answer."""
+    module_dir. medians: [(values float32 array, b)]; latlon: [(lat_e7, lon_e7, east_m, north_m)] for
+    offset_latlon. Returns the driver's JSON answer."""
     work = Path(work or module_dir)
     payload = {"cases": [case_to_json(c) for c in cases],
-               "medians": [[[float(x) for x in np.asarray(v, dtype=np.float32)], int(b)] for v, b in medians or []]}
+               "medians": [[[float(x) for x in np.asarray(v, dtype=np.float32)], int(b)] for v, b in medians or []],
+               "latlon": [[int(a), int(b), float(e), float(n)] for a, b, e, n in latlon or []]}
     (work / "input.json").write_text(json.dumps(payload))
     env = dict(os.environ, MICROPYPATH=f"{module_dir}:.frozen")
     done = subprocess.run([micropython(), "-X", "heapsize=64M", str(DRIVER), module, str(work / "input.json")],
