@@ -1,16 +1,20 @@
 """Speed of the fused algorithm (issue 8) per window, beside the kernel's budget (<= 5 ms per 512-sample window at
 240 MHz by instruction count).
 
-    python3 benchmarks/fused.py
+    python3 benchmarks/fused.py [--before REV] [--repeat N]
 
-Rows: the C kernel (dr_fused_process + one dr_fused_gps) through cffi, the float64 reference (codegen/kernel/fused.py), the
-generated fallback's fused_process on the unix-port `micropython`; then valgrind callgrind's instruction count of the
-C harness native_ext/tests/bench_fused.c per window and what it means at 240 MHz (as benchmarks/kernel.py does for
-the seed kernel: x86-64 instructions as a proxy for the ESP32's single-issue LX6).
+Rows: the C kernel (dr_fused_process + one dr_fused_position and dr_fused_gps) through cffi, the float64 reference
+(codegen/kernel/fused.py), the generated fallback's fused_* on the unix-port `micropython` (the template of git
+revision REV, default main, beside today's: plain, @micropython.native, viper) and the x64 natmod there, each with
+the bytes it allocates per window (benchmarks/mpbench.py says how they are counted); then valgrind callgrind's
+instruction count of the C harness native_ext/tests/bench_fused.c per window and what it means at 240 MHz (as
+benchmarks/kernel.py does for the seed kernel: x86-64 instructions as a proxy for the ESP32's single-issue LX6).
+Measured on the x86-64 host.
 """
 
 from __future__ import annotations
 
+import argparse
 import re
 import shutil
 import subprocess
@@ -28,33 +32,12 @@ from codegen.board.loader import load_board  # noqa: E402
 from codegen.generate import render_tree  # noqa: E402
 from codegen.kernel import fused as F  # noqa: E402
 from codegen.kernel.reference import KernelConfig  # noqa: E402
-from codegen.tools import find_tool  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from kernel import print_time_table  # noqa: E402  (benchmarks/kernel.py)
+from kernel import build_natmod  # noqa: E402  (benchmarks/kernel.py)
+from mpbench import fallback_rows, measure, print_table  # noqa: E402  (benchmarks/mpbench.py)
 
 ESP32_HZ = 240e6
-
-MP_SCRIPT = """
-import time
-from array import array
-import dr_fallback as dr
-n = {n}
-st = array('f', [0.0] * dr.FUSED_STATE_LEN)
-out = array('f', [0.0] * dr.OUT_LEN)
-dr.fused_init(st)
-samples = array('h', {samples})
-dt = array('i', {dt})
-best = 1e9
-for _ in range({repeat}):
-    t0 = time.ticks_us()
-    dr.fused_process(st, samples, dt, out)
-    dr.fused_position(st, 1.0, 0.5, 1.0, 0.5)
-    dr.fused_gps(st, 1.0, 0.5)
-    best = min(best, time.ticks_diff(time.ticks_us(), t0))
-print(best)
-"""
-
 
 def window(rng, n):
     samples = np.round(rng.normal(0, 300, (n, 6)) + [0, 0, 16384, 0, 0, 0]).astype(np.int16)
@@ -91,7 +74,12 @@ def callgrind(files, folder: Path):
     return (totals[1] - totals[0]) / 10, ""
 
 
-def main() -> int:
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=5, help="timed repetitions of the MicroPython rows (best of)")
+    parser.add_argument("--before", default="main", help="git revision whose fallback template to run beside "
+                        "today's (default main; '' for none)")
+    args = parser.parse_args(argv)
     loaded = load_board(None)
     board = loaded.board
     files = render_tree(loaded)
@@ -109,7 +97,7 @@ def main() -> int:
         s.position(1.0, 0.5, 1.0, 0.5)
         s.gps(1.0, 0.5)
 
-    rows.append(("C dr_fused via cffi (host)", best_of(c_window, 200), ""))
+    rows.append(("C dr_fused via cffi (host)", best_of(c_window, 200), None, None, ""))
     st = F.FusedState()
 
     def ref_window():
@@ -117,24 +105,19 @@ def main() -> int:
         F.position_update(st, 1.0, 0.5, 1.0, 0.5, fcfg)
         F.gps_update(st, 1.0, 0.5, fcfg)
 
-    rows.append(("reference codegen/kernel/fused.py (float64, per-sample Python)", best_of(ref_window, 5), ""))
+    rows.append(("reference codegen/kernel/fused.py (float64, per-sample Python)", best_of(ref_window, 5), None, None, ""))
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        (folder / "dr_fallback.py").write_bytes(files["app/dr_fallback.py"].content)
-        mp = find_tool("micropython")
-        if mp:
-            script = MP_SCRIPT.format(n=n, samples=samples.ravel().tolist(), dt=dt.tolist(), repeat=5)
-            (folder / "bench.py").write_text(script)
-            done = subprocess.run([mp, "-X", "heapsize=32M", "bench.py"], cwd=folder, capture_output=True, text=True,
-                                  env={"MICROPYPATH": str(folder), "PATH": "/usr/bin:/bin"})
-            ok = done.returncode == 0
-            rows.append(("dr_fallback.fused_process on micropython (unix port)",
-                         int(done.stdout.split()[-1]) * 1e-6 if ok else None, "" if ok else done.stderr[-200:]))
-        else:
-            rows.append(("dr_fallback.fused_process on micropython", None, "micropython missing"))
+        rows += fallback_rows(loaded, files, folder, samples, dt, True, args.repeat, args.before, ("fused_process",))
+        native, note = build_natmod(folder, files)
+        natmod = grown = count = None
+        if native is not None:
+            natmod, grown, count, note = measure(native, "dr_native", samples, dt, True, 20 * args.repeat)
+        rows.append(("x64 natmod dr_native on micropython", natmod, grown, count, note))
         instructions, note = callgrind(files, folder)
-    print(f"deadreckon fused benchmark: one window of {n} x 6 samples + one GPS fix (position and velocity) (board {board.name}), best of runs")
-    print_time_table(rows)
+    print(f"deadreckon fused benchmark: one window of {n} x 6 samples + one GPS fix (position and velocity) "
+          f"(board {board.name}), best of runs, x86-64 host")
+    print_table(rows, n)
     if instructions is None:
         print(f"callgrind: - ({note})")
     else:

@@ -1,11 +1,13 @@
 """Benchmark: one 512x6 window through every implementation of the kernel; prints a table.
 
-    python3 benchmarks/kernel.py [--board BOARD.yaml] [--repeat N]
+    python3 benchmarks/kernel.py [--board BOARD.yaml] [--repeat N] [--before REV]
 
-Rows: the C kernel via cffi, the NumPy reference, the generated dr_fallback on the unix-port `micropython`
-(plain, @micropython.native, @micropython.viper), the x64 natmod in that same interpreter (built against MPY_DIR or
-the shared MicroPython tree), and the C kernel's instruction count per window (valgrind callgrind on a small C harness)
-with what that means on a 240 MHz ESP32. A script that prints, not a timed test: numbers vary with the machine.
+Rows: the C kernel via cffi, the NumPy reference, the generated dr_fallback on the unix-port `micropython` (the
+template of git revision REV, default main, beside today's: plain, @micropython.native, @micropython.viper), the x64
+natmod in that same interpreter (built against MPY_DIR or the shared MicroPython tree), each with the bytes it
+allocates per window (benchmarks/mpbench.py says how they are counted), and the C kernel's instruction count per
+window (valgrind callgrind on a small C harness) with what that means on a 240 MHz ESP32. A script that prints, not a
+timed test: numbers vary with the machine (here: x86-64 host).
 """
 
 from __future__ import annotations
@@ -29,33 +31,10 @@ from codegen.generate import render_tree  # noqa: E402
 from codegen.kernel import reference as ref  # noqa: E402
 from codegen.tools import find_tool, micropython_tree, tool_env  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mpbench import fallback_rows, measure, print_table  # noqa: E402  (benchmarks/mpbench.py)
+
 ESP32_HZ = 240e6
-MP_TIMER = """
-import sys, time
-from array import array
-sys.path.insert(0, {folder!r})
-import {module} as dr
-n = dr.WINDOW
-state = array('f', [0.0] * dr.STATE_LEN)
-out = array('f', [0.0] * dr.OUT_LEN)
-dr.init(state)
-samples = array('h', [0] * (6 * n))
-dt = array('i', [5000] * n)
-r = 1
-for k in range(6 * n):
-    r = (r * 1103515245 + 12345) & 0x7fffffff
-    samples[k] = (r >> 16) % 1024 - 512 + (16384 if k % 6 == 2 else 0)
-dr.process(state, samples, dt, out)
-best = None
-for _ in range({repeat}):
-    t0 = time.ticks_us()
-    dr.process(state, samples, dt, out)
-    t = time.ticks_diff(time.ticks_us(), t0)
-    best = t if best is None or t < best else best
-print('US', best)
-"""
-
-
 def window(rng, n):
     samples = np.round(rng.normal(0, 300, (n, 6))).astype(np.int16)
     samples[:, 2] += 16384
@@ -70,38 +49,6 @@ def best_of(fn, repeat):
         fn()
         times.append(time.perf_counter() - t0)
     return min(times)
-
-
-def variant(source: str, decorator: str | None) -> str:
-    """The fallback with `decorator` on its hot functions (process, _median, _sort). Viper needs machine-int
-    arguments and cannot mix them with float objects, so its variant types the sort/median indices as int and
-    leaves process (all float arithmetic, objects to viper anyway) under @micropython.native."""
-    if decorator is None:
-        return source
-    if decorator == "viper":
-        for name in ("_sort", "_median"):
-            source = source.replace(f"\ndef {name}(x, start, count):",
-                                    f"\n@micropython.viper\ndef {name}(x, start: int, count: int):", 1)
-        decorator = "native"
-        names = ("process",)
-    else:
-        names = ("process", "_median", "_sort")
-    for name in names:
-        source = source.replace(f"\ndef {name}(", f"\n@micropython.{decorator}\ndef {name}(", 1)
-    return "import micropython\n" + source
-
-
-def micropython_us(folder: Path, module: str, repeat: int) -> tuple[float | None, str]:
-    exe = find_tool("micropython")
-    if exe is None:
-        return None, "micropython not installed"
-    script = folder / f"time_{module}.py"
-    script.write_text(MP_TIMER.format(folder=str(folder), module=module, repeat=repeat))
-    done = subprocess.run([exe, str(script)], capture_output=True, text=True, timeout=900)
-    found = re.search(r"US (\d+)", done.stdout)
-    if not found:
-        return None, (done.stderr.strip().splitlines() or ["failed"])[-1][:70]
-    return int(found.group(1)) * 1e-6, ""
 
 
 def build_natmod(folder: Path, files) -> tuple[Path | None, str]:
@@ -145,21 +92,12 @@ def callgrind_instructions(folder: Path, files) -> tuple[float | None, str]:
     return (totals[1] - totals[0]) / 10, ""
 
 
-def print_time_table(rows) -> None:
-    """(label, seconds or None, why) rows as a table of time per window and ratio to the first row (the C)."""
-    c_host = rows[0][1]
-    print(f"{'implementation':64s} {'time/window':>14s} {'x slower than C':>16s}")
-    for label, seconds, why in rows:
-        if seconds is None:
-            print(f"{label:64s} {'-':>14s} {'':>16s}  ({why})")
-        else:
-            print(f"{label:64s} {seconds * 1e3:11.3f} ms {seconds / c_host:15.1f}x")
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--board", default=None, help="board YAML (default: the bundled default board)")
     parser.add_argument("--repeat", type=int, default=20, help="timed repetitions (best of)")
+    parser.add_argument("--before", default="main", help="git revision whose fallback template to run beside "
+                        "today's (default main; '' for none)")
     args = parser.parse_args(argv)
 
     loaded = load_board(args.board)
@@ -168,39 +106,33 @@ def main(argv=None) -> int:
     n = board.algorithm.window
     cfg = ref.KernelConfig.from_board(board)
     samples, dt = window(np.random.default_rng(1), n)
-    rows: list[tuple[str, float | None, str]] = []
+    rows: list[tuple[str, float | None, int | None, float | None, str]] = []
 
     from codegen.kernel.hostkernel import load_kernel
 
     kernel = load_kernel(loaded)
     run = kernel.session()
-    rows.append(("C kernel via cffi (host)", best_of(lambda: run.process(samples, dt), args.repeat * 10), ""))
+    rows.append(("C kernel via cffi (host)", best_of(lambda: run.process(samples, dt), args.repeat * 10), None, None, ""))
     rows.append(("NumPy reference (float64)",
                  best_of(lambda: ref.process_window(samples, dt, [1, 0, 0, 0], [0, 0, 0], [0, 0, 0], cfg),
-                         max(3, args.repeat // 4)), ""))
+                         max(3, args.repeat // 4)), None, None, ""))
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        fallback = files["app/dr_fallback.py"].content.decode()
-        mp_rows = []
-        for label, decorator in (("plain", None), ("@micropython.native", "native"), ("@viper sort/median, @native process", "viper")):
-            sub = folder / f"fallback-{decorator or 'plain'}"
-            sub.mkdir()
-            (sub / "dr_fallback.py").write_text(variant(fallback, decorator))
-            seconds, note = micropython_us(sub, "dr_fallback", max(3, args.repeat // 4))
-            rows.append((f"dr_fallback on micropython, {label}", seconds, note))
-            if seconds:
-                mp_rows.append(seconds)
+        fallback = fallback_rows(loaded, files, folder, samples, dt, False, max(3, args.repeat // 4), args.before,
+                                 ("process",))
+        rows += fallback
+        mp_rows = [seconds for label, seconds, *_ in fallback if seconds and label.startswith("dr_fallback now")]
         native, note = build_natmod(folder, files)
-        natmod = None
+        natmod = grown = count = None
         if native is not None:
-            natmod, note = micropython_us(native, "dr_native", args.repeat * 10)
-        rows.append(("x64 natmod dr_native on micropython", natmod, note))
+            natmod, grown, count, note = measure(native, "dr_native", samples, dt, False, args.repeat * 10)
+        rows.append(("x64 natmod dr_native on micropython", natmod, grown, count, note))
         instructions, note = callgrind_instructions(folder, files)
 
     print(f"deadreckon kernel benchmark: one window of {n} x 6 samples, block {board.algorithm.block} "
-          f"(board {board.name}), best of runs")
-    print_time_table(rows)
+          f"(board {board.name}), best of runs, x86-64 host")
+    print_table(rows, n)
     best_mp = min(mp_rows) if mp_rows else None
     if best_mp and natmod:
         print(f"natmod vs best MicroPython fallback variant, same interpreter: {best_mp / natmod:.0f}x (goal >= 20x)")

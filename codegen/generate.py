@@ -162,6 +162,12 @@ def render_tree(loaded: LoadedBoard) -> dict[str, RenderedFile]:
     return files
 
 
+def render_template_text(loaded: LoadedBoard, source: str, name: str) -> str:
+    """A template's text (say, an older revision's, for a benchmark) rendered as render_tree renders `name`."""
+    env = _environment()
+    return env.from_string(source).render(board=loaded.board, layout=LAYOUT, banner=_banner(loaded, name))
+
+
 def manifest_for(loaded: LoadedBoard, files: dict[str, RenderedFile], root: Path) -> dict:
     return {
         "generator": f"deadreckon {__version__}",
