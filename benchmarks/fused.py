@@ -105,7 +105,8 @@ def main(argv=None) -> int:
         F.position_update(st, 1.0, 0.5, 1.0, 0.5, fcfg)
         F.gps_update(st, 1.0, 0.5, fcfg)
 
-    rows.append(("reference codegen/kernel/fused.py (float64, per-sample Python)", best_of(ref_window, 5), None, None, ""))
+    rows.append(("reference codegen/kernel/fused.py (float64, per-sample Python)", best_of(ref_window, 5), None, None,
+                 ""))
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         rows += fallback_rows(loaded, files, folder, samples, dt, True, args.repeat, args.before, ("fused_process",))

@@ -112,7 +112,8 @@ def main(argv=None) -> int:
 
     kernel = load_kernel(loaded)
     run = kernel.session()
-    rows.append(("C kernel via cffi (host)", best_of(lambda: run.process(samples, dt), args.repeat * 10), None, None, ""))
+    rows.append(("C kernel via cffi (host)", best_of(lambda: run.process(samples, dt), args.repeat * 10), None, None,
+                 ""))
     rows.append(("NumPy reference (float64)",
                  best_of(lambda: ref.process_window(samples, dt, [1, 0, 0, 0], [0, 0, 0], [0, 0, 0], cfg),
                          max(3, args.repeat // 4)), None, None, ""))

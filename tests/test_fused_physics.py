@@ -346,7 +346,8 @@ def test_position_step_adds_the_imu_to_the_doppler_trapezoid(impl, tmp_path):
 
 def test_position_filter_restarts_after_an_outage(impl, tmp_path):
     """A fix 5 s after the previous one (beyond gps_timeout_s: the Doppler cannot carry the position across) restarts
-    the filter at the fix itself: offset 0, the position and receiver errors +-pos_sigma_m, perfectly anti-correlated."""
+    the filter at the fix itself: offset 0, the position and receiver errors +-pos_sigma_m, perfectly
+    anti-correlated."""
     start = _still(fix_pxx=1.0, fix_pxe=-0.5, fix_pee=2.0, fix_ae=0.7, fix_en=0.3, since_fix=5.0)
     trace = run(impl, [("x", 1.0, 0.0, 500.0, 0.0)], tmp_path, start=start)
     assert [trace.at(0, n) for n in ("fix_ae", "fix_an", "fix_ee", "fix_en")] == [0.0, 0.0, 0.0, 0.0]
