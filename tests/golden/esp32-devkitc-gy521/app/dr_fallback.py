@@ -8,10 +8,12 @@ declaration in codegen/kernel/layout.py (the offsets, lengths, checks and conver
 
 The hot loops (process, fused_process) create no list, tuple, array, range or bound method; the state lives in
 locals for a call. What they still allocate is each float operation's result on ports that box floats (the ESP32's
-and the RP2040's, MICROPY_OBJ_REPR_A: 16 bytes a float), and no decorator avoids that (viper has no float type;
-@micropython.native calls the same boxed arithmetic, and measured no faster on x64: benchmarks/fused.py). So the loops
-are written for fewer operations: the axis sign folded into the scale, integer gyro counts, the rotation matrix from
-doubled quaternion components, and exact no-op terms skipped (a tilt gain of 0, a speed of 0, a held angle of 0).
+and the RP2040's, MICROPY_OBJ_REPR_A: 16 bytes a float), and no decorator avoids that: viper has no float type, and
+@micropython.native calls the same boxed arithmetic (it runs 18% fewer x86-64 instructions per fused window, but
+doubles the module, 12 -> 25 KB of .mpy for xtensawin, held in the heap that is the board's tighter budget: so it is
+not used; benchmarks/fused.py measures both). So the loops are written for fewer operations: the axis sign folded
+into the scale, integer gyro counts, the rotation matrix from doubled quaternion components, and exact no-op terms
+skipped (a tilt gain of 0, a speed of 0, a held angle of 0).
 """
 
 import math
@@ -496,8 +498,8 @@ _FUSED_PARAMS = (
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration (the board's, or 31 values in the order of
-    _FUSED_PARAMS)."""
+    """Reset the fused state and store the configuration: the board's, or 31 values in the
+    order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
     p = params

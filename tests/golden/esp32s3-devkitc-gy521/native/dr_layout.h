@@ -57,14 +57,19 @@ typedef struct {
 #define DR_STATE_Q (0)
 #define DR_STATE_V (4)
 #define DR_STATE_GYRO_BIAS_LSB (7)
-typedef char dr_state_is_10_floats[sizeof(dr_state) == 10 * sizeof(float) ? 1 : -1];
-typedef char dr_config_is_12_floats[sizeof(dr_config) == 12 * sizeof(float) ? 1 : -1];
-typedef char dr_q_at_0[offsetof(dr_state, q) ==
-    DR_STATE_Q * sizeof(float) ? 1 : -1];
-typedef char dr_v_at_4[offsetof(dr_state, v) ==
-    DR_STATE_V * sizeof(float) ? 1 : -1];
-typedef char dr_gyro_bias_lsb_at_7[offsetof(dr_state, gyro_bias_lsb) ==
-    DR_STATE_GYRO_BIAS_LSB * sizeof(float) ? 1 : -1];
+typedef char dr_state_is_10_floats[
+    sizeof(dr_state) == 10 * sizeof(float) ? 1 : -1];
+typedef char dr_config_is_12_floats[
+    sizeof(dr_config) == 12 * sizeof(float) ? 1 : -1];
+typedef char dr_q_at_0[
+    offsetof(dr_state, q) == DR_STATE_Q * sizeof(float)
+    ? 1 : -1];
+typedef char dr_v_at_4[
+    offsetof(dr_state, v) == DR_STATE_V * sizeof(float)
+    ? 1 : -1];
+typedef char dr_gyro_bias_lsb_at_7[
+    offsetof(dr_state, gyro_bias_lsb) == DR_STATE_GYRO_BIAS_LSB * sizeof(float)
+    ? 1 : -1];
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_params_check(int32_t block, int32_t window, float accel_lsb_per_g, float gyro_lsb_per_dps,
@@ -253,10 +258,13 @@ typedef struct {
 #define DR_FUSED_STATE_MED_I (61)
 #define DR_FUSED_STATE_MED_N (62)
 #define DR_FUSED_STATE_MED (63)
-typedef char dr_fused_state_is_95_floats[sizeof(dr_fused_state) == 95 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_31_floats[sizeof(dr_fused_config) == 31 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_fix_ae_at_50[offsetof(dr_fused_state, fix_ae) ==
-    DR_FUSED_STATE_FIX_AE * sizeof(float) ? 1 : -1];
+typedef char dr_fused_state_is_95_floats[
+    sizeof(dr_fused_state) == 95 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_31_floats[
+    sizeof(dr_fused_config) == 31 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_fix_ae_at_50[
+    offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
+    ? 1 : -1];
 /* the parameters' order in the array dr_fused_config_set takes */
 #define DR_FUSED_P_TILT_TAU_S (0) /* s: tilt correction time constant while GPS fixes arrive */
 #define DR_FUSED_P_ACCEL_REJECT_G (1) /* g: no tilt correction while ||f| - g| exceeds this */
