@@ -101,6 +101,10 @@ def _limit_cases():
     cases = []
     for p in L.FUSED.params:
         others = {q.name: 0.0 for q in L.FUSED.params if q.at_most == p.name}
+        if p.kind == "choice":
+            last = len(p.choices) - 1
+            cases += [(p.name, -1, False, {}), (p.name, 0, True, {}), (p.name, last, True, {}),
+                      (p.name, last + 1, False, {})]
         if p.gt is not None:
             cases += [(p.name, p.gt, False, others), (p.name, p.gt + 1e-3, True, others)]
         if p.ge is not None:
@@ -133,7 +137,9 @@ def test_board_and_c_enforce_each_limit(tmp_path, name, value, accepted, others)
     from codegen.kernel.hostfused import load_fused
 
     board = tmp_path / "board.yaml"
-    keys = "".join(f"  fused_{key}: {x!r}\n" for key, x in _params(name, value, others).items())
+    choices = L.FUSED.param(name).choices  # a choice's board key takes its name, the kernels its index
+    board_value = {name: choices[int(value)] if choices and accepted else value}
+    keys = "".join(f"  fused_{key}: {x!r}\n" for key, x in {**others, **board_value}.items())
     board.write_text(f"extends: ttgo-tbeam-v1.1\nname: limits\nalgorithm:\n{keys}")
     if accepted:
         load_board(board)
@@ -190,10 +196,11 @@ def test_fallback_enforces_each_limit(tmp_path):
 
 
 def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
-    """A declaration with one more state field (before the median ring) and one more parameter, nothing else
-    changed: the board gets the key (default, limit), the rendered C compiles under the strict flags with the
-    field, the parameter's board value, check and conversion, and the fallback grows by both, runs the fused steps
-    and refuses the new parameter outside its limit; the public offsets stay."""
+    """A declaration with one more state field (before the median ring), one more parameter and one more choice (a
+    platform, as issue 19 wants), nothing else changed: the board gets the keys (defaults, limits, the choices), the
+    rendered C compiles under the strict flags with the field, the parameters' board values, checks, conversions and
+    the choices' names, and the fallback grows by all three, runs the fused steps and refuses each new parameter
+    outside its limits; the public offsets stay."""
     cc = require_tool("cc")
     micropython = require_tool("micropython")
     import codegen.generate
@@ -205,17 +212,23 @@ def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
     extra_field = L.Field("lateral", "m/s", "velocity across the travel direction")
     extra_param = L.Param("lateral_tau_s", "s", "time constant of the lateral velocity decay (0: none)",
                           L.Store("inv_lateral_tau", "1/s", "rate"), 2.0, ge=0)
+    platform = L.Param("platform", "", "what carries the device", L.Store("platform", "choice"), "auto",
+                       kind="choice", choices=("pedestrian", "vehicle", "auto"))
     grown = dataclasses.replace(fused, state=fused.state[:ring] + (extra_field,) + fused.state[ring:],
-                                params=fused.params + (extra_param,))
+                                params=fused.params + (extra_param, platform))
     L.check(grown)
     algorithm = model.algorithm_model(grown)
     with pytest.raises(ValidationError, match="fused_lateral_tau_s"):
         algorithm(fused_lateral_tau_s=-1.0)
+    with pytest.raises(ValidationError, match="fused_platform"):
+        algorithm(fused_platform="bicycle")
+    assert algorithm(fused_platform="vehicle").fused_platform == "vehicle"
     loaded = load_board()
     board = loaded.board.model_copy(update={"algorithm": algorithm(**loaded.board.algorithm.model_dump())})
     monkeypatch.setattr(codegen.generate, "LAYOUT", dataclasses.replace(L.LAYOUT, fused=grown))
     tree = render_tree(dataclasses.replace(loaded, board=board))
     assert "#define DR_FUSED_LATERAL_TAU_S (2.0f) /* s */" in tree["native/dr_board.h"].content.decode()
+    assert "#define DR_FUSED_PLATFORM (2.0f)" in tree["native/dr_board.h"].content.decode()
     native = tmp_path / "native"
     native.mkdir()
     for path, f in tree.items():
@@ -227,7 +240,9 @@ def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
         assert done.returncode == 0, done.stderr
     header = (native / "dr_layout.h").read_text()
     macros = _macros(header)
-    assert macros["DR_FUSED_STATE_FLOATS"] == 96 and macros["DR_FUSED_PARAMS"] == 32
+    assert macros["DR_FUSED_STATE_FLOATS"] == 96 and macros["DR_FUSED_PARAMS"] == 33
+    assert (macros["DR_FUSED_PLATFORM_PEDESTRIAN"], macros["DR_FUSED_PLATFORM_VEHICLE"]) == (0, 1)
+    assert "!(p[DR_FUSED_P_PLATFORM] >= 0.0f) || !(p[DR_FUSED_P_PLATFORM] <= 2.0f)" in header
     assert macros["DR_FUSED_STATE_LATERAL"] == 61 and macros["DR_FUSED_STATE_FIX_AE"] == 50
     assert "float lateral; /* m/s: velocity across the travel direction */" in header
     assert "cfg->inv_lateral_tau = p[DR_FUSED_P_LATERAL_TAU_S] > 0.0f ?" in header
@@ -236,6 +251,7 @@ def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
     (app / "dr_fallback.py").write_bytes(tree["app/dr_fallback.py"].content)
     consts = _fallback_consts(tree["app/dr_fallback.py"].content.decode())  # private consts exist only in the source
     assert consts["_F_LATERAL"] == 61 and consts["_FC_INV_LATERAL_TAU"] == 96 + 31
+    assert consts["_PLATFORM_VEHICLE"] == 1 and consts["_FC_PLATFORM"] == 96 + 32
     script = (
         "from array import array\nimport dr_fallback as dr\n"
         "st = array('f', [0.0] * dr.FUSED_STATE_LEN)\nout = array('f', [0.0] * dr.OUT_LEN)\n"
@@ -243,9 +259,11 @@ def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
         "dr.fused_calibrate(st, array('h', [0, 0, 16384, 0, 0, 0] * 50))\n"
         "dr.fused_process(st, array('h', [100, 0, 16384, 0, 0, 30] * 50), array('i', [5000] * 50), out)\n"
         "dr.fused_position(st, 1.0, 0.0, 1.0, 0.0)\ndr.fused_gps(st, 1.0, 0.0)\nprint('ran')\n"
-        "try:\n    dr.fused_init(st, dr._FUSED_PARAMS[:-1] + (-1.0,))\nexcept ValueError as e:\n    print(e)\n"
+        "try:\n    dr.fused_init(st, dr._FUSED_PARAMS[:-2] + (-1.0, 2.0))\nexcept ValueError as e:\n    print(e)\n"
+        "try:\n    dr.fused_init(st, dr._FUSED_PARAMS[:-1] + (3.0,))\nexcept ValueError as e:\n    print(e)\n"
     )
     done = subprocess.run([micropython, "-c", script], capture_output=True, text=True,
                           env=dict(os.environ, MICROPYPATH=str(app)), timeout=120)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.splitlines() == ["140 50 0.5", "ran", "lateral_tau_s must be >= 0"]
+    assert done.stdout.splitlines() == ["141 50 0.5", "ran", "lateral_tau_s must be >= 0",
+                                        "platform must be one of 0 (pedestrian), 1 (vehicle), 2 (auto)"]

@@ -253,7 +253,7 @@ def algorithm_model(kernel=FUSED) -> type:
     unit and limits from there."""
     keys = {}
     for p in kernel.params:
-        kind = {"float": float, "int": int, "bool": bool}[p.kind]
+        kind = Literal[p.choices] if p.kind == "choice" else {"float": float, "int": int, "bool": bool}[p.kind]
         description = f"{p.unit}: {p.doc}" if p.unit else p.doc
         keys[kernel.board_key(p)] = (kind, Field(p.default, gt=p.gt, ge=p.ge, le=p.le, description=description))
     return create_model("Algorithm", __base__=_AlgorithmKeys, __module__=__name__, **keys)

@@ -68,14 +68,16 @@ class Store:
 class Param:
     """A configuration slot as the caller sets it (board key, dr_*_config_set argument), in the unit it is given in.
     Limits: gt/ge/le as in pydantic; at_most: another parameter's name it may not exceed; multiple_of: another
-    (integer) parameter's name it must be a positive multiple of. A failed check returns DR_<error>."""
+    (integer) parameter's name it must be a positive multiple of. A failed check returns DR_<error>.
+    kind "choice": the board key takes one of `choices` (strings), the kernels its index (0, 1, ...), named
+    <C_PREFIX>_<NAME>_<CHOICE> in C and _<NAME>_<CHOICE> in the fallback."""
 
     name: str
     unit: str
     doc: str
     store: Store
     default: Optional[Number] = None  # the board's default (None: the board model declares the key itself)
-    kind: str = "float"  # "float", "int" (int32_t in C) or "bool" (0.0 / 1.0 in a parameter array)
+    kind: str = "float"  # "float", "int" (int32_t in C), "bool" (0.0 / 1.0) or "choice" (the index of one of choices)
     gt: Optional[float] = None
     ge: Optional[float] = None
     le: Optional[float] = None
@@ -83,9 +85,12 @@ class Param:
     at_most_why: str = ""  # the board rule's message, formatted with value, limit and unit
     multiple_of: Optional[str] = None
     error: str = "ERR_RANGE"
+    choices: tuple[str, ...] = ()
 
     def limits_text(self) -> str:
         """The limits in words, for error messages: '> 0', '>= 0 and <= 1', 'a positive multiple of block'."""
+        if self.kind == "choice":
+            return "one of " + ", ".join(f"{i} ({name})" for i, name in enumerate(self.choices))
         parts = []
         if self.multiple_of:
             parts.append(f"a positive multiple of {self.multiple_of}")
@@ -101,9 +106,19 @@ class Param:
         """The C type of the argument (a parameter array holds floats whatever the kind)."""
         return "int32_t" if self.kind == "int" else "float"
 
-    def number(self, value: Number) -> float:
-        """The value as a kernel parameter (a float; a bool is 1.0 or 0.0)."""
-        return float(value)
+    @property
+    def checked(self) -> bool:
+        """Whether the kernels check the value (a bool is any value: 0 or not)."""
+        return self.kind == "choice" or any(x is not None for x in (self.gt, self.ge, self.le, self.at_most,
+                                                                    self.multiple_of))
+
+    def number(self, value) -> float:
+        """The value as a kernel parameter (a float; a bool is 1.0 or 0.0; a choice its index)."""
+        return float(self.choices.index(value)) if self.kind == "choice" else float(value)
+
+    def code(self, choice: str) -> int:
+        """A choice's index, the number the kernels compare the parameter with."""
+        return self.choices.index(choice)
 
 
 @dataclass(frozen=True)
@@ -451,8 +466,11 @@ def check(kernel: Kernel) -> None:
             if other is not None and other not in params[:params.index(p.name)]:
                 raise ValueError(f"{kernel.c_prefix}: parameter {p.name} refers to {other!r}, not an earlier "
                                  "parameter")
-        if p.kind not in ("float", "int", "bool") or (p.kind == "bool" and (p.gt, p.ge, p.le) != (None,) * 3):
+        if p.kind not in ("float", "int", "bool", "choice") or (
+                p.kind in ("bool", "choice") and (p.gt, p.ge, p.le, p.at_most, p.multiple_of) != (None,) * 5):
             raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: kind {p.kind!r} or its limits wrong")
+        if (p.kind == "choice") != bool(p.choices) or (p.kind == "choice" and p.default not in p.choices):
+            raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: a choice needs choices and one as default")
         if p.error not in {c.name for c in RETURN_CODES}:
             raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: unknown return code {p.error!r}")
         if kernel.board_prefix and p.default is None:
