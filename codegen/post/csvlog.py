@@ -1,4 +1,5 @@
-"""The plain CSV pair: `t,ax,ay,az` (s, g) and `t,lat,lon,sog,cog,climb` (s, deg, m/s, deg from North, m/s)."""
+"""The plain CSV pair: `t,ax,ay,az[,gx,gy,gz]` (s, g, deg/s) and `t,lat,lon,sog,cog,climb` (s, deg, m/s, deg from
+North, m/s)."""
 
 from __future__ import annotations
 
@@ -11,17 +12,19 @@ from codegen.post.model import GpsSeries, ImuSeries, PostLog
 from codegen.post.table import check_increasing, read_table
 
 IMU_COLUMNS = ("t", "ax", "ay", "az")
+GYRO_COLUMNS = ("gx", "gy", "gz")  # deg/s, optional: the orientation across GPS gaps
 GPS_COLUMNS = ("t", "lat", "lon", "sog", "cog", "climb")
 DEFAULT_DOPPLER_SIGMA = 0.1  # m/s, u-blox 6 velocity accuracy (NEO-6M datasheet: 0.1 m/s)
 DEFAULT_POSITION_SIGMA = 2.5  # m, u-blox 6 horizontal CEP
 
 
 def read_imu_csv(path: Path) -> tuple[ImuSeries, list[str]]:
-    table = read_table(path, "IMU log", IMU_COLUMNS)
+    table = read_table(path, "IMU log", IMU_COLUMNS, optional=GYRO_COLUMNS)
     check_increasing(table, "IMU log")
     c = table.columns
     acc = np.stack([c["ax"], c["ay"], c["az"]], axis=1) * STANDARD_GRAVITY
-    return ImuSeries(c["t"], acc), table.notes
+    gyro = np.radians(np.stack([c[k] for k in GYRO_COLUMNS], axis=1)) if all(k in c for k in GYRO_COLUMNS) else None
+    return ImuSeries(c["t"], acc, gyro), table.notes
 
 
 def velocity_from_sog_cog(sog, cog_deg, climb) -> np.ndarray:
