@@ -52,6 +52,7 @@ class PostResult:
     imu_velocity_residual: np.ndarray  # (K,3) GPS - IMU velocity change per interval, m/s
     gaps: GapModel  # GPS gaps, the orientation across them and its uncertainty
     notes: list[str] = field(default_factory=list)
+    options: PostOptions = field(default_factory=PostOptions)
 
     @property
     def velocity_residual_rms(self) -> float:
@@ -82,6 +83,14 @@ def check_log(log: PostLog) -> None:
         )
     if not np.all(np.isfinite(gps.vel)):
         raise UserError(f"{log.name}: GPS velocities contain gaps (NaN)")
+    if np.all(gps.vel == gps.vel[0]):
+        still = not np.any(gps.vel[0])
+        raise UserError(
+            f"{log.name}: the GPS velocity is {'zero' if still else np.round(gps.vel[0], 3).tolist()} m/s at all "
+            f"{len(gps)} epochs: {'the device stood still' if still else 'it never changes'}, so there is no velocity "
+            "change to align the accelerometer to (nor to find the delay by)",
+            hint="post-processing needs a run with speed changes or turns; a GPS log that repeats one velocity may "
+                 "also come from a logger that writes its last value again when it has no new fix")
 
 
 def _segments(gps_t: np.ndarray) -> list[tuple[int, int]]:
@@ -228,7 +237,12 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
                            correlation=refined.correlation)
         if abs(refined.delay) < 0.25 * step:
             break
-    if estimate is not None and abs(delay - coarse_delay) > max(3.0 * estimate.sigma, step):
+    if curve is not None and curve.at_edge:
+        notes.append(f"the delay search ended at its edge ({curve.delay * 1e3:+.0f} ms of +-{options.max_lag * 1e3:.0f} ms): "
+                     f"the streams are shifted by more than --max-lag; the refinement went on to {delay * 1e3:+.0f} ms, "
+                     f"but a shift beyond the range was never searched: run again with --max-lag "
+                     f"{2 * max(options.max_lag, abs(delay)):.3g}")
+    elif estimate is not None and abs(delay - coarse_delay) > max(3.0 * estimate.sigma, step):
         notes.append(f"the delay moved from {coarse_delay * 1e3:+.0f} ms (first search) to {delay * 1e3:+.0f} ms as "
                      f"the orientation was refitted: the data do not pin it down; treat it as uncertain by "
                      f"{abs(delay - coarse_delay) * 1e3:.0f} ms")
@@ -267,4 +281,4 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     imu_residual = np.diff(gps.vel, axis=0) - dv_imu
     imu_residual[~iv.usable] = np.nan
     return PostResult(log, delay, estimate, orientation, iv, t, a_enu, result, origin, gps_enu, residual,
-                      imu_residual, gaps, notes)
+                      imu_residual, gaps, notes, options)
