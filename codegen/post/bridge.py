@@ -32,7 +32,7 @@ GAP_EPOCH_FACTOR = 1.5  # an interval this many typical epoch intervals long has
 GYRO_NOISE_DENSITY = np.radians(0.005)  # rad/s/sqrt(Hz), MPU-6050 datasheet rate noise spectral density
 GYRO_BIAS_WINDOW = 5.0  # s, stretches over which the gyro's turn is compared with the solved orientation's
 ALIGN_WINDOW = 5.0  # s before and after a gap whose solved orientations the gyro's integral is aligned to
-CORRELATION_FRACTION = 0.5  # the angle errors of a gap stay correlated over this fraction of its length
+CORRELATION_FRACTION = 0.35  # the angle errors of a gap stay correlated over this fraction of its length
 MAX_ANGLE_SIGMA = np.pi  # rad: beyond this an angle is simply unknown
 
 

@@ -19,6 +19,7 @@ from codegen.board import STANDARD_GRAVITY
 from codegen.errors import Location, UserError
 from codegen.post.csvlog import average_duplicate_epochs
 from codegen.post.model import GpsSeries, ImuSeries, PostLog
+from codegen.post.table import check_input_file, read_bytes
 
 DEVICE_LOG_SUFFIXES = (".bin",)
 REC_PAD, REC_HEADER, REC_IMU, REC_GPS, REC_WINDOW, REC_EVENT = 0x00, 0x48, 0x49, 0x47, 0x57, 0x45
@@ -37,6 +38,7 @@ def is_device_log(path: Path) -> bool:
         return any(p.suffix in DEVICE_LOG_SUFFIXES for p in path.iterdir()) and not any(path.glob("*.pos"))
     if path.suffix in DEVICE_LOG_SUFFIXES:
         return True
+    check_input_file(path, "log")
     try:
         with path.open("rb") as f:
             return f.read(1) == bytes([REC_HEADER])
@@ -68,7 +70,7 @@ def _block_size(data: bytes, path: Path) -> int:
 
 
 def parse_device_log(path: Path, block: int | None = None) -> RawDeviceLog:
-    data = path.read_bytes()
+    data = read_bytes(path, "device log")
     if not data:
         raise UserError(f"device log {path} is empty", location=Location(str(path), 1, 1),
                         hint="the device wrote no complete block: the run was shorter than one block or logging was off")

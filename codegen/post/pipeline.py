@@ -237,11 +237,13 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
                            correlation=refined.correlation)
         if abs(refined.delay) < 0.25 * step:
             break
-    if curve is not None and curve.at_edge:
-        notes.append(f"the delay search ended at its edge ({curve.delay * 1e3:+.0f} ms of +-{options.max_lag * 1e3:.0f} ms): "
-                     f"the streams are shifted by more than --max-lag; the refinement went on to {delay * 1e3:+.0f} ms, "
-                     f"but a shift beyond the range was never searched: run again with --max-lag "
-                     f"{2 * max(options.max_lag, abs(delay)):.3g}")
+    if curve is not None and (curve.at_edge or abs(delay) > options.max_lag):
+        # the first search's best lag at its edge, or the refinement walked out of its range: the range was too small
+        estimate = replace(estimate, at_edge=True)
+        notes.append(f"the delay search ended at its edge (first search {curve.delay * 1e3:+.0f} ms, range "
+                     f"+-{options.max_lag * 1e3:.0f} ms): the streams are shifted by about --max-lag or more; the "
+                     f"refinement went on to {delay * 1e3:+.0f} ms, but lags beyond the range were never searched: run "
+                     f"again with --max-lag {2 * max(options.max_lag, abs(delay)):.3g}")
     elif estimate is not None and abs(delay - coarse_delay) > max(3.0 * estimate.sigma, step):
         notes.append(f"the delay moved from {coarse_delay * 1e3:+.0f} ms (first search) to {delay * 1e3:+.0f} ms as "
                      f"the orientation was refitted: the data do not pin it down; treat it as uncertain by "
