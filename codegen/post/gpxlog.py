@@ -7,6 +7,7 @@ from <ele>. What is missing is derived from the positions (codegen.post.fixes). 
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import gpxpy
@@ -44,8 +45,8 @@ def read_gpx(path: Path, text: str) -> Fixes:
         gpx = gpxpy.parse(text)
     except gpxpy.gpx.GPXXMLSyntaxException as error:
         original = getattr(error, "original_exception", None)
-        line = getattr(original, "lineno", 1) or 1
-        col = (getattr(original, "offset", 0) or 0) + 1
+        place = re.search(r"line (\d+), column (\d+)", str(original or error))
+        line, col = (int(place.group(1)), int(place.group(2)) + 1) if place else (1, 1)
         raise UserError(f"{name}: not readable as GPX ({original or error})", location=Location(name, line, col),
                         hint="the file is damaged or not XML") from None
     except gpxpy.gpx.GPXException as error:
