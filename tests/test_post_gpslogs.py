@@ -58,7 +58,7 @@ def write_nmea(path, log, sentences=("RMC", "GGA"), status="A", quality=1, speed
             lines.append(nmea_sentence(f"GPVTG,{cog:.2f},T,,M,{sog / KNOT:.3f},N,{sog * 3.6:.3f},K,A"))
         if "GGA" in sentences:
             lines.append(nmea_sentence(f"GPGGA,{clock},{lat},{ns},{lon},{ew},{quality},08,1.0,408.0,M,47.0,M,,"))
-        lines.append(nmea_sentence(f"GPGSA,A,3,01,02,03,04,05,06,07,08,,,,,1.8,1.0,1.5"))
+        lines.append(nmea_sentence("GPGSA,A,3,01,02,03,04,05,06,07,08,,,,,1.8,1.0,1.5"))
     path.write_text("\r\n".join(lines) + "\r\n")
     return path
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from codegen.board import STANDARD_GRAVITY
-from codegen.post.model import GpsSeries, ImuSeries, PostLog
+from codegen.post.model import GpsSeries, ImuSeries
 from codegen.post.table import Table, check_increasing, check_range, read_table
 
 IMU_COLUMNS = ("t", "ax", "ay", "az")

@@ -50,7 +50,8 @@ def read_gpx(path: Path, text: str) -> Fixes:
         raise UserError(f"{name}: not readable as GPX ({original or error})", location=Location(name, line, col),
                         hint="the file is damaged or not XML") from None
     except gpxpy.gpx.GPXException as error:
-        raise UserError(f"{name}: not a GPX file this command can read ({error})", location=Location(name, 1, 1)) from None
+        raise UserError(f"{name}: not a GPX file this command can read ({error})",
+                        location=Location(name, 1, 1)) from None
     rows, untimed = [], 0
     for track in gpx.tracks:
         for segment in track.segments:
@@ -70,7 +71,8 @@ def read_gpx(path: Path, text: str) -> Fixes:
     if untimed:
         notes.append(f"{name}: {untimed} track point(s) without a time left out")
     if not rows:
-        what = f"{len(gpx.routes)} route(s), {len(gpx.waypoints)} waypoint(s)" if gpx.routes or gpx.waypoints else "nothing"
+        what = (f"{len(gpx.routes)} route(s), {len(gpx.waypoints)} waypoint(s)" if gpx.routes or gpx.waypoints
+                else "nothing")
         raise UserError(f"{name}: no track point with a time (the file holds {what})", location=Location(name, 1, 1),
                         hint="post-processing needs a recorded track (<trk><trkseg><trkpt> with <time>), not a route")
     data = np.array(rows, dtype=float)

@@ -135,7 +135,8 @@ def read_nmea(path: Path, text: str) -> Fixes:
     name = str(path)
     notes = []
     if damaged:
-        notes.append(f"{name}: skipped {damaged} damaged line(s) (bad checksum or fields; first at line {first_damaged})")
+        notes.append(f"{name}: skipped {damaged} damaged line(s) (bad checksum or fields; first at line "
+                     f"{first_damaged})")
     if not epochs:
         raise UserError(f"{name}: no RMC or GGA sentence with a time in the file ({other} other sentence(s), "
                         f"{damaged} damaged line(s))", location=Location(name, 1, 1),
