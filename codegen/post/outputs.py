@@ -224,7 +224,7 @@ def report_text(result: PostResult) -> str:
                              if opt["velocity_only"] else "GPS positions and Doppler velocities")]
     used.append("delay " + ("given" if opt["delay_given_s"] is not None else f"searched within +-{opt['max_lag_s']:g} s"))
     used.append(f"window +-{opt['window_intervals']} intervals, yaw held below {opt['min_horizontal_accel_mps2']:g} m/s^2")
-    used.append("bias " + ("estimated" if opt["estimate_bias"] else "not estimated (--no-bias)"))
+    used.append("bias " + ("sought (see acc bias)" if opt["estimate_bias"] else "not estimated (--no-bias)"))
     if opt["calibration"]:
         used.append("calibration given")
     used.append(f"{opt['rate_hz']:g} rows/s")
