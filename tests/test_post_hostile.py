@@ -235,3 +235,22 @@ def test_nan_in_the_imu_log(work):
 def test_binary_garbage_as_the_gps_log(work):
     (work / "noise.csv").write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
     refused(work, "imu.csv", "--gps", "noise.csv", "-o", "out", out=work / "out", expect="noise.csv:")
+
+
+def test_outputs_post_wrote_and_did_not_write_again_are_removed_only_if_unchanged(tmp_path):
+    """Not hostile, the other side of the rule: post's own earlier outputs that a run does not write again (the
+    plots after --no-plots) go, unless the user changed them; each file lands whole through a rename."""
+    from codegen.errors import UserError
+    from codegen.post.outdir import check_output_folder, write_files
+
+    out = tmp_path / "out"
+    write_files(out, {"report.txt": b"one\n", "angles.png": b"png", "delay.png": b"png2"})
+    check_output_folder(out, [])  # all three are post's, unchanged: a new run may replace them
+    (out / "delay.png").write_bytes(b"edited by the user")
+    with pytest.raises(UserError, match="delay.png"):  # now a run that might write delay.png is refused
+        check_output_folder(out, [])
+    write_files(out, {"report.txt": b"two\n"})  # (a run that writes no plot would not touch it)
+    assert (out / "report.txt").read_text() == "two\n"
+    assert not (out / "angles.png").exists()
+    assert (out / "delay.png").read_bytes() == b"edited by the user"
+    assert sorted(p.name for p in out.iterdir()) == ["delay.png", "post-manifest.json", "report.txt"]
