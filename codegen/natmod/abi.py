@@ -18,6 +18,8 @@ from pathlib import Path
 from codegen.errors import UserError
 from codegen.natmod.mpyfile import Header
 
+SMALL_INT_BITS_32 = 31  # MP_SMALL_INT_BITS of the 32-bit ports (ESP32, RP2040): the loader rejects more
+SMALL_INT_BITS_64 = 63  # the unix port on x64
 # mpy_ld's names for the objects a natmod may reference through mp_fun_table, and the field each one is
 _FUN_TABLE_SYMBOLS = {"mp_type_": "type_", "mp_stream_": "stream_"}
 
@@ -27,7 +29,6 @@ class TreeAbi:
     version: str  # MicroPython release of the tree, "1.28.0"
     mpy_version: int
     mpy_sub_version: int
-    small_int_bits_max: int
     fun_table: tuple  # mp_fun_table_t field names in order
 
     @property
@@ -78,20 +79,20 @@ def tree_abi(tree: Path) -> TreeAbi:
                        for part in ("MAJOR", "MINOR", "MICRO"))
     return TreeAbi(version=version, mpy_version=_define(persistent, "MPY_VERSION", "py/persistentcode.h"),
                    mpy_sub_version=_define(persistent, "MPY_SUB_VERSION", "py/persistentcode.h"),
-                   small_int_bits_max=31,
                    fun_table=_fun_table_fields((tree / "py" / "nativeglue.h").read_text()))
 
 
-def check_header(header: Header, abi: TreeAbi, arch: str, release: str, name: str = "dr_native.mpy") -> None:
-    """Raise UserError unless MicroPython `release` (whose ABI is `abi`) loads a native .mpy with `header` for
-    `arch`: the loader's own test (version, sub-version, arch, small-int bits)."""
+def check_header(header: Header, release_format: str, arch: str, release: str, name: str = "dr_native.mpy") -> None:
+    """Raise UserError unless MicroPython `release` (which loads native .mpy `release_format`, "6.3") loads a
+    native .mpy with `header` for `arch`: the loader's own test (version, sub-version, arch, small-int bits)."""
     problems = []
-    if (header.version, header.sub_version) != (abi.mpy_version, abi.mpy_sub_version):
-        problems.append(f".mpy {header.format}, MicroPython {release} loads native .mpy {abi.mpy_format} only")
+    if header.format != release_format:
+        problems.append(f".mpy {header.format}, MicroPython {release} loads native .mpy {release_format} only")
     if header.arch != arch:
         problems.append(f"built for {header.arch}, the board runs {arch}")
-    if header.small_int_bits > abi.small_int_bits_max:
-        problems.append(f"small ints of {header.small_int_bits} bits, more than the firmware's")
+    small_int_bits = SMALL_INT_BITS_64 if arch == "x64" else SMALL_INT_BITS_32
+    if header.small_int_bits > small_int_bits:
+        problems.append(f"small ints of {header.small_int_bits} bits, more than the port's {small_int_bits}")
     if problems:
         raise UserError(f"{name} does not match the board's firmware: {'; '.join(problems)}",
                         hint="build against the MicroPython release the board runs (MPY_DIR, or the board's "
