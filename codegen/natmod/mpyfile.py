@@ -157,19 +157,18 @@ def _read_relocations(r: _Reader, mpy: NativeMpy) -> None:
             index += 1
 
 
-def relocate(mpy: NativeMpy, text_base: int, rodata_base: int, bss_base: int, fun_table: int = 0,
-             fun_table_entries=None) -> tuple[bytearray, bytearray]:
-    """Text and rodata as MicroPython's loader leaves them with the text at `text_base` etc. (the words it adds
-    a base to; nothing else changes)."""
+def relocate(mpy: NativeMpy, bases: dict, fun_table_entries=None) -> tuple[bytearray, bytearray]:
+    """Text and rodata as MicroPython's loader leaves them (mp_native_relocate): every relocated word gets the
+    address of its destination added; `bases` gives the addresses of "text", "rodata", "bss", "mp_fun_table",
+    "qstr_table", "obj_table", `fun_table_entries` the words of mp_fun_table (k -> value, 0 when absent)."""
     text, rodata = bytearray(mpy.text), bytearray(mpy.rodata)
-    bases = {"text": text_base, "rodata": rodata_base, "bss": bss_base, "mp_fun_table": fun_table}
     for (region, index), dest in mpy.relocations.items():
         if dest.startswith("mp_fun_table["):
             base = (fun_table_entries or {}).get(int(dest[13:-1]), 0)
         elif dest in bases:
             base = bases[dest]
         else:
-            raise MpyFormatError(f"relocation to {dest} is not supported by this loader")
+            raise MpyFormatError(f"relocation to {dest}: no address given for it")
         buf = text if region == "text" else rodata
         value = int.from_bytes(buf[index * WORD:index * WORD + WORD], "little")
         buf[index * WORD:index * WORD + WORD] = ((value + base) & 0xFFFFFFFF).to_bytes(WORD, "little")
