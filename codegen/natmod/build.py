@@ -49,7 +49,8 @@ class NativeBuild:
 
 
 class NoRoute(Exception):
-    """No compiler for the arch: the message says what to install (the app then uses the fallback)."""
+    """No compiler for the arch or no MicroPython source: the message says what to do (the app then uses the
+    fallback)."""
 
 
 def choose_route(arch: str) -> Route:
@@ -88,7 +89,10 @@ def _failure(log: str) -> str:
 def build_module(native_dir: Path, work: Path, arch: str, release: str, progress: Progress = print) -> NativeBuild:
     """Build native_dir's Makefile for `arch` in `work` (replaced) against MicroPython `release`; check it."""
     route = choose_route(arch)
-    tree, tree_from = micropython_source(release, progress)
+    try:
+        tree, tree_from = micropython_source(release, progress)
+    except UserError as exc:  # offline, a refused download: the app still runs, on the fallback
+        raise NoRoute(f"{exc.message}; {exc.hint}" if exc.hint else exc.message) from None
     if work.exists():
         shutil.rmtree(work)
     shutil.copytree(native_dir, work)
