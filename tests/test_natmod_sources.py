@@ -140,3 +140,27 @@ def test_mpy_dir_wins_and_must_be_a_tree(isolated, monkeypatch):
     monkeypatch.setenv("MPY_DIR", str(isolated))
     with pytest.raises(UserError, match="is not a MicroPython source tree"):
         sources.micropython_source(RELEASE, lambda _: None)
+
+
+def test_the_tree_abi_is_the_one_mpy_ld_and_the_loader_use():
+    """The release the boards declare and its native ABI, read from the tree: .mpy 6.3 and an mp_fun_table whose
+    type entries start where mpy_ld puts them (its MP_FUN_TABLE_MP_TYPE_TYPE_OFFSET)."""
+    import re
+
+    from codegen.deploy.build import mpy_format
+    from codegen.natmod.abi import check_header, tree_abi
+    from codegen.natmod.mpyfile import Header
+
+    tree = mpy_dir()
+    abi = tree_abi(tree)
+    assert abi.version == RELEASE and abi.mpy_format == "6.3" == mpy_format(RELEASE)
+    offset = int(re.search(r"^MP_FUN_TABLE_MP_TYPE_TYPE_OFFSET = (\d+)", (tree / "tools" / "mpy_ld.py").read_text(),
+                           re.M).group(1))
+    assert abi.fun_table.index("type_type") == offset == abi.fun_table_index("mp_type_type")
+    assert abi.fun_table_index("mp_type_fun_builtin_var") == offset + 8
+    assert abi.fun_table[:3] == ("const_none", "const_false", "const_true")
+    check_header(Header(6, 3, "xtensawin", 31), "6.3", "xtensawin", RELEASE)
+    with pytest.raises(UserError, match=r"\.mpy 6\.2, MicroPython 1\.28\.0 loads native \.mpy 6\.3 only"):
+        check_header(Header(6, 2, "xtensawin", 31), "6.3", "xtensawin", RELEASE)
+    with pytest.raises(UserError, match="built for armv6m, the board runs xtensawin"):
+        check_header(Header(6, 3, "armv6m", 31), "6.3", "xtensawin", RELEASE)
