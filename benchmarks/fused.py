@@ -1,12 +1,13 @@
 """Speed of the fused algorithm (issue 8) per window, beside the kernel's budget (<= 5 ms per 512-sample window at
 240 MHz by instruction count).
 
-    python3 benchmarks/fused.py
+    python3 benchmarks/fused.py [--no-device]
 
 Rows: the C kernel (dr_fused_process + one dr_fused_gps) through cffi, the float64 reference (codegen/kernel/fused.py), the
 generated fallback's fused_process on the unix-port `micropython`; then valgrind callgrind's instruction count of the
 C harness native_ext/tests/bench_fused.c per window and what it means at 240 MHz (as benchmarks/kernel.py does for
-the seed kernel: x86-64 instructions as a proxy for the ESP32's single-issue LX6).
+the seed kernel: x86-64 instructions as a proxy for the ESP32's single-issue LX6); then the boards' instruction sets
+(benchmarks/device.py: QEMU counts of the natmod and the fallback on ARM cores, the natmod's ESP32 code on Xtensa).
 """
 
 from __future__ import annotations
@@ -91,7 +92,12 @@ def callgrind(files, folder: Path):
     return (totals[1] - totals[0]) / 10, ""
 
 
-def main() -> int:
+def main(argv=None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--no-device", action="store_true", help="skip the QEMU rows (boards' instruction sets)")
+    args = parser.parse_args(argv)
     loaded = load_board(None)
     board = loaded.board
     files = render_tree(loaded)
@@ -142,6 +148,10 @@ def main() -> int:
               f"({instructions / n:.0f} per sample)")
         print(f"  at 240 MHz, 1 instruction per cycle: {instructions / ESP32_HZ * 1e3:.2f} ms per window (budget 5 ms); "
               f"2 cycles per instruction: {2 * instructions / ESP32_HZ * 1e3:.2f} ms")
+    if not args.no_device:
+        from device import device_table
+
+        device_table(loaded, "fused")
     return 0
 
 

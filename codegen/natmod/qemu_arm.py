@@ -3,6 +3,8 @@
     MICROBIT     Cortex-M0 (armv6m, the RP2040's instruction set), nRF51; built with native code loading on
                  (MICROPY_EMIT_THUMB without ARMv7-M, as the rp2 port has it), 256 KiB RAM
     MPS2_AN385   Cortex-M3 (armv7m)
+    MPS2_AN500   Cortex-M7 with FPU, built with single-precision floats (armv7emsp natmods): the benchmark's stand-in
+                 for a core with hardware float, as the ESP32 has
 
 The firmware is built (Debian gcc-arm-none-eabi + picolibc) from a copy of a MicroPython tree, keyed by the tree's
 content, the board, the flags and the compiler, in $DEADRECKON_CACHE/qemu-arm/KEY/firmware.elf; the copy is removed
@@ -29,12 +31,16 @@ from typing import Optional
 
 from codegen.errors import UserError
 
+HEAP = "MICROPY_HEAP_SIZE=196608"  # 192 KiB, about what MicroPython has on an RP2040 or an ESP32 without PSRAM
 BOARDS = {
-    "MICROBIT": dict(arch="armv6m", machine=["microbit", "-global", "nrf51-soc.flash-size=1048576",
+    "MICROBIT": dict(arch="armv6m", make=[HEAP], machine=["microbit", "-global", "nrf51-soc.flash-size=1048576",
                                              "-global", "nrf51-soc.sram-size=262144"],
                      cflags="-DMICROPY_EMIT_THUMB=1 -DMICROPY_EMIT_THUMB_ARMV7M=0 -DMICROPY_EMIT_INLINE_THUMB=1 "
                             "-DMICROPY_EMIT_INLINE_THUMB_FLOAT=0"),
-    "MPS2_AN385": dict(arch="armv7m", machine=["mps2-an385"], cflags=""),
+    "MPS2_AN385": dict(arch="armv7m", machine=["mps2-an385"], cflags="", make=[HEAP]),
+    # Cortex-M7 with its FPU, MicroPython floats in single precision as on the ESP32: the nearest QEMU core to the
+    # ESP32's (hardware float for both the natmod and the interpreter)
+    "MPS2_AN500": dict(arch="armv7emsp", machine=["mps2-an500"], cflags="", make=[HEAP, "MICROPY_FLOAT_IMPL=float"]),
 }
 # a free-running 32-bit timer of each SoC as QEMU models it: nRF51 TIMER0 at 16 MHz (counts up), CMSDK APB timer 0
 # at the AN385's 25 MHz peripheral clock (counts down)
@@ -44,7 +50,8 @@ CLOCK_SOURCE = {
     "MPS2_AN385": ("import machine\n_m = machine.mem32\n_m[0x40000008] = 0xFFFFFFFF\n_m[0x40000004] = 0xFFFFFFFF\n"
                    "_m[0x40000000] = 1\ndef clock():\n    return (0xFFFFFFFF - _m[0x40000004]) & 0xFFFFFFFF\n"),
 }
-CLOCK_NS = {"MICROBIT": 1e9 / 16e6, "MPS2_AN385": 1e9 / 25e6}
+CLOCK_SOURCE["MPS2_AN500"] = CLOCK_SOURCE["MPS2_AN385"]
+CLOCK_NS = {"MICROBIT": 1e9 / 16e6, "MPS2_AN385": 1e9 / 25e6, "MPS2_AN500": 1e9 / 25e6}
 PORT_DIRS = ("py", "extmod", "shared", "lib", "drivers", "ports/qemu", "tools")  # what the port's build reads
 CHUNK = 6000  # bytes of a file per raw-REPL command (base64 in the command text)
 MEM_FS = """
@@ -115,7 +122,9 @@ def _compiler_version() -> str:
 def firmware(tree: Path, board: str, log=None) -> Path:
     """The QEMU port's firmware.elf for `board`, built from `tree` into the cache on first use."""
     spec = BOARDS[board]
-    key = hashlib.sha256(f"{tree_digest(tree)} {board} {spec['cflags']} {_compiler_version()}".encode()).hexdigest()
+    make_args = spec.get("make", [])
+    key = hashlib.sha256(f"{tree_digest(tree)} {board} {spec['cflags']} {make_args} {_compiler_version()}"
+                         .encode()).hexdigest()
     home = _cache() / key[:24]
     elf = home / "firmware.elf"
     if elf.is_file():
@@ -135,7 +144,7 @@ def firmware(tree: Path, board: str, log=None) -> Path:
         if log:
             log(f"building MicroPython's QEMU port for {board} in {source} (once; cached by content)")
         command = ["make", "-C", str(source / "ports" / "qemu"), f"BOARD={board}", "FROZEN_MANIFEST=",
-                   f"CFLAGS_EXTRA={spec['cflags']}", f"-j{os.cpu_count() or 1}"]
+                   f"CFLAGS_EXTRA={spec['cflags']}", *make_args, f"-j{os.cpu_count() or 1}"]
         done = subprocess.run(command, capture_output=True, text=True)
         built = source / "ports" / "qemu" / f"build-{board}" / "firmware.elf"
         if done.returncode or not built.is_file():

@@ -31,7 +31,7 @@ def start(session: Session, module: str, algorithm: str, state_floats: int) -> N
     session.put_file("drdrive.py", DRIVER.read_bytes())
     session.exec(CLOCK_SOURCE[session.board])
     session.exec(f"import {module}\nimport drdrive\n_run = drdrive.Runner({module}, {algorithm!r}, clock, "
-                 f"{state_floats})")
+                 f"{state_floats})\nimport gc\n_memfs.files.clear()\ngc.collect()")  # the imported files' bytes
 
 
 def step(session: Session, item: tuple) -> Answer:
