@@ -106,7 +106,7 @@ def walk_steps(board, algorithm: str, windows: int) -> list:
 
 def per_window(answers, steps) -> float:
     """Median instructions of the window steps (a fused window counts its GPS fix with it)."""
-    counts, k = [], 0
+    counts = []
     for item, answer in zip(steps, answers):
         if item[0] == "P":
             counts.append(answer.instructions)

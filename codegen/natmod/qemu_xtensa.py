@@ -16,7 +16,6 @@ instruction at interrupt level 0: each step's count is exact.
 
 from __future__ import annotations
 
-import shutil
 import struct
 import subprocess
 import sys
@@ -185,8 +184,3 @@ def run(module: mpyfile.NativeMpy, link: linkmap.LinkMap, harness: Harness, step
         answers.append(Answer(float(took), out, values[OUT_FLOATS:].copy()))
     return answers
 
-
-def have_tools() -> list[str]:
-    """The commands this runner needs that are missing."""
-    needed = ["qemu-system-xtensa", f"llvm-mc-{xtensa_llvm.LLVM_VERSION}"]
-    return [tool for tool in needed if shutil.which(tool) is None and find_tool(tool) is None]

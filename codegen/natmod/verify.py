@@ -190,7 +190,8 @@ class _Verifier:
         section = obj.by_index.get(sym["st_shndx"]) if isinstance(sym["st_shndx"], int) else None
         if section is not None and section.startswith(".literal"):
             if not xtensa.is_l32r(code, pc):
-                self.problem(f"{self.where('text', pc)}: expected an L32R (literal load), found {code[pc:pc + 3].hex()}")
+                found = code[pc:pc + 3].hex()
+                self.problem(f"{self.where('text', pc)}: expected an L32R (literal load), found {found}")
                 return
             self.masked.setdefault("text", set()).update((pc + 1, pc + 2))  # imm16; the opcode byte stays
             kind, want = self.literal_intent(obj, section, sym["st_value"] + addend)
