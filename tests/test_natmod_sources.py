@@ -66,11 +66,11 @@ def isolated(tmp_path, monkeypatch):
     """No MPY_DIR, no shared tree, an empty cache."""
     monkeypatch.delenv("MPY_DIR", raising=False)
     monkeypatch.setenv("DEADRECKON_CACHE", str(tmp_path / "cache"))
-    monkeypatch.setattr(sources, "SHARED_MICROPYTHON", tmp_path / "no-shared-tree")
+    monkeypatch.setattr("codegen.tools.SHARED_MICROPYTHON", tmp_path / "no-shared-tree")
     return tmp_path
 
 
-def test_download_is_checked_cached_and_builds_the_natmod(server, tarball, isolated, monkeypatch):
+def test_download_is_checked_cached_and_builds_the_natmod(server, tarball, shared_tree, isolated, monkeypatch):
     require_tool("make")
     require_tool("gcc")
     url, requests = server
@@ -133,10 +133,15 @@ def test_offline_build_says_the_app_uses_the_fallback(isolated, monkeypatch, tmp
         build_module(native_tree(tmp_path / "gen"), tmp_path / "work", "x64", RELEASE, progress=lambda _: None)
 
 
-def test_mpy_dir_wins_and_must_be_a_tree(isolated, monkeypatch):
-    monkeypatch.setenv("MPY_DIR", str(mpy_dir()))
+@pytest.fixture(scope="module")
+def shared_tree():
+    return mpy_dir()
+
+
+def test_mpy_dir_wins_and_must_be_a_tree(shared_tree, isolated, monkeypatch):
+    monkeypatch.setenv("MPY_DIR", str(shared_tree))
     tree, where = sources.micropython_source(RELEASE, lambda _: None)
-    assert tree == mpy_dir() and where == f"MPY_DIR ({RELEASE})"
+    assert tree == shared_tree and where == f"MPY_DIR ({RELEASE})"
     monkeypatch.setenv("MPY_DIR", str(isolated))
     with pytest.raises(UserError, match="is not a MicroPython source tree"):
         sources.micropython_source(RELEASE, lambda _: None)

@@ -57,7 +57,7 @@ def choose_route(arch: str) -> Route:
     cross = os.environ.get("CROSS")
     if cross:
         if find_tool(f"{cross}gcc") is None:
-            raise NoRoute(f"CROSS={cross} is set but {cross}gcc is not found")
+            raise NoRoute(f"no cross compiler for {arch}: CROSS={cross} is set but {cross}gcc is not found")
         return Route(f"CROSS={cross} ({cross}gcc)", cross)
     if arch not in GNU_PREFIXES:
         raise NoRoute(f"deadreckon has no compiler route for {arch}")

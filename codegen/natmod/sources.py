@@ -20,8 +20,8 @@ import urllib.request
 from pathlib import Path
 from typing import Callable, Optional
 
+from codegen import tools
 from codegen.errors import UserError
-from codegen.tools import SHARED_MICROPYTHON
 
 # SHA-256 of micropython-RELEASE.tar.xz, the source archive published with each release (it carries the lib/
 # submodules the auto-generated archives lack); from the release assets, as package managers pin them.
@@ -67,8 +67,9 @@ def micropython_source(version: str, progress: Progress = print) -> tuple[Path, 
             raise UserError(f"MPY_DIR={chosen} is not a MicroPython source tree (no py/dynruntime.mk)",
                             hint="point MPY_DIR at the top of a MicroPython checkout, or unset it")
         return Path(chosen), f"MPY_DIR ({tree_release(Path(chosen)) or 'unknown release'})"
-    if is_tree(SHARED_MICROPYTHON) and tree_release(SHARED_MICROPYTHON) == version:
-        return SHARED_MICROPYTHON, f"{SHARED_MICROPYTHON} ({version})"
+    shared = tools.SHARED_MICROPYTHON
+    if is_tree(shared) and tree_release(shared) == version:
+        return shared, f"{shared} ({version})"
     cached = cache_root() / version
     if (cached / MARKER).is_file() and is_tree(cached):
         return cached, f"cache {cached}"
