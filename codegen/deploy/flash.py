@@ -14,16 +14,22 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from struct import error as struct_error
 from pathlib import Path
 from typing import Callable, Optional
 
 from codegen.board.chips import CHIPS
+from codegen.board.flashlayout import FlashLayout
 from codegen.board.model import Board
 from codegen.errors import UserError
 
 FAST_BAUD = 460800
 SAFE_BAUD = 115200
 ESP_IMAGE_MAGIC = 0xE9
+IMAGE_CHIP_IDS = {"esp32": 0x0000, "esp32s3": 0x0009}  # the chip id in an ESP image's extended header
+IMAGE_CHIP_NAMES = {0x0000: "ESP32", 0x0002: "ESP32-S2", 0x0005: "ESP32-C3", 0x0009: "ESP32-S3", 0x000C: "ESP32-C2",
+                    0x000D: "ESP32-C6", 0x0010: "ESP32-H2"}
+FIRMWARE_NAMES = {"esp32": "ESP32_GENERIC", "esp32s3": "ESP32_GENERIC_S3"}
 
 Progress = Callable[[str], None]
 
@@ -73,12 +79,7 @@ def plan_regions(board: Board, image: Path, firmware: Optional[Path] = None) -> 
         firmware = Path(firmware)
         if not firmware.is_file():
             raise UserError(f"no firmware file at {firmware}", hint="download MicroPython's ESP32 .bin first")
-        data = firmware.read_bytes()[:1]
-        if not data or data[0] != ESP_IMAGE_MAGIC:
-            raise UserError(
-                f"{firmware} is not an ESP firmware image (it does not start with 0xE9)",
-                hint="use the MicroPython .bin for ESP32_GENERIC (the one flashed at 0x1000), not a .uf2, .elf or .zip",
-            )
+        check_firmware(board, firmware)
         start = board.micropython.partitions.bootloader
         size = firmware.stat().st_size
         if start + size > fs.offset:
@@ -89,6 +90,95 @@ def plan_regions(board: Board, image: Path, firmware: Optional[Path] = None) -> 
         regions.append(Region(start, firmware, "MicroPython firmware", size))
     regions.append(Region(fs.offset, image, "filesystem image", image_size))
     return regions
+
+
+def _read_firmware(board: Board, firmware: Path) -> bytes:
+    from codegen.board.yamlsource import YamlError, read_bounded
+
+    try:
+        return read_bounded(firmware, str(firmware), board.flash_bytes, what="firmware image")
+    except YamlError as problem:
+        raise UserError(problem.message.replace("a few KB", f"at most the {board.flash_size} flash"),
+                        hint="use the MicroPython .bin for the board") from None
+
+
+def check_firmware(board: Board, firmware: Path) -> FlashLayout:
+    """Read the firmware image about to be written at the bootloader offset and check it against the board
+    before anything is written: an ESP image for the board's chip, with a partition table at the board's
+    partition table offset (a merged MicroPython image: bootloader, partition table, app), whose app and
+    filesystem partitions are where the board YAML puts them. Return the layout the image's table describes."""
+    from codegen.board.flashlayout import (
+        AUTO_VFS_SINCE,
+        FlashLayout,
+        PartitionTableError,
+        check_flash_layout,
+        parse_partition_binary,
+        version_tuple,
+    )
+    from codegen.board.yamlsource import SourceMap
+
+    data = _read_firmware(board, firmware)
+    chip = CHIPS[board.chip].name
+    if not data or data[0] != ESP_IMAGE_MAGIC:
+        raise UserError(
+            f"{firmware} is not an ESP firmware image (it does not start with 0xE9)",
+            hint="use the MicroPython .bin for ESP32_GENERIC (the one flashed at 0x1000), not a .uf2, .elf or .zip",
+        )
+    expected_id = IMAGE_CHIP_IDS[board.chip]
+    if len(data) >= 14 and int.from_bytes(data[12:14], "little") != expected_id:
+        found_id = int.from_bytes(data[12:14], "little")
+        raise UserError(
+            f"the firmware {firmware} is not built for an {chip} (its header names chip id {found_id}"
+            f"{', the ' + IMAGE_CHIP_NAMES[found_id] if found_id in IMAGE_CHIP_NAMES else ''})",
+            hint=f"download the MicroPython firmware for the {chip} ({FIRMWARE_NAMES[board.chip]})",
+        )
+    partitions = board.micropython.partitions
+    table_at = partitions.partition_table - partitions.bootloader
+    whole = "a whole MicroPython image holds the bootloader, the partition table and MicroPython"
+    if len(data) < table_at + 2 or data[table_at : table_at + 2] != b"\xaa\x50":
+        raise UserError(
+            f"the firmware {firmware} has no partition table at {partitions.partition_table:#x} (file offset "
+            f"{table_at:#x}): it is not a whole MicroPython image for {partitions.bootloader:#x}",
+            hint=f"{whole}; use the .bin from micropython.org/download for {FIRMWARE_NAMES[board.chip]}, not the "
+                 "app-only micropython.bin of a build",
+        )
+    try:
+        rows = parse_partition_binary(data[table_at:])
+    except PartitionTableError as problem:
+        raise UserError(f"the partition table inside {firmware} is damaged: {problem.message}",
+                        hint="download the firmware again") from None
+    layout = FlashLayout(f"the firmware {firmware.name}", partitions.bootloader, partitions.partition_table,
+                         tuple(rows), auto_filesystem=not any(r.label in ("vfs", "ffat") for r in rows))
+    if layout.auto_filesystem and version_tuple(board.micropython.version) < AUTO_VFS_SINCE:
+        raise UserError(
+            f"the firmware {firmware.name} has no vfs partition, as MicroPython 1.26 and later have (it makes one "
+            f"at boot), but the board YAML says MicroPython {board.micropython.version}",
+            hint="set micropython.version in the board YAML to the firmware's release",
+        )
+    found = [d for d in check_flash_layout(board, SourceMap(), layout) if d.severity == "error"]
+    if found:
+        raise UserError(f"the board YAML does not match {layout.origin}: {found[0].message}",
+                        hint=found[0].hint or "fix micropython.partitions/filesystem in the board YAML")
+    app = layout.app()
+    app_at = app.offset - partitions.bootloader
+    if data[app_at : app_at + 1] != bytes([ESP_IMAGE_MAGIC]):
+        raise UserError(f"the firmware {firmware} has no app image at {app.offset:#x} where its partition table "
+                        "puts MicroPython", hint=whole)
+    if len(data) - app_at > app.size:
+        raise UserError(f"the firmware {firmware} runs {len(data) - app_at - app.size} bytes past its own app "
+                        f"partition ({app.span()})", hint="download the firmware again")
+    try:
+        from esptool.bin_image import LoadFirmwareImage
+        from esptool.util import FatalError
+
+        image = LoadFirmwareImage(board.chip, data[app_at:])
+    except (FatalError, ValueError, struct_error, IndexError) as problem:
+        raise UserError(f"the MicroPython app inside {firmware} (at {app.offset:#x}) is damaged: {problem}",
+                        hint="download the firmware again") from None
+    if image.chip_id != expected_id:
+        raise UserError(f"the MicroPython app inside {firmware} is not built for an {chip}",
+                        hint=f"download the MicroPython firmware for the {chip}")
+    return layout
 
 
 def esptool_command(board: Board, port: str, regions: list[Region], baud: int, stub: bool = True,
@@ -270,9 +360,11 @@ def flash(out: Path, port: str, firmware: Optional[Path] = None, erase: bool = F
           progress: Progress = print) -> FlashResult:
     """Write OUT/build/fs.img (and the firmware) to the board on `port`, verified; raise UserError on failure."""
     from codegen.deploy.build import IMAGE_NAME, load_tree
+    from codegen.deploy.buildrecord import check_build_current
 
     tree = load_tree(Path(out), board)
     board = tree.board
+    check_build_current(tree.root)
     if board.chip not in ("esp32", "esp32s3"):
         raise UserError(f"flashing {board.chip} boards is not supported (esptool is for Espressif chips)")
     if erase and firmware is None:

@@ -381,9 +381,11 @@ def upload(out: Path, port: str, force: bool = False, use_raw_paste: bool = True
            progress: Progress = print) -> UploadResult:
     """Upload OUT/build/app (from `deadreckon build OUT`) to the board on `port`."""
     from codegen.deploy.build import BUILD_DIR
+    from codegen.deploy.buildrecord import check_build_current
 
     app_dir = Path(out) / BUILD_DIR / "app"
     if not app_dir.is_dir():
         raise UserError(f"{app_dir} does not exist", hint=f"run `deadreckon build {out}` first")
+    check_build_current(Path(out))
     progress(f"uploading {app_dir} to {port}")
     return upload_folder(app_dir, port, force=force, use_raw_paste=use_raw_paste, progress=progress)
