@@ -21,6 +21,7 @@ from typing import Callable, Optional
 from codegen.board.chips import CHIPS
 from codegen.board.flashlayout import FlashLayout
 from codegen.board.model import Board
+from codegen.deploy.upload import rfc2217_refused
 from codegen.errors import UserError
 
 FAST_BAUD = 460800
@@ -30,6 +31,10 @@ IMAGE_CHIP_IDS = {"esp32": 0x0000, "esp32s3": 0x0009}  # the chip id in an ESP i
 IMAGE_CHIP_NAMES = {0x0000: "ESP32", 0x0002: "ESP32-S2", 0x0005: "ESP32-C3", 0x0009: "ESP32-S3", 0x000C: "ESP32-C2",
                     0x000D: "ESP32-C6", 0x0010: "ESP32-H2"}
 FIRMWARE_NAMES = {"esp32": "ESP32_GENERIC", "esp32s3": "ESP32_GENERIC_S3"}
+ESPTOOL_CHIP_ERASE_S = 120.0  # esptool's CHIP_ERASE_TIMEOUT
+ESPTOOL_ERASE_S_PER_MIB = 40.0  # esptool's ERASE_WRITE_TIMEOUT_PER_MB
+ESPTOOL_SILENCE_MARGIN_S = 15.0
+ESPTOOL_STALLED = "deadreckon: esptool stalled"
 
 Progress = Callable[[str], None]
 
@@ -205,9 +210,14 @@ def esptool_command(board: Board, port: str, regions: list[Region], baud: int, s
 
 
 def check_port(port: str) -> None:
-    """Fail early, with the fix, when a local serial device is missing, not ours to open, or busy."""
+    """Fail early, with the fix, when a port URL is malformed, or a local serial device is missing, not ours to
+    open, or busy."""
+    from codegen.deploy.upload import check_port_path, check_port_url, not_a_port
+
     if is_url(port):
+        check_port_url(port)
         return
+    check_port_path(port)
     if not os.path.exists(port):
         raise UserError(f"no such port {port}", hint=_ports_hint())
     if not os.access(port, os.R_OK | os.W_OK):
@@ -229,6 +239,8 @@ def check_port(port: str) -> None:
         text = str(exc)
         if "busy" in text.lower() or "lock" in text.lower():
             raise UserError(f"port {port} is busy", hint=_busy_hint())
+        if "inappropriate ioctl" in text.lower():
+            raise not_a_port(port) from None
         raise UserError(f"cannot open {port}: {text}")
 
 
@@ -253,6 +265,12 @@ def classify(output: str, port: str, board: Board, regions: list[Region]) -> Opt
     text = output
     lower = text.lower()
     expected = CHIPS[board.chip].name
+    stalled = re.search(re.escape(ESPTOOL_STALLED) + r": no output for (\d+) s", text)
+    if stalled:
+        return UserError(
+            f"the board on {port} stopped answering: esptool printed nothing for {stalled[1]} s and was stopped",
+            hint="press RESET (holding BOOT) and run the same command again; the write starts over and is verified",
+        )
     if "this chip is " in lower and "wrong chip argument" in lower:
         found = text[lower.index("this chip is ") + len("this chip is "):].split(",")[0].split()[0]
         return UserError(
@@ -281,6 +299,8 @@ def classify(output: str, port: str, board: Board, regions: list[Region]) -> Opt
         )
     if "could not exclusively lock" in lower or "resource busy" in lower:
         return UserError(f"port {port} is busy", hint=_busy_hint())
+    if "does not seem to support rfc2217" in lower:
+        return rfc2217_refused(port)
     if "connection refused" in lower or "no such file or directory" in lower and "could not open port" in lower:
         hint = "is the server at that address running?" if is_url(port) else _ports_hint()
         return UserError(f"no such port {port} (nothing answers there)", hint=hint)
@@ -303,6 +323,10 @@ def classify(output: str, port: str, board: Board, regions: list[Region]) -> Opt
             f"the connection to the board on {port} was lost while flashing",
             hint="check the cable and run the same command again; the write starts over and is verified",
         )
+    if "could not open" in lower:
+        reason = re.search(r"could not open [^\n]*\n\(?([^\n)]+)", text, re.IGNORECASE)
+        return UserError(f"cannot open {port}" + (f": {reason[1].strip()}" if reason else ""),
+                         hint="is it the board's port, and is nothing else holding it?")
     if "failed to connect" in lower:
         return UserError(
             f"no {expected} bootloader answered on {port}",
@@ -319,36 +343,63 @@ def _last_error_line(output: str) -> str:
     return lines[-1] if lines else "no output"
 
 
-def run_esptool(command: list[str], progress: Progress, expected_chip: str) -> tuple[int, str]:
-    """Run esptool, echoing its lines; stop it before it writes anything if it connected to another chip."""
+def silence_limit(regions: list[Region]) -> float:
+    """How long esptool may print nothing before it counts as stuck: its own longest wait, an erase, is 40 s per
+    MiB of the largest region it begins (esptool's ERASE_WRITE_TIMEOUT_PER_MB) or 120 s for the whole chip."""
+    largest = max((region.size for region in regions), default=0)
+    return max(ESPTOOL_CHIP_ERASE_S, ESPTOOL_ERASE_S_PER_MIB * largest / (1024 * 1024)) + ESPTOOL_SILENCE_MARGIN_S
+
+
+def run_esptool(command: list[str], progress: Progress, expected_chip: str,
+                silence_s: float = ESPTOOL_CHIP_ERASE_S) -> tuple[int, str]:
+    """Run esptool, echoing its lines (a Python traceback is kept for the diagnosis, not shown); stop it before it
+    writes anything if it connected to another chip, and when it has printed nothing for `silence_s` seconds."""
+    import selectors
+
     env = dict(os.environ, PYTHONUNBUFFERED="1", NO_COLOR="1")
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
     lines: list[str] = []
     buffer = b""
     shown = -1  # the last quarter of a region's write reported
+    in_traceback = False
     assert process.stdout is not None
-    while True:
-        chunk = process.stdout.read1(4096) if hasattr(process.stdout, "read1") else process.stdout.read(4096)
-        if not chunk:
-            break
-        buffer += chunk
-        *complete, buffer = buffer.replace(b"\r", b"\n").split(b"\n")
-        for raw in complete:
-            line = raw.decode("utf-8", "replace").rstrip()
-            if not line:
-                continue
-            lines.append(line)
-            if line.startswith("Writing at"):
-                match = re.search(r"(\d+(?:\.\d+)?)%", line)
-                quarter = int(float(match.group(1)) // 25) if match else shown
-                if quarter != shown:
-                    shown = quarter
-                    progress(f"  {line.split()[2]}  {quarter * 25:3d}%")
-                continue
-            shown = -1
-            progress(f"  {line}")
-            if "doesn't appear to be an" in line:
-                process.kill()  # esptool would "attempt to continue anyway" and write to the wrong chip
+    selector = selectors.DefaultSelector()
+    selector.register(process.stdout, selectors.EVENT_READ)
+    try:
+        while True:
+            if not selector.select(timeout=silence_s):
+                process.kill()
+                lines.append(f"{ESPTOOL_STALLED}: no output for {silence_s:.0f} s")
+                break
+            chunk = os.read(process.stdout.fileno(), 4096)
+            if not chunk:
+                break
+            buffer += chunk
+            *complete, buffer = buffer.replace(b"\r", b"\n").split(b"\n")
+            for raw in complete:
+                line = raw.decode("utf-8", "replace").rstrip()
+                if not line:
+                    continue
+                lines.append(line)
+                if line.startswith("Traceback (most recent call last)"):
+                    in_traceback = True
+                if in_traceback:
+                    in_traceback = line.startswith((" ", "Traceback", "During handling", "The above exception"))
+                    continue
+                if line.startswith("Writing at"):
+                    match = re.search(r"(\d+(?:\.\d+)?)%", line)
+                    quarter = int(float(match.group(1)) // 25) if match else shown
+                    if quarter != shown:
+                        shown = quarter
+                        progress(f"  {line.split()[2]}  {quarter * 25:3d}%")
+                    continue
+                shown = -1
+                progress(f"  {line}")
+                if "doesn't appear to be an" in line:
+                    process.kill()  # esptool would "attempt to continue anyway" and write to the wrong chip
+    finally:
+        selector.close()
+        process.stdout.close()
     if buffer.strip():
         lines.append(buffer.decode("utf-8", "replace"))
     process.wait()
@@ -384,7 +435,7 @@ def flash(out: Path, port: str, firmware: Optional[Path] = None, erase: bool = F
     for baud in (FAST_BAUD, SAFE_BAUD):
         command = esptool_command(board, port, regions, baud, stub=stub, erase=erase, compress=compress)
         progress(f"esptool at {baud} baud{'' if stub else ' (ROM loader, no stub)'}")
-        status, output = run_esptool(command, progress, CHIPS[board.chip].name)
+        status, output = run_esptool(command, progress, CHIPS[board.chip].name, silence_limit(regions))
         attempts.append(f"{baud}: exit {status}")
         if status == 0:
             seconds = time.monotonic() - started
@@ -397,6 +448,11 @@ def flash(out: Path, port: str, firmware: Optional[Path] = None, erase: bool = F
             break
         progress(f"esptool failed at {baud} baud; trying {SAFE_BAUD}")
     if error is None:
-        error = UserError(f"esptool failed: {_last_error_line(output)}",
-                          hint="run the esptool command above with --trace to see the exchange")
+        last = _last_error_line(output)
+        if last.startswith("Serial port "):  # esptool exits without a word when the port closes as it opens
+            error = UserError(f"the connection to {port} closed before esptool could talk to the board",
+                              hint="is the bridge or server at the other end running, and is the board attached?")
+        else:
+            error = UserError(f"esptool failed: {last}",
+                              hint="run the esptool command above with --trace to see the exchange")
     raise error

@@ -20,6 +20,8 @@ Faults for tests (attributes, apply to every connection while set):
     chip_magic          the value read at the chip magic register (e.g. 0x000007C6, an ESP32-S2)
     noise_reply         (opcode, n): send non-SLIP line noise in place of the n-th reply to that opcode
     drop_on_baud_change close the connection at CHANGE_BAUDRATE (a cable or adapter that cannot go faster)
+    stall_after_blocks  stop answering (the connection stays open) after this many flash data blocks
+    corrupt_program     program every written block with one bit cleared: the write "succeeds", the MD5 lies
 """
 
 from __future__ import annotations
@@ -132,6 +134,7 @@ class Session:
         self.regs: dict[int, int] = {}
         self.blocks_seen = 0
         self.replies: dict[int, int] = {}
+        self.stalled = False
 
     # -- framing
     def run(self) -> None:
@@ -170,6 +173,8 @@ class Session:
 
     # -- dispatch
     def handle(self, packet: bytes) -> None:
+        if self.stalled:
+            return  # a chip that hung: it reads, it never answers
         if len(packet) < 8:
             return  # an ack from READ_FLASH, or noise: the ROM ignores it
         direction, op, length, chk = struct.unpack("<BBHI", packet[:8])
@@ -304,6 +309,9 @@ class Session:
         faults = self.peer
         if faults.drop_after_blocks is not None and self.blocks_seen > faults.drop_after_blocks:
             raise Dropped()
+        if faults.stall_after_blocks is not None and self.blocks_seen > faults.stall_after_blocks:
+            self.stalled = True
+            return None
         if compressed:
             try:
                 plain = state.inflater.decompress(payload)
@@ -313,6 +321,8 @@ class Session:
             if not self.stub and len(payload) != state.block_size:
                 raise CommandError(ERR_INVALID_MESSAGE)  # the ROM wants whole, padded blocks
             plain = payload
+        if faults.corrupt_program and plain:
+            plain = bytes([plain[0] & 0xFE]) + plain[1:] if plain[0] & 1 else bytes([plain[0] & 0xFD]) + plain[1:]
         self._program(state.offset + state.written, plain)
         state.written += len(plain)
         state.next_seq += 1
@@ -409,6 +419,8 @@ class RomLoaderPeer:
         self.drop_after_blocks: Optional[int] = None
         self.noise_reply: Optional[tuple[int, int]] = None
         self.drop_on_baud_change = False
+        self.stall_after_blocks: Optional[int] = None
+        self.corrupt_program = False
         self.stats = Stats()
         self._server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self._server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -430,6 +442,8 @@ class RomLoaderPeer:
         self.drop_after_blocks = None
         self.noise_reply = None
         self.drop_on_baud_change = False
+        self.stall_after_blocks = None
+        self.corrupt_program = False
 
     def start(self) -> "RomLoaderPeer":
         self._thread = threading.Thread(target=self._serve, name="esp32-rom-peer", daemon=True)
