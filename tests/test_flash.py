@@ -146,6 +146,7 @@ def test_wrong_chip_is_refused_before_writing(built, peer):
 def test_flash_smaller_than_the_layout(built):
     tree, result, firmware = built
     with RomLoaderPeer(flash_size=2 * 1024 * 1024) as small:
+        small.flash[0x1000 : 0x1000 + firmware.stat().st_size] = firmware.read_bytes()  # MicroPython is on it
         with pytest.raises(UserError, match="less flash"):
             flash(tree, small.url, board=default_board(), progress=quiet)
 
@@ -264,3 +265,17 @@ def test_falls_back_to_115200_when_the_line_cannot_go_faster(built, peer, tmp_pa
     assert outcome.baud == 115200 and outcome.attempts[0].startswith("460800: exit 2")
     assert any("trying 115200" in line for line in lines)
     assert_flashed(peer, result, firmware)
+
+
+@pytest.mark.parametrize("stub", [True, False], ids=["stub", "rom"])
+def test_filesystem_only_flash_reads_the_boards_partition_table_first(built, peer, stub):
+    """Without --firmware the image joins the MicroPython already on the board: its partition table is read
+    (the stub's READ_FLASH, or the ROM's 64-byte READ_FLASH_SLOW) and checked before anything is written."""
+    tree, result, firmware = built
+    peer.flash[0x1000 : 0x1000 + firmware.stat().st_size] = firmware.read_bytes()
+    flash(tree, peer.url, board=default_board(), stub=stub, progress=quiet)
+    read = peer.stats.commands.get(0xD2 if stub else 0x0E, 0)
+    assert read == (1 if stub else 0xC00 // 64)
+    fs = default_board().micropython.filesystem
+    assert peer.flash[fs.offset : fs.offset + fs.size] == result.image.read_bytes()
+    assert peer.flash[0x1000 : 0x1000 + firmware.stat().st_size] == firmware.read_bytes()

@@ -12,6 +12,7 @@ import os
 import re
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from struct import error as struct_error
@@ -107,14 +108,12 @@ def _read_firmware(board: Board, firmware: Path) -> bytes:
                         hint="use the MicroPython .bin for the board") from None
 
 
-def check_firmware(board: Board, firmware: Path) -> FlashLayout:
-    """Read the firmware image about to be written at the bootloader offset and check it against the board
-    before anything is written: an ESP image for the board's chip, with a partition table at the board's
-    partition table offset (a merged MicroPython image: bootloader, partition table, app), whose app and
-    filesystem partitions are where the board YAML puts them. Return the layout the image's table describes."""
+def layout_from_table(board: Board, table: bytes, origin: str, damaged_hint: str) -> FlashLayout:
+    """The layout a binary partition table describes, checked against the board YAML; a UserError when they
+    disagree (the image would land where that firmware keeps something else, or where it does not look)."""
     from codegen.board.flashlayout import (
         AUTO_VFS_SINCE,
-        FlashLayout,
+        FILESYSTEM_LABELS,
         PartitionTableError,
         check_flash_layout,
         parse_partition_binary,
@@ -122,6 +121,58 @@ def check_firmware(board: Board, firmware: Path) -> FlashLayout:
     )
     from codegen.board.yamlsource import SourceMap
 
+    partitions = board.micropython.partitions
+    try:
+        rows = parse_partition_binary(table)
+    except PartitionTableError as problem:
+        raise UserError(f"the partition table of {origin} is damaged: {problem.message}", hint=damaged_hint) from None
+    layout = FlashLayout(origin, partitions.bootloader, partitions.partition_table, tuple(rows),
+                         auto_filesystem=not any(row.label in FILESYSTEM_LABELS for row in rows))
+    if layout.auto_filesystem and version_tuple(board.micropython.version) < AUTO_VFS_SINCE:
+        raise UserError(
+            f"{origin} has no vfs partition, as MicroPython 1.26 and later have (it makes one at boot), but the "
+            f"board YAML says MicroPython {board.micropython.version}",
+            hint="set micropython.version in the board YAML to the firmware's release",
+        )
+    found = [d for d in check_flash_layout(board, SourceMap(), layout) if d.severity == "error"]
+    if found:
+        raise UserError(f"the board YAML does not match {origin}: {found[0].message}",
+                        hint=found[0].hint or "fix micropython.partitions/filesystem in the board YAML")
+    return layout
+
+
+def read_board_layout(board: Board, port: str, stub: bool, progress: Progress) -> FlashLayout:
+    """Read the partition table of the firmware already on the board (esptool read-flash, 3 KiB at 115200 baud;
+    the ROM loader reads it too) and check the board YAML against it, before the filesystem image is written
+    without a firmware: the image must land in that firmware's filesystem partition, not in its app."""
+    from codegen.board.flashlayout import PARTITION_TABLE_MAX_BYTES
+
+    offset = board.micropython.partitions.partition_table
+    with tempfile.TemporaryDirectory(prefix="deadreckon-") as folder:
+        target = Path(folder) / "partition-table.bin"
+        command = esptool_base(board, port, SAFE_BAUD, stub) + [
+            "read-flash", f"{offset:#x}", f"{PARTITION_TABLE_MAX_BYTES:#x}", str(target)]
+        progress(f"reading the board's partition table at {offset:#x}")
+        status, output = run_esptool(command, progress, CHIPS[board.chip].name)
+        if status != 0 or not target.is_file():
+            raise classify(output, port, board, []) or UserError(
+                f"cannot read the partition table of the board on {port}: {_last_error_line(output)}",
+                hint="run the same command again; with --firmware the board's table is not needed")
+        table = target.read_bytes()
+    if table[:2] == b"\xff\xff":
+        raise UserError(f"the board on {port} has no partition table at {offset:#x}: no MicroPython is on it (a "
+                        "blank or erased flash), so the app's filesystem alone would not run",
+                        hint=f"write MicroPython with it: --firmware {FIRMWARE_NAMES[board.chip]}-v"
+                             f"{board.micropython.version}.bin")
+    return layout_from_table(board, table, f"the firmware on the board on {port}",
+                             damaged_hint="write a fresh MicroPython with --firmware (and --erase)")
+
+
+def check_firmware(board: Board, firmware: Path) -> FlashLayout:
+    """Read the firmware image about to be written at the bootloader offset and check it against the board
+    before anything is written: an ESP image for the board's chip, with a partition table at the board's
+    partition table offset (a merged MicroPython image: bootloader, partition table, app), whose app and
+    filesystem partitions are where the board YAML puts them. Return the layout the image's table describes."""
     data = _read_firmware(board, firmware)
     chip = CHIPS[board.chip].name
     if not data or data[0] != ESP_IMAGE_MAGIC:
@@ -147,23 +198,8 @@ def check_firmware(board: Board, firmware: Path) -> FlashLayout:
             hint=f"{whole}; use the .bin from micropython.org/download for {FIRMWARE_NAMES[board.chip]}, not the "
                  "app-only micropython.bin of a build",
         )
-    try:
-        rows = parse_partition_binary(data[table_at:])
-    except PartitionTableError as problem:
-        raise UserError(f"the partition table inside {firmware} is damaged: {problem.message}",
-                        hint="download the firmware again") from None
-    layout = FlashLayout(f"the firmware {firmware.name}", partitions.bootloader, partitions.partition_table,
-                         tuple(rows), auto_filesystem=not any(r.label in ("vfs", "ffat") for r in rows))
-    if layout.auto_filesystem and version_tuple(board.micropython.version) < AUTO_VFS_SINCE:
-        raise UserError(
-            f"the firmware {firmware.name} has no vfs partition, as MicroPython 1.26 and later have (it makes one "
-            f"at boot), but the board YAML says MicroPython {board.micropython.version}",
-            hint="set micropython.version in the board YAML to the firmware's release",
-        )
-    found = [d for d in check_flash_layout(board, SourceMap(), layout) if d.severity == "error"]
-    if found:
-        raise UserError(f"the board YAML does not match {layout.origin}: {found[0].message}",
-                        hint=found[0].hint or "fix micropython.partitions/filesystem in the board YAML")
+    layout = layout_from_table(board, data[table_at:], f"the firmware {firmware.name}",
+                               damaged_hint="download the firmware again")
     app = layout.app()
     app_at = app.offset - partitions.bootloader
     if data[app_at : app_at + 1] != bytes([ESP_IMAGE_MAGIC]):
@@ -186,15 +222,20 @@ def check_firmware(board: Board, firmware: Path) -> FlashLayout:
     return layout
 
 
-def esptool_command(board: Board, port: str, regions: list[Region], baud: int, stub: bool = True,
-                    erase: bool = False, compress: Optional[bool] = None) -> list[str]:
-    """The esptool 5 command line for these regions."""
-    chip = board.chip
+def esptool_base(board: Board, port: str, baud: int, stub: bool) -> list[str]:
+    """esptool's connection options for the board on `port`."""
     before = "no-reset" if port.startswith("socket://") else "default-reset"  # a TCP socket has no DTR/RTS
-    command = [sys.executable, "-m", "esptool", "--chip", chip, "--port", port, "--baud", str(baud),
+    command = [sys.executable, "-m", "esptool", "--chip", board.chip, "--port", port, "--baud", str(baud),
                "--before", before, "--after", "hard-reset"]
     if not stub:
         command.append("--no-stub")
+    return command
+
+
+def esptool_command(board: Board, port: str, regions: list[Region], baud: int, stub: bool = True,
+                    erase: bool = False, compress: Optional[bool] = None) -> list[str]:
+    """The esptool 5 command line for these regions."""
+    command = esptool_base(board, port, baud, stub)
     command += ["write-flash", "--flash-mode", "keep", "--flash-freq", "keep", "--flash-size", "keep"]
     if erase:
         command.append("--erase-all")
@@ -426,6 +467,8 @@ def flash(out: Path, port: str, firmware: Optional[Path] = None, erase: bool = F
                         hint="drop --no-stub, or flash without --erase")
     regions = plan_regions(board, tree.build_dir / IMAGE_NAME, firmware)
     check_port(port)
+    if firmware is None:  # the image goes next to the firmware already there: it must fit that firmware's layout
+        read_board_layout(board, port, stub, progress)
     for region in regions:
         progress(f"{region.label}: {region.path} ({region.size} bytes) -> {region.offset:#x}")
     started = time.monotonic()

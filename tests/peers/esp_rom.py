@@ -12,7 +12,8 @@ The ROM answers SYNC eight times, rejects GET_SECURITY_INFO (the ESP32 ROM preda
 user-command registers at 0x3FF42000. ROM flash writes are 0x400-byte blocks after a 4-word FLASH_BEGIN (which
 erases), or FLASH_DEFL_* blocks it inflates itself; SPI_FLASH_MD5 answers 32 hex characters. A RAM upload ending
 in MEM_END with an entry point runs the "stub": the peer greets with OHAI and then speaks the stub's dialect
-(2 status bytes, 5-word begins, 16-byte binary MD5, ERASE_FLASH/ERASE_REGION, READ_FLASH). Flash programming ANDs
+(2 status bytes, 5-word begins, 16-byte binary MD5, ERASE_FLASH/ERASE_REGION, READ_FLASH); the ROM itself reads flash
+64 bytes at a time (READ_FLASH_SLOW). Flash programming ANDs
 bits into the erased 0xFF, as NOR flash does, so a write without an erase shows up as corrupted data.
 
 Faults for tests (attributes, apply to every connection while set):
@@ -56,6 +57,8 @@ SYNC, WRITE_REG, READ_REG = 0x08, 0x09, 0x0A
 SPI_SET_PARAMS, SPI_ATTACH, CHANGE_BAUDRATE = 0x0B, 0x0D, 0x0F
 FLASH_DEFL_BEGIN, FLASH_DEFL_DATA, FLASH_DEFL_END = 0x10, 0x11, 0x12
 SPI_FLASH_MD5, GET_SECURITY_INFO = 0x13, 0x14
+READ_FLASH_SLOW = 0x0E
+READ_FLASH_SLOW_BLOCK = 64  # bytes the ROM returns per READ_FLASH_SLOW
 ERASE_FLASH, ERASE_REGION, READ_FLASH = 0xD0, 0xD1, 0xD2
 
 # error codes in the second status byte
@@ -354,6 +357,15 @@ class Session:
             raise CommandError(ERR_FAILED)
         digest = hashlib.md5(self.peer.flash[addr : addr + size])
         return 0, (digest.digest() if self.stub else digest.hexdigest().encode())
+
+    def op_0e(self, data: bytes, chk: int):  # READ_FLASH_SLOW (ROM only): always a 64-byte block back
+        if self.stub:
+            raise CommandError(ERR_INVALID_MESSAGE)
+        offset, length = struct.unpack("<II", data)
+        if length > READ_FLASH_SLOW_BLOCK or offset + length > len(self.peer.flash):
+            raise CommandError(ERR_FAILED)
+        block = bytes(self.peer.flash[offset : offset + length])
+        return 0, block + b"\xff" * (READ_FLASH_SLOW_BLOCK - len(block))
 
     def op_05(self, data: bytes, chk: int):  # MEM_BEGIN
         size, blocks, block_size, offset = struct.unpack("<IIII", data)
