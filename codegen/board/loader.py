@@ -283,7 +283,7 @@ def _pin_type_diagnostic(path: KeyPath, got: Any, source: SourceMap) -> Diagnost
     where = source.value(path)
     if isinstance(got, bool):
         return error(f"{_dotted(path)}: a pin is a GPIO number, not {str(got).lower()} (a boolean)", where,
-                     "YAML reads true/false/yes/no/on/off as booleans; write the GPIO number, e.g. `pin: 21`")
+                     "true and false are booleans in YAML; write the GPIO number, e.g. `pin: 21`")
     if isinstance(got, float):
         whole = got.is_integer()
         return error(f"{_dotted(path)}: a pin is a whole GPIO number, not {got!r}", where,

@@ -83,7 +83,7 @@ def plan_regions(board: Board, image: Path, firmware: Optional[Path] = None) -> 
     regions = []
     if firmware is not None:
         firmware = Path(firmware)
-        if not firmware.is_file():
+        if not os.path.lexists(firmware):
             raise UserError(f"no firmware file at {firmware}", hint="download MicroPython's ESP32 .bin first")
         check_firmware(board, firmware)
         start = board.micropython.partitions.bootloader
@@ -219,6 +219,11 @@ def check_firmware(board: Board, firmware: Path) -> FlashLayout:
     if image.chip_id != expected_id:
         raise UserError(f"the MicroPython app inside {firmware} is not built for an {chip}",
                         hint=f"download the MicroPython firmware for the {chip}")
+    digest_bad = image.append_digest and image.stored_digest != image.calc_digest
+    if image.checksum != image.calculate_checksum() or digest_bad:
+        raise UserError(f"the MicroPython app inside {firmware} (at {app.offset:#x}) is damaged: its "
+                        f"{'SHA-256 digest' if digest_bad else 'checksum'} does not match its contents",
+                        hint="download the firmware again")
     return layout
 
 

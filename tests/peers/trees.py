@@ -101,7 +101,7 @@ def merged_firmware(chip_id: int = 0, bootloader_offset: int = 0x1000, rows=MICR
                     app_bytes: int = 0x30000, table: bytes | None = None) -> bytes:
     """A whole firmware file as written at `bootloader_offset`: bootloader, partition table (0x8000), app (the
     factory row's offset)."""
-    app_offset = next(offset for _, kind, subtype, offset, _ in rows if kind == 0 and subtype == 0)
+    app_offset = next(offset for _, kind, _, offset, _ in rows if kind == 0)  # the factory or first OTA slot
     image = bytearray(esp_image(chip_id, segment_bytes=0x4000, seed=2))
     image += b"\xff" * (0x8000 - bootloader_offset - len(image))
     image += partition_table_binary(rows) if table is None else table
