@@ -17,7 +17,6 @@ import hashlib
 import json
 import os
 import stat
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Any, Optional
@@ -29,12 +28,12 @@ from codegen import __version__
 from codegen.board.loader import LoadedBoard
 from codegen.errors import UserError
 from codegen.paths import native_ext_dir, templates_dir
+from codegen.safeio import read_bounded, write_atomically
 
 MANIFEST = "MANIFEST.json"
 GENERATOR = "deadreckon"
 SEAL = "seal"
 MAX_MANIFEST_BYTES = 1024 * 1024  # a manifest lists a few dozen files: tens of KB
-FILE_MODE = 0o644
 TEMPLATE_OUTPUTS = {"micropython": "app", "native": "native"}
 COPIED_NATIVE_SKIP = {"__init__.py", "__pycache__", "tests"}
 
@@ -227,8 +226,6 @@ def safe_relative(relative: object) -> Optional[PurePosixPath]:
 def read_manifest(root: Path) -> dict:
     """The sealed manifest of a folder deadreckon generated, or a UserError saying the folder is not one (no
     manifest, a link, not a regular file, too large, not JSON, no valid seal, a path that leaves the folder)."""
-    from codegen.board.yamlsource import YamlError, read_bounded
-
     path = root / MANIFEST
     try:
         status = path.lstat()
@@ -243,7 +240,7 @@ def read_manifest(root: Path) -> dict:
     try:
         raw = read_bounded(path, str(path), MAX_MANIFEST_BYTES, what="MANIFEST.json")
         manifest = json.loads(raw.decode("utf-8"))
-    except YamlError as problem:
+    except UserError as problem:
         raise _foreign(path, problem.message) from None
     except (ValueError, RecursionError) as problem:
         raise _foreign(path, f"not JSON: {str(problem)[:80]}") from None
@@ -304,22 +301,6 @@ def _check_inside(root: Path, relative: str) -> Path:
     return target
 
 
-def _write_atomically(target: Path, content: bytes) -> None:
-    """Write through a new temporary file beside `target` (created exclusively, never through a link), then
-    rename it over `target`: a reader sees the old or the new file, never half of one."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(descriptor, "wb") as handle:
-            handle.write(content)
-        os.chmod(temporary, FILE_MODE)
-        os.replace(temporary, target)
-    except BaseException:
-        if os.path.lexists(temporary):
-            os.unlink(temporary)
-        raise
-
-
 def generate(loaded: LoadedBoard, root: Path, force: bool = False) -> GenerateResult:
     """Write the tree for `loaded` into `root`; never touches anything outside it, never a file it did not write.
 
@@ -358,10 +339,10 @@ def generate(loaded: LoadedBoard, root: Path, force: bool = False) -> GenerateRe
         _check_inside(root, relative)
     kept = [relative for relative in stale if relative in edited]
     for relative, rendered in files.items():
-        _write_atomically(targets[relative], rendered.content)
+        write_atomically(targets[relative], rendered.content)
     for relative in stale:
         if relative not in kept and os.path.lexists(root / relative):
             (root / relative).unlink()
     manifest = json.dumps(manifest_for(loaded, files, root), indent=2, sort_keys=True) + "\n"
-    _write_atomically(root / MANIFEST, manifest.encode("utf-8"))
+    write_atomically(root / MANIFEST, manifest.encode("utf-8"))
     return GenerateResult(root, files, kept)

@@ -43,7 +43,8 @@ def run_cli(*args: str, cwd: Path, timeout: float = QUICK_BOUND_S, env: dict | N
 
 def assert_refused(outcome: Outcome, *phrases: str, bound: float = QUICK_BOUND_S) -> None:
     """Exit 2, a located-or-plain `error:` naming the problem (every phrase), no traceback, within `bound`."""
-    shown = f"exit {outcome.returncode} after {outcome.seconds:.1f} s\nstdout: {outcome.stdout}\nstderr: {outcome.stderr}"
+    shown = (f"exit {outcome.returncode} after {outcome.seconds:.1f} s\nstdout: {outcome.stdout}\n"
+             f"stderr: {outcome.stderr}")
     assert outcome.returncode == 2, shown
     assert "Traceback" not in outcome.stdout + outcome.stderr, shown
     assert "error:" in outcome.stderr, shown

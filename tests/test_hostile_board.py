@@ -93,12 +93,14 @@ CASES = [
     ("filesystem-too-small-for-the-app", {
         "t.csv": "nvs, data, nvs, 0x9000, 0x6000\nphy_init, data, phy, 0xf000, 0x1000\n"
                  "factory, app, factory, 0x10000, 0x3E0000\nvfs, data, fat, 0x3F0000, 0x10000\n",
-        "b.yaml": BASE + "micropython:\n  partitions: {table: t.csv}\n  filesystem: {offset: 0x3F0000, size: 0x10000}\n"},
+        "b.yaml": BASE + "micropython:\n  partitions: {table: t.csv}\n"
+                         "  filesystem: {offset: 0x3F0000, size: 0x10000}\n"},
      "b.yaml", ["micropython.filesystem.size: the app", "does not fit in the 64 KiB filesystem"]),
     ("filesystem-without-room-for-logs", {
         "t.csv": "nvs, data, nvs, 0x9000, 0x6000\nphy_init, data, phy, 0xf000, 0x1000\n"
                  "factory, app, factory, 0x10000, 0x3C0000\nvfs, data, fat, 0x3D0000, 0x30000\n",
-        "b.yaml": BASE + "micropython:\n  partitions: {table: t.csv}\n  filesystem: {offset: 0x3D0000, size: 0x30000}\n"},
+        "b.yaml": BASE + "micropython:\n  partitions: {table: t.csv}\n"
+                         "  filesystem: {offset: 0x3D0000, size: 0x30000}\n"},
      "b.yaml", ["its log needs 260 KiB"]),
     ("extends-cycle", {"a.yaml": "extends: ./b.yaml\nname: a\n", "b.yaml": "extends: ./a.yaml\nname: b\n"},
      "a.yaml", ["`extends:` forms a cycle"]),
@@ -111,7 +113,8 @@ CASES = [
     ("partition-csv-garbage", {"t.csv": "vfs, data, fat, somewhere, 0x10000\n",
                                "b.yaml": BASE + "micropython: {partitions: {table: t.csv}}\n"},
      "b.yaml", ["t.csv:1:17: error: offset 'somewhere' is not a number", "^"]),
-    ("partition-csv-short-row", {"t.csv": "vfs, data\n", "b.yaml": BASE + "micropython: {partitions: {table: t.csv}}\n"},
+    ("partition-csv-short-row", {"t.csv": "vfs, data\n",
+                                 "b.yaml": BASE + "micropython: {partitions: {table: t.csv}}\n"},
      "b.yaml", ["a partition row has 5 columns"]),
 ]
 

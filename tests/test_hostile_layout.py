@@ -39,7 +39,8 @@ LAYOUT_CASES = [
       "write `filesystem: {offset: 0x200000, size: 0x200000}`"]),
     ("bootloader-at-0-on-esp32", BASE + "micropython: {partitions: {bootloader: 0x0}}\n",
      ["the ESP32's ROM loads the bootloader from 0x1000"]),
-    ("bootloader-at-0x1000-on-esp32s3", "extends: esp32s3-devkitc-gy521\nmicropython: {partitions: {bootloader: 0x1000}}\n",
+    ("bootloader-at-0x1000-on-esp32s3",
+     "extends: esp32s3-devkitc-gy521\nmicropython: {partitions: {bootloader: 0x1000}}\n",
      ["the ESP32-S3's ROM loads the bootloader from 0x0"]),
     ("app-inside-the-filesystem", BASE + "micropython: {partitions: {app: 0x200000}}\n",
      ["has its app (factory) at 0x10000, not 0x200000"]),
@@ -67,7 +68,8 @@ LAYOUT_CASES = [
      ["partition vfs (0x200000..0x600000) ends beyond the 4 MiB flash"]),
 ]
 LAYOUT_TABLES = {
-    "own-table-rows-overlap": "factory, app, factory, 0x10000, 0x1F0000\n# a comment\n\nvfs, data, fat, 0x180000, 0x280000\n",
+    "own-table-rows-overlap":
+        "factory, app, factory, 0x10000, 0x1F0000\n# a comment\n\nvfs, data, fat, 0x180000, 0x280000\n",
     "own-table-app-misaligned": "factory, app, factory, 0x18000, 0x1E8000\nvfs, data, fat, 0x200000, 0x200000\n",
     "own-table-beyond-flash": "factory, app, factory, 0x10000, 0x1F0000\nvfs, data, fat, 0x200000, 0x400000\n",
 }

@@ -30,8 +30,9 @@ from typing import Iterator, Optional
 
 from codegen.board.diagnostics import Diagnostic, error
 from codegen.board.model import Board
-from codegen.board.yamlsource import KeyPath, SourceMap, YamlError, read_bounded
-from codegen.errors import Location
+from codegen.board.yamlsource import KeyPath, SourceMap, YamlError
+from codegen.errors import Location, UserError
+from codegen.safeio import read_bounded
 
 SECTOR_BYTES = 0x1000  # the flash erase unit; every partition starts on one
 APP_ALIGN_BYTES = 0x10000  # an app partition starts on a 64 KiB MMU page
@@ -233,7 +234,10 @@ def parse_partition_csv(text: str, name: str, table_offset: int = MICROPYTHON_PA
 
 def read_partition_csv(path: Path, name: str, table_offset: int) -> tuple[list[Partition], list[str]]:
     """Read a partition table CSV safely (regular file, at most 64 KiB, UTF-8); return its rows and lines."""
-    raw = read_bounded(path, name, MAX_CSV_BYTES, what="partition table CSV")
+    try:
+        raw = read_bounded(path, name, MAX_CSV_BYTES, what="partition table CSV")
+    except UserError as problem:
+        raise YamlError(problem.message, location=problem.location, hint=problem.hint) from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:

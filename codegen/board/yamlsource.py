@@ -13,8 +13,6 @@ before anything is built, to count what aliases would expand to (a "billion laug
 
 from __future__ import annotations
 
-import os
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Union
@@ -28,10 +26,10 @@ from ruamel.yaml.events import (
     CollectionEndEvent,
     CollectionStartEvent,
     NodeEvent,
-    ScalarEvent,
 )
 
 from codegen.errors import Location, UserError
+from codegen.safeio import read_bounded
 
 MAX_BOARD_FILE_BYTES = 256 * 1024  # a board YAML is a few KB; anything this large is not one
 # A bundled board holds about 150 values, 4 levels deep. Aliases may repeat a part, but what they expand to stays
@@ -105,60 +103,17 @@ def _line_col_of_offset(raw: bytes, offset: int) -> tuple[int, int]:
     return line, col
 
 
-def read_bounded(path: Path, name: str, limit: int, what: str = "board YAML") -> bytes:
-    """The bytes of the regular file at `path`, refusing folders, FIFOs, devices and files over `limit` bytes
-    before reading any of them (a FIFO is opened without waiting for a writer)."""
-    try:
-        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
-    except FileNotFoundError:
-        raise YamlError(f"no such file: {name}") from None
-    except IsADirectoryError:
-        raise YamlError(f"{name} is a folder, not a {what} file") from None
-    except OSError as error:
-        raise YamlError(f"cannot read {name}: {error.strerror}") from None
-    try:
-        status = os.fstat(descriptor)
-        if stat.S_ISDIR(status.st_mode):
-            raise YamlError(f"{name} is a folder, not a {what} file")
-        if not stat.S_ISREG(status.st_mode):
-            kind = "a FIFO" if stat.S_ISFIFO(status.st_mode) else (
-                "a device" if stat.S_ISCHR(status.st_mode) or stat.S_ISBLK(status.st_mode) else "a socket")
-            raise YamlError(f"{name} is {kind}, not a regular file", hint=f"a {what} is a text file")
-        if status.st_size > limit:
-            raise YamlError(
-                f"file is {status.st_size / 1e6:.1f} MB; a {what} is a few KB (limit {limit // 1024} KB)",
-                location=Location(name, 1, 1), hint="is this the right file?",
-            )
-        os.set_blocking(descriptor, True)
-        chunks, total = [], 0
-        while total <= limit:  # the file may grow while it is read: never take more than the limit
-            chunk = os.read(descriptor, limit + 1 - total)
-            if not chunk:
-                break
-            chunks.append(chunk)
-            total += len(chunk)
-    except OSError as error:
-        raise YamlError(f"cannot read {name}: {error.strerror}") from None
-    finally:
-        os.close(descriptor)
-    raw = b"".join(chunks)
-    if len(raw) > limit:
-        raise YamlError(f"file grew beyond {limit // 1024} KB while it was read; a {what} is a few KB",
-                        location=Location(name, 1, 1))
-    return raw
-
-
 def read_yaml(path: Path, display_name: str | None = None) -> YamlDocument:
     """Parse one YAML file into plain data plus a source map; raise a located YamlError when it can't."""
     name = display_name or str(path)
     start = Location(name, 1, 1)
     try:
-        raw = read_bounded(path, name, MAX_BOARD_FILE_BYTES)
-    except YamlError as problem:
+        raw = read_bounded(path, name, MAX_BOARD_FILE_BYTES, what="board YAML")
+    except UserError as problem:
         if problem.message.startswith("no such file"):
-            problem.message = f"no such board file: {name}"
-            problem.hint = "`deadreckon boards` lists the bundled boards"
-        raise
+            raise YamlError(f"no such board file: {name}",
+                            hint="`deadreckon boards` lists the bundled boards") from None
+        raise YamlError(problem.message, location=problem.location, hint=problem.hint) from None
     nul = raw.find(b"\x00")
     if nul >= 0:
         line, col = _line_col_of_offset(raw, nul)

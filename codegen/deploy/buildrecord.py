@@ -22,6 +22,7 @@ from typing import Optional
 
 from codegen import __version__
 from codegen.errors import UserError
+from codegen.safeio import write_atomically
 
 RECORD = "BUILD.json"
 BUILD_ENTRIES = {"app", "native", "fs.img", RECORD}  # everything `build` puts into OUT/build/
@@ -63,11 +64,15 @@ def check_build_folder(build_dir: Path) -> None:
         raise UserError(f"{build_dir} is {'a symbolic link' if build_dir.is_symlink() else 'not a folder'}; "
                         "`deadreckon build` writes only into a real folder it made",
                         hint=f"move {build_dir} away and build again")
-    foreign = sorted(entry.name for entry in build_dir.iterdir() if entry.name not in BUILD_ENTRIES)
     links = sorted(entry.name for entry in build_dir.iterdir() if entry.is_symlink())
-    if foreign or links:
+    if links:
+        raise UserError(f"{build_dir / links[0]} is a symbolic link, which `deadreckon build` did not make; "
+                        "refusing to replace it (that would write through it)",
+                        hint=f"remove the link from {build_dir} and build again")
+    foreign = sorted(entry.name for entry in build_dir.iterdir() if entry.name not in BUILD_ENTRIES)
+    if foreign:
         raise UserError(
-            f"{build_dir} holds {', '.join((foreign + links)[:3])}, which `deadreckon build` did not make; "
+            f"{build_dir} holds {', '.join(foreign[:3])}, which `deadreckon build` did not make; "
             "refusing to replace the folder",
             hint=f"move your files out of {build_dir} (build replaces it whole) and build again",
         )
@@ -80,20 +85,20 @@ def record_build(out: Path, sources: dict[str, str]) -> Path:
     record = seal({"generator": f"deadreckon {__version__} build", "sources": sources,
                    "board_sha256": _board_sha256(out)})
     path = Path(out) / "build" / RECORD
-    path.write_text(json.dumps(record, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    write_atomically(path, (json.dumps(record, indent=2, sort_keys=True) + "\n").encode("utf-8"))
     return path
 
 
 def _read_record(out: Path) -> Optional[dict]:
-    from codegen.board.yamlsource import YamlError, read_bounded
     from codegen.generate import is_sealed
+    from codegen.safeio import read_bounded
 
     path = Path(out) / "build" / RECORD
     if not os.path.lexists(path) or path.is_symlink():
         return None
     try:
         record = json.loads(read_bounded(path, str(path), MAX_RECORD_BYTES, what="build record").decode("utf-8"))
-    except (YamlError, ValueError, RecursionError):
+    except (UserError, ValueError, RecursionError):
         return None
     return record if is_sealed(record) and isinstance(record.get("sources"), dict) else None
 

@@ -99,13 +99,10 @@ def plan_regions(board: Board, image: Path, firmware: Optional[Path] = None) -> 
 
 
 def _read_firmware(board: Board, firmware: Path) -> bytes:
-    from codegen.board.yamlsource import YamlError, read_bounded
+    from codegen.safeio import read_bounded
 
-    try:
-        return read_bounded(firmware, str(firmware), board.flash_bytes, what="firmware image")
-    except YamlError as problem:
-        raise UserError(problem.message.replace("a few KB", f"at most the {board.flash_size} flash"),
-                        hint="use the MicroPython .bin for the board") from None
+    return read_bounded(firmware, str(firmware), board.flash_bytes, what="firmware image",
+                        typical=f"at most the {board.flash_size} flash")
 
 
 def layout_from_table(board: Board, table: bytes, origin: str, damaged_hint: str) -> FlashLayout:

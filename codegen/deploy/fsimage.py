@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Optional
 
 from codegen.errors import UserError
+from codegen.safeio import write_atomically
 
 READ_SIZE = 32  # bytes
 PROG_SIZE = 32  # bytes
@@ -105,8 +106,7 @@ def free_after(files: dict[str, bytes], size: int, block_size: int = 4096) -> Op
 def make_image(source: Path, target: Path, size: int, block_size: int = 4096) -> Path:
     """Write the LittleFS image of `source` to `target`; return `target`."""
     data = image_bytes(source, size, block_size)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    target.write_bytes(data)
+    write_atomically(target, data)
     return target
 
 

@@ -1,4 +1,5 @@
-"""How long the 2 MiB filesystem image (plus a 252 KiB firmware: bootloader, partition table, 192 KiB app) takes to flash into the ROM loader peer, by path.
+"""How long the 2 MiB filesystem image (plus a 252 KiB firmware: bootloader, partition table, 192 KiB app) takes to
+flash into the ROM loader peer, by path.
 
     python tests/peers/bench_flash.py          # prints a table; not a test
 """
