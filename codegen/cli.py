@@ -204,6 +204,10 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `deadreckon schema | head`: the reader left, which is not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as error:  # the file system said no (read-only, full, gone): say where, not a traceback
+        where = f": {error.filename}" if error.filename else ""
+        print(f"error: {error.strerror or error}{where}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

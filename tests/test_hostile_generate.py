@@ -177,3 +177,13 @@ def test_hostile_output_folder_is_refused(tmp_path, setup, extra, phrases):
     assert_refused(outcome, *phrases)
     assert snapshot(home) == before  # outside OUT and inside it: the refusal comes before any write
     assert (home / VICTIM).read_text() == VICTIM_TEXT
+
+
+def test_an_output_folder_the_system_refuses(tmp_path):
+    """A folder the file system will not create (here under /proc): the OS's reason, not a traceback."""
+    home = tmp_path / "home"
+    home.mkdir()
+    user_files(home)
+    before = snapshot(home)
+    assert_refused(run_cli("generate", "-o", "/proc/deadreckon-out", cwd=home), "/proc/deadreckon-out")
+    assert snapshot(home) == before
