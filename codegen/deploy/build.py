@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from codegen.board.model import Board
-from codegen.deploy.buildrecord import check_build_folder, record_build, source_hashes
+from codegen.deploy.buildrecord import prepare_build_folder, record_build, source_hashes
 from codegen.errors import UserError
 from codegen.tools import find_tool, micropython_tree, tool_env
 
@@ -93,9 +93,8 @@ def _manifest_board(out: Path) -> Board:
     """The board the tree was generated from: its file (found beside OUT, in the working folder or among the bundled
     boards), checked against the manifest's board_sha256 so a board file edited since `generate` is not used."""
     from codegen.board.loader import load_board
-    from codegen.paths import board_configs_dir
-
     from codegen.generate import read_manifest
+    from codegen.paths import board_configs_dir
 
     manifest_path = out / "MANIFEST.json"
     manifest = read_manifest(out)  # sealed by deadreckon, or a UserError
@@ -194,7 +193,7 @@ def build(out: Path, board: Optional[Board] = None, progress: Progress = print, 
 
     tree = load_tree(out, board)
     board = tree.board
-    check_build_folder(tree.build_dir)
+    prepare_build_folder(tree.build_dir)
     built_from = source_hashes(tree.root)
     target_dir = tree.build_dir / "app"
     if target_dir.exists():

@@ -56,8 +56,9 @@ def _board_sha256(out: Path) -> Optional[str]:
     return manifest.get("board_sha256") if isinstance(manifest, dict) else None
 
 
-def check_build_folder(build_dir: Path) -> None:
-    """Refuse to build into OUT/build/ unless it is missing or holds only what a build makes, with no links."""
+def prepare_build_folder(build_dir: Path) -> None:
+    """Refuse to build into OUT/build/ unless it is missing or holds only what a build makes, with no links; then
+    forget the last build's record, so a build that fails half way leaves nothing `flash` or `upload` would send."""
     if not os.path.lexists(build_dir):
         return
     if build_dir.is_symlink() or not build_dir.is_dir():
@@ -76,6 +77,8 @@ def check_build_folder(build_dir: Path) -> None:
             "refusing to replace the folder",
             hint=f"move your files out of {build_dir} (build replaces it whole) and build again",
         )
+    if os.path.lexists(build_dir / RECORD):
+        (build_dir / RECORD).unlink()
 
 
 def record_build(out: Path, sources: dict[str, str]) -> Path:

@@ -4,6 +4,12 @@ esptool 5 does the talking (`write-flash`, which verifies every region by MD5 af
 regions from the board's layout, checks what can be checked before touching the board, runs esptool, and turns
 its failures into messages that say what to do. Flash mode, frequency and size are always `keep`: anything else
 makes esptool rewrite the firmware's header.
+
+Nothing is written before the layout is known to be right: a firmware image must be a whole MicroPython image for
+the board's chip whose own partition table (read from the image) agrees with the board YAML; without a firmware,
+the partition table of the MicroPython already on the board is read back first (`read_board_layout`) and must agree.
+The build must be current (`codegen.deploy.buildrecord`), the port must be a port, and esptool is stopped when it
+goes silent for longer than its own longest wait.
 """
 
 from __future__ import annotations

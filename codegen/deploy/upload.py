@@ -10,6 +10,10 @@ Only files whose SHA-256 differs from the board's copy are sent, each to a tempo
 so an interrupted upload never leaves half a module. A `.py` on the board that would shadow a new `.mpy` of the
 same module (MicroPython imports `.py` first) is removed, and the other way round. A soft reset ends the upload,
 which starts the app. Ports may be device paths or pyserial URLs (`socket://host:port`, `rfc2217://host:port`).
+
+A port is not trusted to behave: every read has a deadline and a size bound (a device that talks continuously, a
+GPS module say, is told apart from a silent one), every write a timeout, and a port that closes or drops ends the
+upload with a UserError, never a traceback.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from __future__ import annotations
 import base64
 import hashlib
 import os
+import stat
 import struct
 import time
 from dataclasses import dataclass, field
@@ -60,7 +65,10 @@ def open_port(port: str, baud: int = 115200):
     """Open a serial port or pyserial URL without resetting the board; UserError with the fix if it fails."""
     import serial
 
-    check_port_url(port) if "://" in port else check_port_path(port)
+    if "://" in port:
+        check_port_url(port)
+    else:
+        check_port_path(port)
     try:
         if "://" in port:
             # pyserial's rfc2217 refuses write_timeout; its socket has a 5 s timeout of its own on every send
@@ -106,8 +114,6 @@ def open_port(port: str, baud: int = 115200):
 def check_port_path(port: str) -> None:
     """A local port must be a terminal device: refuse a regular file, a folder, a FIFO or a device that is not a
     tty (/dev/null, /dev/zero) with a message about ports, before pyserial tries to configure it."""
-    import stat
-
     try:
         mode = os.stat(port).st_mode
     except FileNotFoundError:
