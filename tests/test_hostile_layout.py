@@ -59,7 +59,13 @@ LAYOUT_CASES = [
      ["would not mount", "write `filesystem: {offset: 0x200000, size: 0x200000}`"]),
     ("filesystem-elsewhere", BASE + "micropython: {filesystem: {offset: 0x300000, size: 0x100000}}\n",
      ["would sit where MicroPython never looks"]),
-    ("flash-size-2MB", BASE + "flash_size: 2MB\n", ["beyond the 2MB flash", "offset: 0x170000, size: 0x50000"]),
+    ("flash-size-2MB-micropython-1.24", BASE + "flash_size: 2MB\nmicropython: {version: '1.24.1'}\n",
+     ["beyond the 2MB flash", "offset: 0x170000, size: 0x50000"]),
+    ("flash-size-2MB-micropython-1.28", BASE + "flash_size: 2MB\nmicropython: {version: '1.28.0'}\n",
+     ["beyond the 2MB flash", "offset: 0x170000, size: 0x90000"]),  # 1.26+: the vfs runs to the end of flash
+    ("8MB-micropython-1.24-vfs-is-6MB-not-the-rest",
+     BASE + "flash_size: 8MB\nmicropython: {version: '1.24.1', filesystem: {size: 0x600000}}\n",
+     ["ESP32_GENERIC firmware mounts the filesystem at 0x200000 (0x200000 bytes)"]),
     ("own-table-rows-overlap", BASE + f"micropython: {{partitions: {{table: {TABLE}}}}}\n",
      ["t.csv:4:17: error: partition vfs (0x180000..0x400000) overlaps partition factory"]),
     ("own-table-app-misaligned", BASE + f"micropython: {{partitions: {{table: {TABLE}}}}}\n",
@@ -95,6 +101,7 @@ def test_hostile_layout_is_refused_by_validate_and_generate(tmp_path, request, t
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
+    """A built tree of the default board, pinned to MicroPython 1.24.1 (a vfs row in the partition table)."""
     try:
         import esptool  # noqa: F401
     except ImportError:
@@ -103,7 +110,8 @@ def built(tmp_path_factory):
     home = tmp_path_factory.mktemp("layout") / "home"
     home.mkdir()
     user_files(home)
-    assert run_cli("generate", "-o", "out", cwd=home, timeout=120).returncode == 0
+    (home / "board.yaml").write_text(BASE + "micropython: {version: '1.24.1'}\n")
+    assert run_cli("generate", "board.yaml", "-o", "out", cwd=home, timeout=120).returncode == 0
     assert run_cli("build", "out", cwd=home, timeout=300).returncode == 0
     return home
 
