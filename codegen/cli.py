@@ -20,9 +20,13 @@ def _board_arg(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
+    from codegen.board.diagnostics import sort_key
     from codegen.board.loader import load_board_report
+    from codegen.deploy.capacity import fit_diagnostics
 
     report = load_board_report(args.board)
+    if report.loaded is not None and not report.failed():  # the rendered app against the board's filesystem
+        report.diagnostics = sorted(report.diagnostics + fit_diagnostics(report.loaded), key=sort_key)
     report.print(sys.stderr, strict=args.strict)
     if report.failed(strict=args.strict):
         return 2
@@ -37,6 +41,9 @@ def cmd_generate(args: argparse.Namespace) -> int:
     loaded = load_board(args.board, strict=args.strict)
     result = generate(loaded, Path(args.output), force=args.force)
     print(f"generated {len(result.files)} files for {loaded.board.name} in {result.root}")
+    if result.kept:
+        print(f"kept {len(result.kept)} edited file(s) deadreckon no longer generates: {', '.join(result.kept)}",
+              file=sys.stderr)
     return 0
 
 
@@ -197,6 +204,10 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `deadreckon schema | head`: the reader left, which is not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as error:  # the file system said no (read-only, full, gone): say where, not a traceback
+        where = f": {error.filename}" if error.filename else ""
+        print(f"error: {error.strerror or error}{where}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

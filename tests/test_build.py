@@ -146,3 +146,19 @@ def test_build_finds_the_board_by_the_manifest_and_refuses_an_edited_one(tmp_pat
     board_file.write_text(board_file.read_text() + "led: null\n")
     with pytest.raises(UserError, match="changed since"):
         build(out, progress=lambda _: None, image=False)
+
+
+def test_a_failed_build_leaves_nothing_to_flash(tmp_path):
+    """The record of the last good build goes when a new build starts: a build that stops half way (here at a
+    syntax error) cannot be flashed or uploaded as if it were whole."""
+    from codegen.deploy.buildrecord import check_build_current
+
+    tree = make_tree(tmp_path / "out")
+    build(tree, board=default_board(), progress=lambda _: None, image=False)
+    check_build_current(tree)  # a good build is current
+    (tree / "app" / "zz_broken.py").write_text("def f(:\n")
+    with pytest.raises(UserError, match="mpy-cross failed on zz_broken.py"):
+        build(tree, board=default_board(), progress=lambda _: None, image=False)
+    (tree / "app" / "zz_broken.py").unlink()  # even with the sources as they were at the good build
+    with pytest.raises(UserError, match="has no valid build record"):
+        check_build_current(tree)

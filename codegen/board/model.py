@@ -78,9 +78,15 @@ def pin_number(pin: PinSpec) -> int:
 
 
 class Partitions(Part):
-    bootloader: int = Field(0x1000, ge=0, description="bootloader offset")
+    bootloader: int = Field(0x1000, ge=0, description="bootloader offset: 0x1000 on the ESP32, 0x0 on the ESP32-S3")
     partition_table: int = Field(0x8000, ge=0, description="partition table offset")
     app: int = Field(0x10000, ge=0, description="MicroPython firmware (app) offset")
+    table: Optional[str] = Field(
+        None,
+        pattern=r"^[^\x00]+\.csv$",
+        description="the ESP-IDF partition table CSV of a custom MicroPython build (a path relative to this board "
+        "file); by default the layout of MicroPython's own firmware for the chip, flash size and release",
+    )
 
 
 class Filesystem(Part):

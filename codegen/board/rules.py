@@ -12,12 +12,17 @@ from typing import Iterator, Optional
 
 from codegen.board.chips import CHIPS, PMU_RAILS, ChipPins
 from codegen.board.diagnostics import Diagnostic, error, warning
+from codegen.board.flashlayout import FlashLayout, check_flash_layout, version_tuple
 from codegen.board.model import FUSED, FUSED_MEDIAN_MAX, Board, PinSpec
 from codegen.board.yamlsource import KeyPath, SourceMap
 
 MPU6050_ADDRESSES = (0x68, 0x69)
 MPU6050_MAX_ACCEL_RATE_HZ = 1000.0
 RESERVED_I2C_ADDRESSES = set(range(0x00, 0x08)) | set(range(0x78, 0x80))
+# The oldest MicroPython the app runs on. `deadreckon build` links dr_native.mpy against a v1.28 tree, which writes
+# .mpy 6.3; a release before 1.23 (6.2 and older) refuses native code of another sub-version with ValueError
+# ("incompatible .mpy file"), not the ImportError the app's fallback catches, so the app would stop at boot.
+MIN_MICROPYTHON = (1, 23)
 
 
 @dataclass(frozen=True)
@@ -285,8 +290,21 @@ def _check_algorithm(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
         )
 
 
-def check_board(board: Board, source: SourceMap) -> list[Diagnostic]:
-    """Every whole-board finding, errors and warnings."""
+def _check_micropython_version(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    version = board.micropython.version
+    if version_tuple(version) < MIN_MICROPYTHON:
+        minimum = ".".join(map(str, MIN_MICROPYTHON))
+        yield error(
+            f"micropython.version: the app does not run on MicroPython {version}; it needs {minimum} or newer",
+            source.value(("micropython", "version")),
+            f"{minimum} is the first release that loads the native module `deadreckon build` makes (.mpy 6.3); "
+            "on older ones `import dr_native` raises ValueError, which the app's fallback does not catch, and "
+            "before 1.19 none of the app's .mpy files load. Flash a newer MicroPython and set this to its release",
+        )
+
+
+def check_board(board: Board, source: SourceMap, own_layout: Optional[FlashLayout] = None) -> list[Diagnostic]:
+    """Every whole-board finding, errors and warnings; `own_layout` is the partition table the board names."""
     chip = CHIPS[board.chip]
     found: list[Diagnostic] = []
     found += _check_pins(board, chip, source)
@@ -295,12 +313,6 @@ def check_board(board: Board, source: SourceMap) -> list[Diagnostic]:
     found += _bus_reference(board.gps.uart, "uart", board.uart, ("gps", "uart"), source)
     found += _check_power(board, source)
     found += _check_algorithm(board, source)
-    fs = board.micropython.filesystem
-    if fs.offset + fs.size > board.flash_bytes:
-        found.append(
-            error(
-                f"micropython.filesystem: ends at {fs.offset + fs.size:#x}, beyond the {board.flash_size} flash",
-                source.value(("micropython", "filesystem")),
-            )
-        )
+    found += _check_micropython_version(board, source)
+    found += check_flash_layout(board, source, own_layout)
     return found

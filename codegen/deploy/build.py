@@ -11,7 +11,6 @@ that is Python becomes `.mpy`; other files are copied. Nothing is written outsid
 
 from __future__ import annotations
 
-import json
 import re
 import shutil
 import subprocess
@@ -20,6 +19,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from codegen.board.model import Board
+from codegen.deploy.buildrecord import prepare_build_folder, record_build, source_hashes
 from codegen.errors import UserError
 
 BUILD_DIR = "build"
@@ -91,15 +91,11 @@ def _manifest_board(out: Path) -> Board:
     """The board the tree was generated from: its file (found beside OUT, in the working folder or among the bundled
     boards), checked against the manifest's board_sha256 so a board file edited since `generate` is not used."""
     from codegen.board.loader import load_board
+    from codegen.generate import read_manifest
     from codegen.paths import board_configs_dir
 
     manifest_path = out / "MANIFEST.json"
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except FileNotFoundError:
-        raise UserError(f"{manifest_path} is missing", hint="run `deadreckon generate BOARD.yaml -o OUT` first")
-    except json.JSONDecodeError as exc:
-        raise UserError(f"{manifest_path} is not valid JSON ({exc.msg}, line {exc.lineno})")
+    manifest = read_manifest(out)  # sealed by deadreckon, or a UserError
     board_file = manifest.get("board_path") or (manifest.get("board_files") or [None])[0]
     if not board_file:
         raise UserError(f"{manifest_path} names no board file", hint="regenerate the tree from its board YAML")
@@ -176,6 +172,8 @@ def build(out: Path, board: Optional[Board] = None, progress: Progress = print, 
 
     tree = load_tree(out, board)
     board = tree.board
+    prepare_build_folder(tree.build_dir)
+    built_from = source_hashes(tree.root)
     target_dir = tree.build_dir / "app"
     if target_dir.exists():
         shutil.rmtree(target_dir)
@@ -208,6 +206,7 @@ def build(out: Path, board: Optional[Board] = None, progress: Progress = print, 
         fs = board.micropython.filesystem
         make_image(target_dir, result.image, size=fs.size, block_size=fs.block_size)
         progress(f"  filesystem image {result.image} ({fs.size // 1024} KiB LittleFS v2 for the vfs at {fs.offset:#x})")
+    record_build(tree.root, built_from)
     return result
 
 
