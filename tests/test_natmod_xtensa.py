@@ -12,6 +12,7 @@ import sys
 
 import numpy as np
 import pytest
+from test_natmod_qemu import fused_steps, seed_steps
 
 from codegen.kernel import fused as F
 from codegen.natmod import linkmap, mpyfile, qemu_xtensa, verify, xtensa, xtensa_llvm
@@ -19,7 +20,6 @@ from codegen.natmod.abi import tree_abi
 from codegen.natmod.build import LOG_NAME, build_module
 from conftest import mpy_dir, require, require_shared_data, require_tool
 from test_kernel_natmod import native_tree
-from test_natmod_qemu import fused_steps, seed_steps
 
 RELEASE = "1.28.0"
 

@@ -14,13 +14,12 @@ import re
 import numpy as np
 import pytest
 
-from conftest import require_shared_data
-
 from codegen.cli import main
 from codegen.post import PostOptions, load_log, process
 from codegen.post.gapcheck import NOMINAL_COVERAGE, cut_gap, gap_errors, truth_about
 from codegen.post.smoother import SmootherOptions
 from codegen.post.synthetic import ORIGIN, Scenario, make_run, write_csv_pair
+from conftest import require_shared_data
 
 GAPS = (1.0, 5.0, 60.0)  # s of missing epochs
 

@@ -21,8 +21,8 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
-from struct import error as struct_error
 from pathlib import Path
+from struct import error as struct_error
 from typing import Callable, Optional
 
 from codegen.board.chips import CHIPS

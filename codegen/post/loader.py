@@ -11,7 +11,6 @@ from codegen.post.fixes import to_gps_series
 from codegen.post.model import GpsSeries, PostLog
 from codegen.post.table import read_text
 
-
 UNIX_TIME_2000 = 946684800.0  # s: GPS times beyond this are absolute (UTC), not seconds since a start
 
 

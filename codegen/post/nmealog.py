@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
-from pynmeagps import NMEAReader, VALCKSUM
+from pynmeagps import VALCKSUM, NMEAReader
 
 from codegen.errors import Location, UserError
 from codegen.post.fixes import Fixes

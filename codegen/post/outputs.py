@@ -17,7 +17,13 @@ import numpy as np
 from codegen.post.bridge import hermite_bridge
 from codegen.post.geodesy import enu_to_geodetic
 from codegen.post.orientation import (
-    FLAG_GIMBAL, FLAG_GPS_GAP, FLAG_LM_WAHBA, FLAG_NO_IMU, FLAG_POOR_FIT, FLAG_STATIONARY, FLAG_YAW_HELD,
+    FLAG_GIMBAL,
+    FLAG_GPS_GAP,
+    FLAG_LM_WAHBA,
+    FLAG_NO_IMU,
+    FLAG_POOR_FIT,
+    FLAG_STATIONARY,
+    FLAG_YAW_HELD,
 )
 from codegen.post.outdir import write_files
 from codegen.post.pipeline import PostResult

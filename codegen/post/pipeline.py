@@ -15,8 +15,18 @@ from codegen.post.delay import DelayEstimate, estimate_delay
 from codegen.post.geodesy import geodetic_to_enu
 from codegen.post.model import Calibration, PostLog
 from codegen.post.orientation import (
-    GPS_GAP_FACTOR, Intervals, OrientationOptions, OrientationResult, Track, build_intervals, cumulative_integral, euler_matrix,
-    fit_mounting, interval_means, solve_orientations, turn_compensated_means,
+    GPS_GAP_FACTOR,
+    Intervals,
+    OrientationOptions,
+    OrientationResult,
+    Track,
+    build_intervals,
+    cumulative_integral,
+    euler_matrix,
+    fit_mounting,
+    interval_means,
+    solve_orientations,
+    turn_compensated_means,
 )
 from codegen.post.smoother import SmootherOptions, SmootherResult, smooth
 

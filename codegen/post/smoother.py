@@ -17,8 +17,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from codegen.post.orientation import sample_edges
 from codegen.kernel.reference import integrate_zoh
+from codegen.post.orientation import sample_edges
 
 
 @dataclass
