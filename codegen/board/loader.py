@@ -35,7 +35,9 @@ from codegen.board.flashlayout import (
     read_partition_csv,
     version_tuple,
 )
-from codegen.board.model import Board, PinSpec
+from codegen.board.circuitpython import BOARDS as CIRCUITPYTHON_BOARDS
+from codegen.board.circuitpython import close_board_ids, find_board
+from codegen.board.model import CIRCUITPYTHON_PINS, Board, PinSpec
 from codegen.board.yamlsource import KeyPath, SourceMap, YamlError, read_yaml
 from codegen.errors import Location, UserError
 from codegen.paths import board_configs_dir, default_board_path
@@ -268,6 +270,7 @@ def _schema_diagnostics(exc: ValidationError, data: dict, source: SourceMap) -> 
                 message = "should be " + message[len("Input should be "):]
             elif message.startswith("Value error, "):
                 message = message[len("Value error, "):]
+            hint = (item.get("ctx") or {}).get("hint", hint)
             got = item.get("input")
             shown = "" if isinstance(got, (dict, list)) or kind == "missing" else f" (got {got!r})"
             diagnostic = error(f"{_dotted(path)}: {message}{shown}", source.value(path), hint)
@@ -291,7 +294,8 @@ def _pin_type_diagnostic(path: KeyPath, got: Any, source: SourceMap) -> Diagnost
     if isinstance(got, str):
         digits = got.strip()
         hint = (f"write {digits} without quotes: quoted, YAML reads it as text" if digits.isdigit()
-                else "write the GPIO number, e.g. 21 (names such as 'D21' or 'IO21' are not understood)")
+                else "write the GPIO number, e.g. 21; board names such as 'GP4' or 'IO21' are CircuitPython's "
+                     "(`target: circuitpython` with `circuitpython: {board: ...}`)")
         return error(f"{_dotted(path)}: a pin is a GPIO number, not the string {got!r}", where, hint)
     if isinstance(got, list):
         return error(f"{_dotted(path)}: a pin is one GPIO number, not a list", where)
@@ -344,6 +348,33 @@ def _own_partition_table(board: Board, source: SourceMap, chain: list[Path], lin
     return layout, [path]
 
 
+def pin_context(data: dict, source: SourceMap) -> tuple[dict, list[Diagnostic]]:
+    """The validation context pins are read in: for `target: circuitpython`, the board whose board.* names they
+    use (None, with a located error, when circuitpython.board is missing or not a board deadreckon knows)."""
+    if data.get("target") != "circuitpython":
+        return {}, []
+    section = data.get("circuitpython")
+    board_id = section.get("board") if isinstance(section, dict) else None
+    if not isinstance(board_id, str):
+        if isinstance(section, dict) and "board" in section:
+            return {CIRCUITPYTHON_PINS: None}, []  # a board id of the wrong kind: the schema says so
+        known = ", ".join(CIRCUITPYTHON_BOARDS)
+        return {CIRCUITPYTHON_PINS: None}, [error(
+            "target: circuitpython needs circuitpython.board, the board's CircuitPython board_id",
+            source.value(("circuitpython",)) if isinstance(section, dict) else source.value(("target",)),
+            f"add `circuitpython: {{board: raspberry_pi_pico}}`; deadreckon knows {known}",
+        )]
+    board = find_board(board_id)
+    if board is None:
+        close = close_board_ids(board_id)
+        return {CIRCUITPYTHON_PINS: None}, [error(
+            f"circuitpython.board: deadreckon has no pin table for the CircuitPython board {board_id!r}",
+            source.value(("circuitpython", "board")),
+            f"did you mean `{close[0]}`?" if close else f"deadreckon knows {', '.join(CIRCUITPYTHON_BOARDS)}",
+        )]
+    return {CIRCUITPYTHON_PINS: board}, []
+
+
 # --- both phases ----------------------------------------------------------------------------------------------
 
 
@@ -357,11 +388,14 @@ def load_board_report(board: Optional[str | Path] = None) -> BoardReport:
     except UserError as problem:
         return BoardReport(name, [error(problem.message, problem.location, problem.hint)], lines_by_file)
 
+    context, board_problems = pin_context(data, source)
     try:
-        model = Board.model_validate(data)
+        model = Board.model_validate(data, context=context)
     except ValidationError as exc:
-        diagnostics = sorted(_schema_diagnostics(exc, data, source), key=sort_key)
+        diagnostics = sorted(board_problems + _schema_diagnostics(exc, data, source), key=sort_key)
         return BoardReport(name, diagnostics, lines_by_file)
+    if board_problems:
+        return BoardReport(name, board_problems, lines_by_file)
 
     from codegen.board.rules import check_board
 
