@@ -112,11 +112,20 @@ class RamDisk:
         return 0
 
 
+_filesystem = None  # (block device, mount point) of the board's filesystem, for firmwares that remount it (cpsim)
+
+
+def filesystem():
+    return _filesystem
+
+
 def _mount_ramdisk(fs):
+    global _filesystem
     disk = RamDisk(fs.get("block", 4096), fs["bytes"] // fs.get("block", 4096))
     os.VfsLfs2.mkfs(disk)
     mount = fs.get("mount", "/logs")
     os.mount(os.VfsLfs2(disk), mount)
+    _filesystem = (disk, mount)
     dump = fs.get("dump")
     if dump:
 
