@@ -10,7 +10,7 @@ import difflib
 from dataclasses import dataclass
 from typing import Iterator, Optional
 
-from codegen.board.chips import CHIPS, PMU_RAILS, ChipPins
+from codegen.board.chips import CHIPS, PMU_RAILS, WATCHDOG_MAX_S, ChipPins
 from codegen.board.diagnostics import Diagnostic, error, warning
 from codegen.board.model import FUSED_MEDIAN_MAX, Board, PinSpec
 from codegen.board.yamlsource import KeyPath, SourceMap
@@ -280,6 +280,17 @@ def _check_algorithm(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
         )
 
 
+def _check_watchdog(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    limit = WATCHDOG_MAX_S.get(board.chip)
+    if limit is not None and board.micropython.watchdog_s > limit:
+        yield error(
+            f"micropython.watchdog_s: {board.micropython.watchdog_s:g} s is longer than the {CHIPS[board.chip].name}'s "
+            f"watchdog can count ({limit:g} s)",
+            source.value(("micropython", "watchdog_s")),
+            f"use watchdog_s <= {limit:g}",
+        )
+
+
 def check_board(board: Board, source: SourceMap) -> list[Diagnostic]:
     """Every whole-board finding, errors and warnings."""
     chip = CHIPS[board.chip]
@@ -290,6 +301,7 @@ def check_board(board: Board, source: SourceMap) -> list[Diagnostic]:
     found += _bus_reference(board.gps.uart, "uart", board.uart, ("gps", "uart"), source)
     found += _check_power(board, source)
     found += _check_algorithm(board, source)
+    found += _check_watchdog(board, source)
     fs = board.micropython.filesystem
     if fs.offset + fs.size > board.flash_bytes:
         found.append(
