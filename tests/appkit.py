@@ -82,22 +82,33 @@ def on_cal(a, calib, moved):
     dump.write(struct.pack("<7f", *([st[i] for i in range(dr.Q, dr.Q + 4)] + extra)))
 
 
-orig_gps = app.App._gps
+def _fix(self, p, idx, running):
+    v = self.gps_vel
+    dump.write(b"F" + struct.pack("<BBIii3f", running, self.test_mode, idx, p.lat_e7, p.lon_e7, v[0], v[1], v[2]))
 
 
-def gps(self):
-    before = self.fixes_seen
-    idx = fed[0] + self.k
-    running = self.imu is not None and self.state_id == 1
-    got = orig_gps(self)
-    if self.fixes_seen != before:
-        p = self.nmea
-        v = self.gps_vel
-        dump.write(b"F" + struct.pack("<BBIii3f", running, self.test_mode, idx, p.lat_e7, p.lon_e7, v[0], v[1], v[2]))
-    return got
+if hasattr(app.App, "_on_fix"):  # each fix as the app takes it, at the sample it says
+    orig_on_fix = app.App._on_fix
 
+    def on_fix(self, fix):
+        running = self.imu is not None and self.state_id == 1
+        orig_on_fix(self, fix)
+        _fix(self, fix, self.fix_sample if running else 0, running)
 
-app.App._gps = gps
+    app.App._on_fix = on_fix
+else:  # an app that takes its fixes in _gps, at the samples read by then
+    orig_gps = app.App._gps
+
+    def gps(self):
+        before = self.fixes_seen
+        idx = fed[0] + self.k
+        running = self.imu is not None and self.state_id == 1
+        got = orig_gps(self)
+        if self.fixes_seen != before:
+            _fix(self, self.nmea, idx, running)
+        return got
+
+    app.App._gps = gps
 if FUSED:
     dr.fused_process = _wrap(dr.fused_process, True)
 else:

@@ -106,9 +106,9 @@ def install(costs):
 
     window = App._window
 
-    def metered_window(self):
+    def metered_window(self, *args):
         before = self.windows
-        window(self)
+        window(self, *args)
         if self.windows != before:
             _charge("window", costs["window_" + mode])
 
