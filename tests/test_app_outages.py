@@ -168,6 +168,8 @@ def seed_compare(rec, board):
     rc = ref.calibrate(rec.calib, cfg)
     assert int(rc.moved) == rec.moved == 0
     q_app, bias_app = rec.cal_state[:4], rec.cal_state[4:]
+    # the app's calibration is the reference's on the same samples (float32: a few eps of a unit quaternion)
+    assert np.allclose(q_app, rc.q, atol=1e-6) and np.allclose(bias_app, rc.gyro_bias_lsb, atol=1e-3)
     samples, dt_us = rec.stream()
     assert len(samples) % cfg.block == 0, "the seed's kernel got a partial block"
     dt = dt_us * 1e-6

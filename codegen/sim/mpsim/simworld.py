@@ -137,6 +137,8 @@ class FileDisk:
             time.advance(len(buf) * self.flash["read_us_per_byte"])
 
     def writeblocks(self, n, buf, off=0):
+        if time.halted:  # the board is resetting: the old code's writes never reach the flash
+            return
         self.file.seek(n * self.block + off)
         if 0 <= _power_cut_us <= time.now():
             self.file.write(memoryview(buf)[: len(buf) // 2])  # the page program is cut half way
@@ -162,6 +164,8 @@ class FileDisk:
         return 0
 
     def _erase(self):
+        if time.halted:
+            return
         self.erases += 1
         if self.flash:
             time.advance(self.flash["sector_erase_us"] * (self.block // 4096 or 1))
@@ -536,12 +540,37 @@ KINDS = {"mpu6050": Mpu6050, "ssd1306": Oled, "ssd1315": Oled, "sh1106": Oled, "
 
 
 def make_device(opts):
+    """A device model from its scenario entry, with its faults: nack (never answers), nack_after_s/nack_until_s
+    (stops answering, and answers again), hang_at_s/hang_s (holds the bus once)."""
     if opts.get("nack"):
         return Nacker()
     dev = KINDS[opts["kind"]](opts)
     if "nack_after_s" in opts:
         dev.nack_after_us = int(opts["nack_after_s"] * 1000000)
+    if "nack_until_s" in opts:
+        dev.nack_until_us = int(opts["nack_until_s"] * 1000000)
+    if "hang_at_s" in opts:
+        dev.hang_at_us = int(opts["hang_at_s"] * 1000000)
+        dev.hang_us = int(opts.get("hang_s", 10.0) * 1000000)
     return dev
+
+
+_devices = {}  # (bus, address) -> model: the chips keep their state when the board resets
+_streams = {}  # uart id -> NmeaStream
+
+
+def device(bus, opts):
+    key = (bus, opts["address"])
+    if key not in _devices:
+        _devices[key] = make_device(opts)
+    return _devices[key]
+
+
+def uart_stream(uart_id, baud):
+    if uart_id not in _streams:
+        opts = _scenario.get("uart", {}).get(str(uart_id), {})
+        _streams[uart_id] = NmeaStream(opts, baud)
+    return _streams[uart_id]
 
 
 # ---------------------------------------------------------------- UART streams
@@ -559,7 +588,8 @@ class NmeaStream:
         self.sent = 0  # bytes of the chunk already delivered
         self.us_per_byte = 10 * 1000000 / baud
         self.lost_unpowered = 0
-        self.silent_after_us = opts.get("silent_after_us", -1)  # the receiver stops talking (a fault)
+        silent = opts.get("silent", [])  # [start s, end s]: the receiver says nothing (a fault), then talks again
+        self.silent = (int(silent[0] * 1000000), int(silent[1] * 1000000)) if silent else (-1, -1)
         self._next()
 
     def _next(self):
@@ -585,7 +615,7 @@ class NmeaStream:
             t, data = self.chunk
             if t > now:
                 break
-            if not rail_on(self.power) or 0 <= self.silent_after_us <= t:
+            if not rail_on(self.power) or self.silent[0] <= t < self.silent[1]:
                 self.lost_unpowered += len(data)
                 self._next()
                 continue

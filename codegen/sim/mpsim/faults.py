@@ -1,0 +1,34 @@
+"""Faults the emulated board injects into the app's own work (the peripherals' faults are in simworld.py).
+
+    "faults": {"memory_error_at_s": t}   the first kernel call on samples at or after t raises MemoryError
+                                         (a fragmented heap inside a window), once
+"""
+
+import time
+
+import simworld
+
+
+def install(spec):
+    at = spec.get("memory_error_at_s")
+    if at is None:
+        return
+    import app
+
+    dr = app.dr
+    left = [1]
+    for name in ("fused_process", "process"):
+        fn = getattr(dr, name, None)
+        if fn is not None:
+            setattr(dr, name, _failing(fn, int(at * 1000000), left))
+
+
+def _failing(fn, at_us, left):
+    def call(*args):
+        if left[0] and time.now() >= at_us:
+            left[0] -= 1
+            simworld.trace("fault", kind="MemoryError in a window")
+            raise MemoryError("memory allocation failed (injected)")
+        return fn(*args)
+
+    return call
