@@ -1,12 +1,15 @@
 """Faults the emulated board injects into the app's own work (the peripherals' faults are in simworld.py).
 
-    "faults": {"memory_error_at_s": t}   the first kernel call on samples at or after t raises MemoryError
-                                         (a fragmented heap inside a window), once
+    "faults": {"memory_error_at_s": t,   the kernel calls on samples at or after t raise MemoryError (a fragmented
+               "memory_error_count": n}  heap inside a window), n of them in a row (default 1)
 """
 
 import time
 
 import simworld
+
+
+_left = []  # MemoryErrors still to raise: a fault happens once in the run, not again at every boot
 
 
 def install(spec):
@@ -16,7 +19,9 @@ def install(spec):
     import app
 
     dr = app.dr
-    left = [1]
+    if not _left:
+        _left.append(spec.get("memory_error_count", 1))
+    left = _left
     for name in ("fused_process", "process"):
         fn = getattr(dr, name, None)
         if fn is not None:

@@ -139,6 +139,8 @@ class FileDisk:
     def writeblocks(self, n, buf, off=0):
         if time.halted:  # the board is resetting: the old code's writes never reach the flash
             return
+        if 0 <= _write_error_us <= time.now():
+            raise OSError(5)  # EIO: the flash stopped taking writes (fs.write_error_after_s)
         self.file.seek(n * self.block + off)
         if 0 <= _power_cut_us <= time.now():
             self.file.write(memoryview(buf)[: len(buf) // 2])  # the page program is cut half way
@@ -178,12 +180,14 @@ def _mount_disk(fs):
     (fs.prefill_bytes: a nearly full filesystem). At the end of the run the files are copied out as the flash holds
     them: through a second, fresh mount of the image, so whatever the app had not written and flushed is gone, as
     after a power cut."""
-    global _power_cut_us
+    global _power_cut_us, _write_error_us
     block = fs.get("block", 4096)
     count = fs["bytes"] // block
     disk = FileDisk(fs["image"], block, count, fresh=True)
     if fs.get("power_cut_s") is not None:
         _power_cut_us = int(fs["power_cut_s"] * 1000000)
+    if fs.get("write_error_after_s") is not None:
+        _write_error_us = int(fs["write_error_after_s"] * 1000000)
     os.VfsLfs2.mkfs(disk)
     mount = fs.get("mount", "/logs")
     os.mount(os.VfsLfs2(disk), mount)
@@ -216,6 +220,7 @@ def _mount_disk(fs):
 
 
 _power_cut_us = -1  # fs.power_cut_s: the first block write from then on is cut half way and the run ends
+_write_error_us = -1  # fs.write_error_after_s: block writes fail from then on
 
 
 def power_cut():

@@ -43,7 +43,10 @@ def now():
 
 def advance(us):
     global _now, _end, _watchdog, reset_cause
-    _now += int(us)
+    later = _now + int(us)
+    if 0 <= _watchdog < later:  # the watchdog fires inside this wait, not after it
+        later = _watchdog + 1
+    _now = later
     if 0 <= _end <= _now:
         _end = -1
         if _on_end is not None:
