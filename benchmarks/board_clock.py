@@ -262,7 +262,8 @@ GUEST_TOOLS = r'''
 import time, gc, json
 
 def per_call(fn, n):
-    """Instructions per call of fn (one virtual ns each), the loop's own cost taken out."""
+    """Instructions per call of fn (one virtual ns each), the loop's own cost taken out; from a collected heap."""
+    gc.collect()
     t0 = time.ticks_us()
     for _ in range(n):
         fn()
@@ -275,6 +276,23 @@ def per_call(fn, n):
 
 def _nothing():
     pass
+
+def alloc_per_call(fn, n):
+    """Bytes the heap gives out per call of fn (gc.mem_alloc deltas with the collector held off)."""
+    gc.collect()
+    gc.disable()
+    a0 = gc.mem_alloc()
+    for _ in range(n):
+        fn()
+    a1 = gc.mem_alloc()
+    gc.enable()
+    gc.collect()
+    return (a1 - a0) / n
+
+ALLOC = {}
+
+def report_alloc(name, value):
+    print("ALLOC " + json.dumps([name, value]))
 
 class Clock:
     # the app's time module without its sleeps (the board sleeps; QEMU would count a busy wait)
@@ -361,6 +379,7 @@ report("{kind}.fused_calibrate", [per_call(lambda: dr.fused_calibrate(st, mv[:6 
                                   per_call(lambda: dr.fused_calibrate(st, cal), 3)])
 for m in (64, 512):
     report("{kind}.fused_process_%d" % m, per_call(lambda: dr.fused_process(st, mv[:6 * m], dv[:m], out), 8))
+report_alloc("{kind}.fused_process", alloc_per_call(lambda: dr.fused_process(st, mv[:6 * 64], dv[:64], out), 2) / 64)
 report("{kind}.fused_fix", per_call(lambda: (dr.fused_position(st, 1.2, 0.4, 1.2, 0.4), dr.fused_gps(st, 1.2, 0.4)), 50))
 ss = array('f', bytes(4 * dr.STATE_LEN))
 dr.init(ss)
@@ -368,6 +387,7 @@ dr.calibrate(ss, cal)
 report("{kind}.calibrate", [per_call(lambda: dr.calibrate(ss, mv[:6 * 64]), 20), per_call(lambda: dr.calibrate(ss, cal), 3)])
 for m in (64, 512):
     report("{kind}.process_%d" % m, per_call(lambda: dr.process(ss, mv[:6 * m], dv[:m], out), 8))
+report_alloc("{kind}.process", alloc_per_call(lambda: dr.process(ss, mv[:6 * 64], dv[:64], out), 2) / 64)
 report("{kind}.set_velocity", per_call(lambda: dr.set_velocity(ss, 1.0, 0.5, 0.0), 200))
 report("{kind}.offset_latlon", per_call(lambda: dr.offset_latlon(400350855, -755200937, 12.5, -3.25), 200))
 '''
@@ -396,10 +416,12 @@ def one_sample():
     a.k = 0
     a._sample()
 report("sample", per_call(one_sample, 400) - stub_i2c)
+report_alloc("sample", alloc_per_call(one_sample, 200) - alloc_per_call(lambda: i2c.readfrom_mem_into(0x68, 0x3A, buf15), 200))
 # a FIFO record
 a.imu.use_fifo = True
 a.fifo_pending = 1 << 30
 report("fifo_record", per_call(one_sample, 400) - stub_i2c)
+report_alloc("fifo_record", alloc_per_call(one_sample, 200))
 a.imu.use_fifo = False
 # an idle pass of the loop (nothing due: it would sleep)
 now_ms = app.time.ticks_ms()
@@ -410,6 +432,7 @@ def idle():
     a.diag_ms = now_ms
     a.step()
 report("step", per_call(idle, 300) - stub_any)
+report_alloc("step", alloc_per_call(idle, 200))
 # NMEA: per byte and per sentence, from two epochs of different shape
 from nmea import Nmea
 full = {full!r}
@@ -417,28 +440,34 @@ short = {short!r}
 p = Nmea()
 c_full = per_call(lambda: p.feed(full), 100)
 c_short = per_call(lambda: p.feed(short), 100)
-n_full, n_short = full.count(b"$"), short.count(b"$")
-per_byte = (c_full * n_short - c_short * n_full) / (len(full) * n_short - len(short) * n_full)
-report("nmea", [(c_full - per_byte * len(full)) / n_full, per_byte])
+# the checksum and field work run per character: one cost per byte, from a whole epoch (the short one checks it)
+report("nmea", [0.0, c_full / len(full)])
+report_alloc("nmea", alloc_per_call(lambda: p.feed(full), 20) / len(full))
+report("nmea_check", [c_short / len(short), c_full / len(full)])
 # a fix taken (the app's part: its record, velocity, anchor), kernels and NMEA taken out
 epochs = {epochs!r}
 a.k = 0
-todo = list(epochs)
+fixes = []
+q = Nmea(fixes.append)
+for e in epochs:
+    q.feed(e)
+todo = list(fixes)
 def fix():
-    a.uart.pending = todo.pop()
-    a._gps()
-before = a.fixes_seen
-cost = per_call(fix, len(epochs))
-assert a.fixes_seen - before == len(epochs), (a.fixes_seen, before)
-report("gps_fix", cost - sum(per_call(lambda: Nmea().feed(e), 1) for e in epochs[:5]) / 5 - stub_any)
+    a._on_fix(todo.pop())
+n_fix = len(fixes)
+report("gps_fix", per_call(fix, n_fix))
+todo = list(fixes)
+report_alloc("gps_fix", alloc_per_call(fix, n_fix))
 # a screen: its lines, drawn into the frame buffer; a page sent (the bus write is the stub's)
 lines_a = a.screen_lines(now_ms)
 report("screen_lines", per_call(lambda: a.screen_lines(now_ms), 100))
+report_alloc("screen_lines", alloc_per_call(lambda: a.screen_lines(now_ms), 50))
 flip = [0]
 def show():
     flip[0] ^= 1
     a.oled.show(lines_a if flip[0] else lines_a[1:] + lines_a[:1])
 report("screen_show", per_call(show, 100))
+report_alloc("screen_show", alloc_per_call(show, 50))
 def page():
     if not a.oled.busy():
         a.oled.next_page = 0
@@ -459,6 +488,7 @@ def window():
     a.k = dr.WINDOW
     a._window()
 report("window", per_call(window, 100) - per_call(lambda: nokernel(1, 2, 3, 4), 100))
+report_alloc("window", alloc_per_call(window, 50))
 report("diag", per_call(lambda: a._diag(app.time.ticks_add(a.diag_ms, 5000)), 50))
 '''
 
@@ -474,14 +504,18 @@ def run_probe(firmware: Path, files: dict, code: str) -> dict:
         if line.startswith("OP "):
             name, value = json.loads(line[3:])
             ops[name] = value
+        elif line.startswith("ALLOC "):
+            name, value = json.loads(line[6:])
+            ops.setdefault("alloc", {})[name] = value
     return ops
 
 
 def kernel_ops(raw: dict, kind: str) -> dict:
     """{name: instructions or [per call, per sample]} from the probe's two-point measurements."""
     def line(short, long_, m_short, m_long):
+        # the long run's garbage collections land in the per-sample cost; a call's own cost is not below zero
         per_sample = (long_ - short) / (m_long - m_short)
-        return [short - per_sample * m_short, per_sample]
+        return [max(0.0, short - per_sample * m_short), per_sample]
 
     k = f"{kind}."
     return {
@@ -563,11 +597,13 @@ def calibrate(log) -> dict:
                 log("kernels: fallback")
                 raw = run_probe(firmware, files, KERNEL_PROBE.format(module="dr_fallback", walk=walk, kind="python"))
                 ops["python"] = kernel_ops(raw, "python")
+                table.setdefault("alloc_bytes", {}).update(raw.get("alloc", {}))
                 log("kernels: native")
                 native_files = dict(files, **{"dr_native.mpy": (native / "dr_native.mpy").read_bytes()})
                 raw = run_probe(firmware, native_files, KERNEL_PROBE.format(module="dr_native", walk=walk,
                                                                             kind="native"))
                 ops["native"] = kernel_ops(raw, "native")
+                table.setdefault("alloc_bytes", {}).update(raw.get("alloc", {}))
             track = neo6m.simulate_gps(__import__("codegen.sim.trajectory", fromlist=["x"]).make_scenario(
                 "walk", seed=1, duration=30.0), seed=1)
             sentences = neo6m.nmea_sentences(track)
@@ -577,7 +613,11 @@ def calibrate(log) -> dict:
             log(f"app operations ({mode})")
             raw = run_probe(firmware, files, APP_PROBE.format(full=full, short=short, epochs=epochs))
             heap_arm32 = raw.pop("heap")
+            alloc = raw.pop("alloc", {})
+            table.setdefault("alloc_bytes", {}).update({(k if mode == "fused" or k not in ("window", "gps_fix")
+                                                          else k + "_seed"): v for k, v in alloc.items()})
             raw.pop("stub_i2c", None)
+            raw.pop("nmea_check", None)
             if mode == "fused":
                 for name, value in raw.items():
                     ops[name] = value
@@ -587,6 +627,8 @@ def calibrate(log) -> dict:
                 ops["window_seed"] = raw["window"]
                 ops["gps_fix_seed"] = raw["gps_fix"]
     ops["window_fused"] = ops.pop("window")
+    table["alloc_bytes"]["window_fused"] = table["alloc_bytes"].pop("window")
+    table["alloc_bytes"]["gps_fix_fused"] = table["alloc_bytes"].pop("gps_fix")
     # a fix's own work: the kernel calls it makes are charged apart (fused: position + gps and the metres from the
     # anchor by offset_latlon; seed: set_velocity)
     py = ops["python"]
@@ -619,6 +661,11 @@ def print_table(table: dict) -> None:
         cells = "".join(f" {'%.1f + %.2f/smp' % tuple(v) if isinstance(v, list) else '%.1f' % v:>14s}"
                         for v in per_chip)
         print(f"{name:28s}{cells}")
+    alloc = table.get("alloc_bytes", {})
+    if alloc:
+        print("bytes the heap gives out (32-bit ARM, gc.mem_alloc deltas): " + ", ".join(
+            f"{name} {value:.0f}{' per sample' if '.' in name or name == 'nmea' else ''}"
+            for name, value in sorted(alloc.items())))
     print("(one 512-sample fused window, kernel only: " + ", ".join(
         f"{c} {clocks[c]['python']['fused_process'][0] + 512 * clocks[c]['python']['fused_process'][1]:.0f} us "
         f"fallback / {clocks[c]['native']['fused_process'][0] + 512 * clocks[c]['native']['fused_process'][1]:.0f} us "

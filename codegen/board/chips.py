@@ -91,7 +91,7 @@ PMU_CHIP_IDS = {"axp192": 0x03, "axp2101": 0x4A}
 
 
 # The Python heap a chip's release firmware (MicroPython 1.24.1, the bundled boards' release) gives the app, KiB,
-# by (chip, PSRAM). Sources (docs/board-heap.md has the reasoning):
+# by (chip, PSRAM). Sources (docs/emulated-board.md has the reasoning):
 # - ESP32 without PSRAM: ports/esp32/mpconfigport.h starts the heap at 56 KiB (MICROPY_GC_INITIAL_HEAP_SIZE) and
 #   grows it from the IDF heap, a size "chosen so they can grow the heap once (double it) and still have enough
 #   internal RAM to start WiFi": 112 KiB. (Before the split heap, 1.13 gave 111168 bytes: micropython#7043.)

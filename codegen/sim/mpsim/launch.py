@@ -31,14 +31,17 @@ while True:
     if _clock:
         boardclock.install(_clock["costs"])
     faults.install(_scenario.get("faults", {}))
+    cause = None
     try:
         exec(_code, {"__name__": "__main__", "__file__": _target})
         break
     except time.Reset as reset:
-        simworld.trace("boot", cause=str(reset))
-        time.disarm_watchdog()
-        time.halted = False
-        for name in list(sys.modules):
-            if name not in _own:
-                del sys.modules[name]
-        gc.collect()
+        cause = str(reset)
+    # the board resets: nothing of the old app stays (its modules go, and the heap they held)
+    simworld.trace("boot", cause=cause)
+    time.disarm_watchdog()
+    time.halted = False
+    for name in list(sys.modules):
+        if name not in _own:
+            del sys.modules[name]
+    gc.collect()

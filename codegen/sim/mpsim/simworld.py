@@ -69,6 +69,9 @@ def load():
     fs = _scenario.get("fs")
     if fs:
         _mount_disk(fs)
+    for bus, devices in _scenario.get("i2c", {}).items():  # the chips, and their models' data, before the app
+        for opts in devices:
+            device(int(bus), opts)
     heap = _scenario.get("heap_bytes")
     if heap:
         _leave_heap(heap)
