@@ -10,7 +10,7 @@ import difflib
 from dataclasses import dataclass
 from typing import Iterator, Optional
 
-from codegen.board.chips import CHIPS, PMU_RAILS, ChipPins
+from codegen.board.chips import CHIPS, PMU_RAILS, WATCHDOG_MAX_S, ChipPins
 from codegen.board.diagnostics import Diagnostic, error, warning
 from codegen.board.flashlayout import FlashLayout, check_flash_layout, version_tuple
 from codegen.board.model import FUSED, FUSED_MEDIAN_MAX, Board, PinSpec
@@ -303,6 +303,17 @@ def _check_micropython_version(board: Board, source: SourceMap) -> Iterator[Diag
         )
 
 
+def _check_watchdog(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    limit = WATCHDOG_MAX_S.get(board.chip)
+    if limit is not None and board.micropython.watchdog_s > limit:
+        yield error(
+            f"micropython.watchdog_s: {board.micropython.watchdog_s:g} s is longer than the {CHIPS[board.chip].name}'s "
+            f"watchdog can count ({limit:g} s)",
+            source.value(("micropython", "watchdog_s")),
+            f"use watchdog_s <= {limit:g}",
+        )
+
+
 def check_board(board: Board, source: SourceMap, own_layout: Optional[FlashLayout] = None) -> list[Diagnostic]:
     """Every whole-board finding, errors and warnings; `own_layout` is the partition table the board names."""
     chip = CHIPS[board.chip]
@@ -315,4 +326,5 @@ def check_board(board: Board, source: SourceMap, own_layout: Optional[FlashLayou
     found += _check_algorithm(board, source)
     found += _check_micropython_version(board, source)
     found += check_flash_layout(board, source, own_layout)
+    found += _check_watchdog(board, source)
     return found
