@@ -34,9 +34,10 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from appkit import outage_world  # noqa: E402
+
 from codegen.board.loader import load_board  # noqa: E402
-from codegen.sim import boardclock  # noqa: E402
 from codegen.board.model import pin_number  # noqa: E402
+from codegen.sim import boardclock  # noqa: E402
 from codegen.sim.harness import generate_app, run_app  # noqa: E402
 from codegen.tools import find_tool, micropython_tree, tool_env  # noqa: E402
 

@@ -13,8 +13,8 @@ import re
 from pathlib import Path
 
 import pytest
-
 from appkit import outage_world
+
 from codegen.board.loader import load_board
 from codegen.post.devicelog import parse_device_log
 from codegen.sim.harness import generate_app, read_log, run_app

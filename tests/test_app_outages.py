@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from appkit import TAP, outage_world, read_record
+
 from codegen.board.loader import load_board
 from codegen.kernel import fused as F
 from codegen.kernel import reference as ref

@@ -8,7 +8,6 @@ import time
 
 import simworld
 
-
 _left = []  # MemoryErrors still to raise: a fault happens once in the run, not again at every boot
 
 

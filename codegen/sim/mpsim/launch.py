@@ -14,12 +14,12 @@ _target = sys.argv[1]
 with open(_target) as _f:
     _code = compile(_f.read(), _target, "exec")
 
-import machine  # noqa: E402,F401  (the world, and the heap it leaves the app)
-import simworld  # noqa: E402
 import time  # noqa: E402
 
 import boardclock  # noqa: E402
 import faults  # noqa: E402
+import machine  # noqa: E402,F401  (the world, and the heap it leaves the app)
+import simworld  # noqa: E402
 
 _own = set(sys.modules)
 _scenario = simworld.scenario()
