@@ -165,6 +165,16 @@ class MicroPython(Part):
     version: str = Field("1.28.0", pattern=r"^\d+\.\d+(\.\d+)?$", description="MicroPython release on the board")
     partitions: Partitions = Partitions()
     filesystem: Filesystem = Filesystem()
+    # issue 16: what the firmware gives the app, and how long a stuck app may run
+    heap_kb: Optional[int] = Field(
+        None, ge=32, le=65536,
+        description="KiB of Python heap the firmware gives the app (gc.mem_free() after boot); default: the chip's "
+        "release firmware with or without PSRAM (codegen/board/chips.py FIRMWARE_HEAP_KB)",
+    )
+    watchdog_s: float = Field(
+        5.0, ge=1.0, le=60.0,
+        description="s: the app feeds machine.WDT from its loop; stuck this long, the board resets (RP2040: <= 8.3)",
+    )
 
 
 class CircuitPython(Part):
@@ -211,7 +221,10 @@ class Imu(I2CDevice):
         max_length=3,
         description="board x, y, z <- sensor axis, e.g. [-y, x, z] for a sensor turned 90 degrees",
     )
-    use_fifo: bool = False
+    use_fifo: bool = Field(
+        True,
+        description="read the samples from the MPU-6050's FIFO (85 samples): the app keeps its rate through a flash erase (~45 ms), a GPS epoch or a kernel batch; false: poll the data-ready flag",
+    )
 
     @field_validator("axes")
     @classmethod
@@ -386,6 +399,14 @@ class Board(Part):
     @property
     def mpy_arch(self) -> str:
         return {"esp32": "xtensawin", "esp32s3": "xtensawin", "rp2040": "armv6m"}[self.chip]
+
+    @property
+    def heap_bytes(self) -> int:
+        """The Python heap the app gets on this board (micropython.heap_kb, else its firmware's default)."""
+        from codegen.board.chips import firmware_heap_kb
+
+        kb = self.micropython.heap_kb
+        return 1024 * (kb if kb is not None else firmware_heap_kb(self.chip, self.psram))
 
     @property
     def calibration_samples(self) -> int:

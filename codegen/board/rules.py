@@ -10,7 +10,7 @@ import difflib
 from dataclasses import dataclass
 from typing import Iterator, Optional
 
-from codegen.board.chips import CHIPS, PMU_RAILS, ChipPins
+from codegen.board.chips import CHIPS, PMU_RAILS, WATCHDOG_MAX_S, ChipPins
 from codegen.board.circuitpython import find_board
 from codegen.board.circuitpython_rules import check_circuitpython
 from codegen.board.diagnostics import Diagnostic, error, warning
@@ -306,6 +306,17 @@ def _check_micropython_version(board: Board, source: SourceMap) -> Iterator[Diag
         )
 
 
+def _check_watchdog(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    limit = WATCHDOG_MAX_S.get(board.chip)
+    if limit is not None and board.micropython.watchdog_s > limit:
+        yield error(
+            f"micropython.watchdog_s: {board.micropython.watchdog_s:g} s is longer than the {CHIPS[board.chip].name}'s "
+            f"watchdog can count ({limit:g} s)",
+            source.value(("micropython", "watchdog_s")),
+            f"use watchdog_s <= {limit:g}",
+        )
+
+
 def check_board(board: Board, source: SourceMap, own_layout: Optional[FlashLayout] = None) -> list[Diagnostic]:
     """Every whole-board finding, errors and warnings; `own_layout` is the partition table the board names."""
     # a CircuitPython board's pin names stand for its own chip's GPIOs, whatever `chip:` says (that is checked)
@@ -326,4 +337,5 @@ def check_board(board: Board, source: SourceMap, own_layout: Optional[FlashLayou
     found += _check_fixed_muxing(board, chip, source)
     found += _check_micropython_version(board, source)
     found += check_flash_layout(board, source, own_layout)
+    found += _check_watchdog(board, source)
     return found
