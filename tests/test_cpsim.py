@@ -176,7 +176,7 @@ def test_rp2040_watchdog_limit(tmp_path):
         import microcontroller, watchdog
         wdt = microcontroller.watchdog
         try:
-            wdt.timeout = 10
+            wdt.timeout = 8.5
         except ValueError:
             print("limit", "refused")
         wdt.timeout = 5
@@ -200,3 +200,20 @@ def test_the_esp32s3_board_names(tmp_path, board_name, pins):
     said = _said(run)
     assert said["scan"] == "[60, 104]"
     assert said["neopixel"] == "board.IO48"
+
+
+def test_a_watchdog_not_fed_resets_the_board(tmp_path):
+    run = _run(tmp_path, """
+        import microcontroller, time, watchdog
+        reason = microcontroller.cpu.reset_reason
+        print("boot", reason == microcontroller.ResetReason.WATCHDOG)
+        if reason != microcontroller.ResetReason.WATCHDOG:
+            microcontroller.watchdog.timeout = 1
+            microcontroller.watchdog.mode = watchdog.WatchDogMode.RESET
+            while True:
+                time.sleep(0.1)
+        print("after", "watchdog")
+    """, duration_s=4.0)
+    assert run.console("boot") == ["boot False", "boot True"]
+    assert run.console("after") == ["after watchdog"]
+    assert [e["cause"] for e in run.events("boot")] == ["watchdog"]

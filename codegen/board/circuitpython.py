@@ -19,6 +19,9 @@ from dataclasses import dataclass
 # storage.remount with disable_concurrent_write_protection); 9.0 is the first whose .py the app is written for.
 MIN_CIRCUITPYTHON = (9, 0)
 DEFAULT_CIRCUITPYTHON = "10.2.1"
+# microcontroller.watchdog.timeout limits: the RP2040 port validates the timeout as an int <= 8
+# (ports/raspberrypi/common-hal/watchdog/WatchDogTimer.c: 8.388 s of its 24-bit counter, rounded down)
+WATCHDOG_MAX_S = {"rp2040": 8.0}
 
 # Built into the firmware of every board below (CIRCUITPY_FULL_BUILD): the app imports these without a lib/ copy.
 FULL_BUILD_MODULES = frozenset({

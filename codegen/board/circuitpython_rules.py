@@ -17,7 +17,7 @@ from __future__ import annotations
 from typing import Iterator
 
 from codegen.board.chips import ChipPins
-from codegen.board.circuitpython import MIN_CIRCUITPYTHON, find_board
+from codegen.board.circuitpython import MIN_CIRCUITPYTHON, WATCHDOG_MAX_S, find_board
 from codegen.board.diagnostics import Diagnostic, error, warning
 from codegen.board.flashlayout import version_tuple
 from codegen.board.model import Board
@@ -31,6 +31,7 @@ def check_circuitpython(board: Board, chip: ChipPins, source: SourceMap) -> list
     found += _check_not_micropython(source)
     found += _check_peripherals(board, chip, source)
     found += _check_version(board, source)
+    found += _check_watchdog(board, source)
     return found
 
 
@@ -112,4 +113,15 @@ def _check_version(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
             f"circuitpython.version: the app needs CircuitPython {minimum} or newer, not {version}",
             source.value(("circuitpython", "version")),
             "install a current CircuitPython (the board's page on circuitpython.org) and set this to its release",
+        )
+
+
+def _check_watchdog(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    limit = WATCHDOG_MAX_S.get(board.chip)
+    if limit is not None and board.circuitpython.watchdog_s > limit:
+        yield error(
+            f"circuitpython.watchdog_s: CircuitPython on the {board.chip.upper()} takes a watchdog timeout of at most "
+            f"{limit:g} s, not {board.circuitpython.watchdog_s:g}",
+            source.value(("circuitpython", "watchdog_s")),
+            f"use watchdog_s <= {limit:g}",
         )

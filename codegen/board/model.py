@@ -187,6 +187,16 @@ class CircuitPython(Part):
     )
     version: str = Field(DEFAULT_CIRCUITPYTHON, pattern=r"^\d+\.\d+(\.\d+)?$",
                          description="CircuitPython release on the board")
+    heap_kb: Optional[int] = Field(
+        None, ge=32, le=65536,
+        description="KiB of Python heap the app gets (gc.mem_free() in the REPL); default: MicroPython's figure for "
+        "the chip (codegen/board/chips.py FIRMWARE_HEAP_KB), not measured on CircuitPython",
+    )
+    watchdog_s: float = Field(
+        5.0, ge=1.0, le=60.0,
+        description="s: the app feeds microcontroller.watchdog from its loop; stuck this long, the board resets "
+        "(CircuitPython on the RP2040 takes at most 8)",
+    )
 
 
 class I2CBus(Part):
@@ -402,10 +412,11 @@ class Board(Part):
 
     @property
     def heap_bytes(self) -> int:
-        """The Python heap the app gets on this board (micropython.heap_kb, else its firmware's default)."""
+        """The Python heap the app gets on this board (micropython.heap_kb or circuitpython.heap_kb, else the
+        chip's MicroPython firmware's default)."""
         from codegen.board.chips import firmware_heap_kb
 
-        kb = self.micropython.heap_kb
+        kb = self.circuitpython.heap_kb if self.target == "circuitpython" else self.micropython.heap_kb
         return 1024 * (kb if kb is not None else firmware_heap_kb(self.chip, self.psram))
 
     @property

@@ -17,15 +17,15 @@ import os
 import subprocess
 from pathlib import Path
 
-from codegen.board.circuitpython import find_board
+from codegen.board.circuitpython import WATCHDOG_MAX_S, find_board
 from codegen.board.model import Board
+from codegen.sim import boardclock
 from codegen.sim.harness import MPSIM, Run
 
 CPSIM = Path(__file__).resolve().parent / "cpsim"
 # the firmware's monotonic_ns() step: RP2040 counts 1/1024 s ticks with 1/32 subticks (shared-module/time),
 # the ESP32-S3 microseconds (ports/espressif/common-hal/time)
 MONOTONIC_NS_STEP = {"rp2040": 30518, "esp32s3": 1000, "esp32": 1000}
-WATCHDOG_MAX_S = {"rp2040": 8.388}  # the RP2040's watchdog counts 24 bits of microseconds at half rate
 
 
 def circuitpython_world(board: Board, usb_connected: bool = True) -> dict:
@@ -42,18 +42,29 @@ def circuitpython_world(board: Board, usb_connected: bool = True) -> dict:
 
 
 def run_circuitpython(micropython: str, app_dir: Path, scenario: dict, work: Path, timeout: float = 600,
-                      heap_bytes: int = 64 * 1024 * 1024, libraries: list[Path] = ()) -> Run:
-    """Run APP_DIR (boot.py, code.py, lib/) on the emulated CircuitPython board in `scenario`."""
+                      heap_bytes: int | None = None, clock_chip: str | None = None,
+                      libraries: list[Path] = ()) -> Run:
+    """Run APP_DIR (boot.py, code.py, lib/) on the emulated CircuitPython board in `scenario`. `heap_bytes`: the
+    board's heap for the program (scaled to the host as codegen/sim/boardclock.py scales MicroPython's; None: the
+    host's 64 MB); `clock_chip`: charge the app's operations the board clock's costs for that chip (None: free)."""
     work.mkdir(parents=True, exist_ok=True)
     scenario = dict(scenario)
     scenario.setdefault("trace", str(work / "trace.jsonl"))
+    if scenario.get("fs"):
+        scenario["fs"] = dict(scenario["fs"], image=scenario["fs"].get("image", str(work / "fs.img")))
+    process_heap = 64 * 1024 * 1024
+    if heap_bytes is not None:
+        scenario["heap_bytes"] = boardclock.host_heap_bytes(heap_bytes)
+        process_heap = scenario["heap_bytes"] + boardclock.MPSIM_RESERVE_BYTES
+    if clock_chip is not None:
+        scenario["clock"] = boardclock.scenario_clock(clock_chip)
     scenario_path = work / "scenario.json"
     scenario_path.write_text(json.dumps(scenario))
     app_dir = Path(app_dir).resolve()
     paths = [str(CPSIM), str(app_dir), str(app_dir / "lib"), *(str(Path(p).resolve()) for p in libraries)]
     env = dict(os.environ, MICROPYPATH=":".join(paths), MPSIM_SCENARIO=str(scenario_path))
     proc = subprocess.run(
-        [micropython, "-X", f"heapsize={heap_bytes}", str(CPSIM / "launch.py"), str(MPSIM), str(app_dir)],
+        [micropython, "-X", f"heapsize={process_heap}", str(CPSIM / "launch.py"), str(MPSIM), str(app_dir)],
         env=env, capture_output=True, text=True, timeout=timeout, cwd=work,
     )
     trace_path = Path(scenario["trace"])

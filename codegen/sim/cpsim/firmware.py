@@ -12,7 +12,6 @@ import simworld
 
 _S = simworld.scenario().get("circuitpython", {})
 _claimed = {}  # GPIO -> what holds it
-_reset = {"software": False}  # the last reset was microcontroller.reset()
 
 
 def settings():
@@ -34,10 +33,3 @@ def release(pin):
 def release_all():
     """A reset or reload of the firmware: every object the old program made is gone."""
     _claimed.clear()
-
-
-def software_reset(flag=None):
-    """Whether the board was last reset by microcontroller.reset() (set with `flag`)."""
-    if flag is not None:
-        _reset["software"] = flag
-    return _reset["software"]

@@ -1,8 +1,8 @@
 """Emulated CircuitPython `microcontroller`: Pin, pin (GPIOn names), cpu, reset(), watchdog.
 
-Pins are the chip's GPIOs; board.* names are aliases of them (board.py). reset() restarts the board: the launcher
-runs boot.py and code.py again (launch.py), with the world as it is. The watchdog is the world's (mpsim's
-machine.WDT): in RESET mode a timeout resets the board as machine.WDT does.
+Pins are the chip's GPIOs; board.* names are aliases of them (board.py). reset() restarts the board (mpsim's machine.reset: the launcher
+runs boot.py and code.py again, with the world as it is). The watchdog is the world's (mpsim's machine.WDT): in
+RESET mode, not fed for its timeout, it resets the board.
 """
 
 import machine
@@ -73,10 +73,8 @@ class _Cpu:
 
     @property
     def reset_reason(self):
-        if firmware.software_reset():
-            return ResetReason.SOFTWARE
-        return {1: ResetReason.POWER_ON, 3: ResetReason.WATCHDOG, 5: ResetReason.SOFTWARE}.get(
-            machine.reset_cause(), ResetReason.UNKNOWN)
+        return {machine.PWRON_RESET: ResetReason.POWER_ON, machine.WDT_RESET: ResetReason.WATCHDOG,
+                machine.SOFT_RESET: ResetReason.SOFTWARE}.get(machine.reset_cause(), ResetReason.UNKNOWN)
 
     @property
     def temperature(self):
@@ -89,7 +87,6 @@ cpus = (cpu,)
 
 def reset():
     firmware.release_all()
-    firmware.software_reset(True)
     machine.reset()
 
 

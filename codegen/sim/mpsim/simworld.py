@@ -55,8 +55,16 @@ def _finish():
         _trace.flush()
 
 
-def load():
-    global _scenario, _trace
+_loaded = False
+
+
+def load(hold_heap=False):
+    """Load the scenario named by MPSIM_SCENARIO (once: machine.py calls it at import). With hold_heap the heap
+    stays whole until leave_heap() (a firmware loads its own modules first: codegen/sim/cpsim/launch.py)."""
+    global _scenario, _trace, _loaded
+    if _loaded:
+        return
+    _loaded = True
     path = os.getenv("MPSIM_SCENARIO")
     if not path:
         raise RuntimeError("MPSIM_SCENARIO is not set")
@@ -72,6 +80,12 @@ def load():
     for bus, devices in _scenario.get("i2c", {}).items():  # the chips, and their models' data, before the app
         for opts in devices:
             device(int(bus), opts)
+    if not hold_heap:
+        leave_heap()
+
+
+def leave_heap():
+    """Give the app the board's heap (the scenario's heap_bytes), no more."""
     heap = _scenario.get("heap_bytes")
     if heap:
         _leave_heap(heap)
