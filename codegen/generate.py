@@ -1,8 +1,16 @@
-"""Render a validated board into the output tree: OUT/app/ (MicroPython), OUT/native/ (C module), MANIFEST.json.
+"""Render a validated board into the output tree: OUT/app/ (the board's files), OUT/native/ (C module), MANIFEST.json.
+
+For `target: micropython` (the default):
 
     templates/micropython/NAME.j2  ->  OUT/app/NAME
     templates/native/NAME.j2       ->  OUT/native/NAME
     native_ext/*                   ->  OUT/native/*   (copied byte for byte: the C kernel is not a template)
+
+For `target: circuitpython` (the CIRCUITPY drive's files; CircuitPython loads no native module):
+
+    templates/circuitpython/NAME.j2      ->  OUT/app/NAME        (code.py, boot.py, lib/: CircuitPython's own)
+    templates/micropython/NAME.j2        ->  OUT/app/lib/NAME    (the app's modules that run on both, rendered from
+                                                                  the same templates: SHARED_WITH_CIRCUITPYTHON)
 
 Rendering is pure (`render_tree`) and deterministic: same board content, byte-identical tree. A template sees the
 board and `layout`, the kernels' declaration (codegen/kernel/layout.py: state fields, parameters, flags). While a
@@ -28,6 +36,7 @@ from pydantic import BaseModel
 from codegen import __version__
 from codegen.board.loader import LoadedBoard
 from codegen.errors import UserError
+from codegen.font import FONT
 from codegen.kernel.layout import LAYOUT
 from codegen.paths import native_ext_dir, templates_dir
 from codegen.safeio import read_bounded, write_atomically
@@ -37,6 +46,18 @@ GENERATOR = "deadreckon"
 SEAL = "seal"
 MAX_MANIFEST_BYTES = 1024 * 1024  # a manifest lists a few dozen files: tens of KB
 TEMPLATE_OUTPUTS = {"micropython": "app", "native": "native"}
+# The MicroPython app's templates a CircuitPython app renders too (into app/lib/): everything but main.py, which
+# CircuitPython names code.py. Their few lines that differ (imports: CircuitPython has no `machine`, no ticks_* in
+# `time`, no `framebuf`) switch on board.target; the rest is the same text.
+SHARED_WITH_CIRCUITPYTHON = ("app.py", "board_config.py", "buttons.py", "display.py", "dr_fallback.py", "logger.py",
+                             "mpu6050.py", "nmea.py", "power.py")
+
+
+def template_sources(target: str) -> list[tuple[str, str, Optional[tuple[str, ...]]]]:
+    """(template folder, output folder, only these outputs or None for all) rendered for a target."""
+    if target == "circuitpython":
+        return [("circuitpython", "app", None), ("micropython", "app/lib", SHARED_WITH_CIRCUITPYTHON)]
+    return [("micropython", "app", None), ("native", "native", None)]
 COPIED_NATIVE_SKIP = {"__init__.py", "__pycache__", "tests"}
 
 
@@ -110,7 +131,22 @@ def _environment() -> _TrackingEnvironment:
     )
     env.filters["hex"] = lambda value, width=2: f"0x{int(value):0{width}X}"
     env.filters["cfloat"] = _c_float
+    env.filters["pybytes_lines"] = _bytes_literal_lines
     return env
+
+
+def _bytes_literal_lines(data: bytes, width: int) -> list[str]:
+    """`data` as Python bytes literals of at most `width` characters each (lines of one parenthesised literal)."""
+    lines, current = [], ""
+    for byte in data:
+        piece = f"\\x{byte:02x}"
+        if current and len(current) + len(piece) + 3 > width:
+            lines.append(f'b"{current}"')
+            current = ""
+        current += piece
+    if current:
+        lines.append(f'b"{current}"')
+    return lines
 
 
 def _c_float(value: float) -> str:
@@ -138,16 +174,19 @@ def render_tree(loaded: LoadedBoard) -> dict[str, RenderedFile]:
     """Every output file (relative path -> content and provenance), in memory."""
     env = _environment()
     files: dict[str, RenderedFile] = {}
-    for folder, out_folder in TEMPLATE_OUTPUTS.items():
+    for folder, out_folder, only in template_sources(loaded.board.target):
         base = templates_dir() / folder
         if not base.is_dir():
             continue
         for template_path in sorted(base.rglob("*.j2")):
+            if only is not None and template_path.relative_to(base).as_posix()[:-3] not in only:
+                continue
             name = template_path.relative_to(templates_dir()).as_posix()
             recorder = _KeyRecorder(loaded.board)
             env.recorder = recorder
             try:
-                text = env.get_template(name).render(board=loaded.board, layout=LAYOUT, banner=_banner(loaded, name))
+                text = env.get_template(name).render(board=loaded.board, layout=LAYOUT, font=FONT,
+                                                     banner=_banner(loaded, name))
             except jinja2.TemplateError as problem:
                 line = getattr(problem, "lineno", None)
                 raise UserError(
@@ -158,6 +197,8 @@ def render_tree(loaded: LoadedBoard) -> dict[str, RenderedFile]:
                 env.recorder = None
             relative = f"{out_folder}/{template_path.relative_to(base).as_posix()[:-3]}"
             files[relative] = RenderedFile(text.encode("utf-8"), recorder.prune(), f"templates/{name}")
+    if loaded.board.target == "circuitpython":
+        return files
     native = native_ext_dir()
     for source in sorted(native.rglob("*")):
         relative_source = source.relative_to(native)
@@ -173,7 +214,7 @@ def render_tree(loaded: LoadedBoard) -> dict[str, RenderedFile]:
 def render_template_text(loaded: LoadedBoard, source: str, name: str) -> str:
     """A template's text (say, an older revision's, for a benchmark) rendered as render_tree renders `name`."""
     env = _environment()
-    return env.from_string(source).render(board=loaded.board, layout=LAYOUT, banner=_banner(loaded, name))
+    return env.from_string(source).render(board=loaded.board, layout=LAYOUT, font=FONT, banner=_banner(loaded, name))
 
 
 def manifest_for(loaded: LoadedBoard, files: dict[str, RenderedFile], root: Path) -> dict:

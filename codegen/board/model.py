@@ -420,6 +420,19 @@ class Board(Part):
         return 1024 * (kb if kb is not None else firmware_heap_kb(self.chip, self.psram))
 
     @property
+    def drive_button(self) -> Optional[tuple[str, Button]]:
+        """(role, button) a CircuitPython board's boot.py reads to leave the CIRCUITPY drive to the computer: the
+        first configured button that is not a strapping pin (one held at reset would select the chip's boot
+        mode instead), or None."""
+        from codegen.board.chips import CHIPS
+
+        for role in ("calibrate", "test_mode"):
+            button = getattr(self.buttons, role)
+            if button is not None and button.pin.pin not in CHIPS[self.chip].strapping:
+                return role, button
+        return None
+
+    @property
     def calibration_samples(self) -> int:
         """IMU samples the calibration collects: calibration_s at the IMU's achieved sample rate."""
         return max(1, round(self.algorithm.calibration_s * self.imu.achieved_sample_rate_hz))

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from codegen.board.circuitpython import WATCHDOG_MAX_S, find_board
 from codegen.board.model import Board
+from codegen.font import FONT
 from codegen.sim import boardclock
 from codegen.sim.harness import MPSIM, Run
 
@@ -29,7 +30,8 @@ MONOTONIC_NS_STEP = {"rp2040": 30518, "esp32s3": 1000, "esp32": 1000}
 
 
 def circuitpython_world(board: Board, usb_connected: bool = True) -> dict:
-    """The scenario's "circuitpython" entry for a `target: circuitpython` board."""
+    """The scenario's "circuitpython" entry for a `target: circuitpython` board (the app's screen font goes in
+    beside it: with_circuitpython)."""
     cp = find_board(board.circuitpython.board)
     return {
         "board_id": cp.board_id,
@@ -39,6 +41,13 @@ def circuitpython_world(board: Board, usb_connected: bool = True) -> dict:
         "monotonic_ns_step": MONOTONIC_NS_STEP[cp.chip],
         "watchdog_max_s": WATCHDOG_MAX_S.get(cp.chip),
     }
+
+
+def with_circuitpython(scenario: dict, board: Board, usb_connected: bool = True) -> dict:
+    """`scenario` (a world of mpsim's) seen by a CircuitPython board: the firmware's settings, and the display read
+    back with the app's own font (lib/textfb.py, codegen/font.py)."""
+    return dict(scenario, circuitpython=circuitpython_world(board, usb_connected),
+                display_font={"first": FONT.first, "cell": FONT.cell, "data": FONT.data.hex()})
 
 
 def run_circuitpython(micropython: str, app_dir: Path, scenario: dict, work: Path, timeout: float = 600,

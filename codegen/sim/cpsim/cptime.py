@@ -30,9 +30,11 @@ def monotonic():
 
 
 def sleep(seconds):
-    if seconds < 0:
-        raise ValueError("sleep length must be non-negative")
-    _clock.advance(int(seconds * 1000000))
+    """Whole milliseconds, rounded, as the firmware sleeps (shared-bindings/time: 1000 * seconds + 0.5)."""
+    ms = int(1000 * seconds + 0.5)
+    if ms < 0:
+        raise ValueError("seconds must be >= 0")
+    _clock.advance(ms * 1000)
 
 
 def time():

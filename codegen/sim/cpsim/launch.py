@@ -11,6 +11,7 @@ faults, as mpsim's launcher does for MicroPython. supervisor.reload() runs code.
 stops with an exception (printed as the firmware prints it), the board idles until the world's time is up.
 """
 
+import builtins
 import gc
 import sys
 
@@ -35,6 +36,7 @@ import firmware  # noqa: E402
 import microcontroller  # noqa: E402,F401
 import storage  # noqa: E402
 import supervisor  # noqa: E402
+import traceback  # noqa: E402,F401
 import watchdog  # noqa: E402,F401
 
 del sys.modules["machine"]
@@ -44,18 +46,28 @@ _scenario = simworld.scenario()
 _clock = _scenario.get("clock")
 if _clock:
     simworld.at_end(lambda: simworld.trace("clock", charged=boardclock.totals()))
+_real_import = builtins.__import__
 simworld.leave_heap()
 
 
 def _start_program():
-    """Nothing of the last program stays (its modules go, and the heap they held); then the board's clock and the
-    scenario's faults take hold of the app's modules, as on mpsim."""
+    """Nothing of the last program stays (its modules go, and the heap they held); the board's clock and the
+    scenario's faults take hold of the app's modules as soon as code.py has imported `app` (code.py imports its
+    modules in the order the heap needs: the launcher must not import them first, as mpsim's does)."""
     for name in [name for name in sys.modules if name not in _firmware]:
         del sys.modules[name]
     gc.collect()
-    if _clock:
-        boardclock.install(_clock["costs"])
-    faults.install(_scenario.get("faults", {}))
+    builtins.__import__ = _metering_import
+
+
+def _metering_import(name, *args):
+    module = _real_import(name, *args)
+    if name == "app":
+        builtins.__import__ = _real_import
+        if _clock:
+            boardclock.install(_clock["costs"])
+        faults.install(_scenario.get("faults", {}))
+    return module
 
 
 def _run(name):

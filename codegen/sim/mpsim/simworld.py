@@ -507,6 +507,17 @@ class Oled:
 
 
 def _glyphs():
+    """The 8x8 cells the display's text is read back with: the scenario's "display_font" when the app draws with a
+    font of its own ({"first": code, "cell": 8, "data": hex of 8 column bytes a glyph}: the CircuitPython app's,
+    codegen/font.py), else MicroPython's framebuf font."""
+    font = _scenario.get("display_font")
+    if font:
+        data = bytes.fromhex(font["data"])
+        cell = font["cell"]
+        table = {}
+        for i in range(len(data) // cell):
+            table.setdefault(data[i * cell : (i + 1) * cell], chr(font["first"] + i))
+        return table
     import framebuf
 
     table = {}
