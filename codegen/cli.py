@@ -78,7 +78,7 @@ def cmd_build(args: argparse.Namespace) -> int:
     from codegen.deploy.build import build
 
     result = build(Path(args.out))
-    print(f"built {len(result.files)} files into {result.app_dir} and {result.image}")
+    print(f"built {len(result.files)} files into {result.app_dir}" + (f" and {result.image}" if result.image else ""))
     return 0
 
 
@@ -91,6 +91,11 @@ def cmd_flash(args: argparse.Namespace) -> int:
 
 
 def cmd_upload(args: argparse.Namespace) -> int:
+    if args.drive is not None:
+        from codegen.deploy.drive import upload_drive
+
+        upload_drive(Path(args.out), Path(args.drive), force=args.force)
+        return 0
     from codegen.deploy.upload import upload
 
     upload(Path(args.out), args.port, force=args.force)
@@ -150,7 +155,8 @@ def build_parser() -> argparse.ArgumentParser:
     _board_arg(p)
     p.set_defaults(func=cmd_config)
 
-    p = sub.add_parser("build", help="compile a generated tree for its board: .mpy files and a filesystem image")
+    p = sub.add_parser("build", help="compile a generated tree for its board: .mpy files and a filesystem image "
+                                     "(CircuitPython: checked .py files for its drive)")
     p.add_argument("out", help="the generated tree (from `deadreckon generate`)")
     p.set_defaults(func=cmd_build)
 
@@ -162,9 +168,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-stub", action="store_true", help="talk to the ROM loader only (slower; for odd adapters)")
     p.set_defaults(func=cmd_flash)
 
-    p = sub.add_parser("upload", help="copy the built app onto a board running MicroPython (raw REPL)")
+    p = sub.add_parser("upload", help="copy the built app onto a running board: its raw REPL (--port) or a "
+                                      "CircuitPython board's CIRCUITPY drive (--drive)")
     p.add_argument("out", help="the built tree (from `deadreckon build`)")
-    p.add_argument("--port", required=True, help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...)")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--port", help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...)")
+    where.add_argument("--drive", help="where the computer mounts a CircuitPython board's CIRCUITPY drive, e.g. "
+                                       "/media/$USER/CIRCUITPY")
     p.add_argument("--force", action="store_true", help="send every file, even those already on the board")
     p.set_defaults(func=cmd_upload)
 

@@ -42,7 +42,7 @@ def world(board, work, counts, gps, duration):
     }
 
 
-@pytest.mark.parametrize("name", [name for name, _, _ in bundled_boards()])
+@pytest.mark.parametrize("name", [name for name, _, _ in bundled_boards("micropython")])
 def test_board_app_runs(name, tmp_path):
     micropython = require_tool("micropython")
     board = load_board(name).board

@@ -26,7 +26,8 @@ WATCHDOG_MAX_S = {"rp2040": 8.0}
 # Built into the firmware of every board below (CIRCUITPY_FULL_BUILD): the app imports these without a lib/ copy.
 FULL_BUILD_MODULES = frozenset({
     "adafruit_bus_device", "array", "board", "busio", "digitalio", "fontio", "gc", "math", "microcontroller",
-    "micropython", "os", "storage", "struct", "supervisor", "terminalio", "time", "ulab", "watchdog",
+    "micropython", "os", "storage", "struct", "supervisor", "sys", "terminalio", "time", "traceback", "ulab",
+    "watchdog",
 })
 
 

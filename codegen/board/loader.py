@@ -101,15 +101,18 @@ def display_name(path: Path) -> str:
         return str(path)
 
 
-def bundled_boards() -> list[tuple[str, Path, str]]:
-    """(name, path, description) of each board YAML shipped with deadreckon, default first."""
+def bundled_boards(target: Optional[str] = None) -> list[tuple[str, Path, str]]:
+    """(name, path, description) of each board YAML shipped with deadreckon, default first; only those generated
+    for `target` (micropython, circuitpython) when given."""
     boards = []
     for path in sorted(board_configs_dir().glob("*.yaml")):
         try:
-            description = str(read_yaml(path).data.get("description", ""))
+            data = read_yaml(path).data
         except UserError:
-            description = "(unreadable)"
-        boards.append((path.stem, path, description))
+            data = {"description": "(unreadable)"}
+        if target is not None and data.get("target", "micropython") != target:
+            continue
+        boards.append((path.stem, path, str(data.get("description", ""))))
     boards.sort(key=lambda item: item[1] != default_board_path())
     return boards
 

@@ -7,6 +7,15 @@
 
 `main.py` and `boot.py` stay source: MicroPython only runs those two names as `.py`. Everything else under app/
 that is Python becomes `.mpy`; other files are copied. Nothing is written outside OUT/build/.
+
+A CircuitPython tree (`target: circuitpython`) is built differently (build_circuitpython): its files stay `.py`.
+CircuitPython refuses MicroPython's .mpy ("MicroPython .mpy file; use CircuitPython mpy-cross": its header starts
+'C', not 'M'), its own mpy-cross is a download from Adafruit that no package registry carries, and it compiles a
+`.py` as it imports it (code.py imports the largest modules first, for the compiler's room). So the build checks
+each module instead: it must compile (MicroPython's compiler, from which CircuitPython's comes, as a syntax check),
+and every module it imports must be in the app or built into the board's CircuitPython (a library the board lacks
+would stop the app at boot). There is no native module (CircuitPython loads none) and no filesystem image (the
+files go onto the CIRCUITPY drive: `deadreckon upload OUT --drive PATH`).
 """
 
 from __future__ import annotations
@@ -56,7 +65,7 @@ class GeneratedTree:
 class BuildResult:
     tree: GeneratedTree
     app_dir: Path  # the files that go on the board's filesystem root
-    image: Path
+    image: Optional[Path]  # the filesystem image (None for CircuitPython: its files go onto the CIRCUITPY drive)
     files: list[str] = field(default_factory=list)  # relative paths under app_dir
     native: Optional[Path] = None
     native_note: str = ""
@@ -172,6 +181,8 @@ def build(out: Path, board: Optional[Board] = None, progress: Progress = print, 
 
     tree = load_tree(out, board)
     board = tree.board
+    if board.target == "circuitpython":
+        return build_circuitpython(tree, progress)
     prepare_build_folder(tree.build_dir)
     built_from = source_hashes(tree.root)
     target_dir = tree.build_dir / "app"
@@ -218,3 +229,51 @@ def check_names(paths: list[str]) -> None:
     for rel in paths:
         if not _SAFE_NAME.match(rel):
             raise UserError(f"app file name {rel!r} has characters the device tools do not handle")
+
+
+def build_circuitpython(tree: GeneratedTree, progress: Progress = print) -> BuildResult:
+    """Check a CircuitPython tree's modules and copy them into OUT/build/app, as the CIRCUITPY drive takes them."""
+    from codegen.deploy.cpimports import check_imports
+
+    board = tree.board
+    prepare_build_folder(tree.build_dir)
+    built_from = source_hashes(tree.root)
+    target_dir = tree.build_dir / "app"
+    if target_dir.exists():
+        shutil.rmtree(target_dir)
+    target_dir.mkdir(parents=True)
+    sources = sorted(p for p in tree.app_dir.rglob("*") if p.is_file() and "__pycache__" not in p.parts)
+    progress(f"building {len(sources)} app files for {board.name} (CircuitPython {board.circuitpython.version} "
+             f"on {board.circuitpython.board}): .py as CircuitPython runs them")
+    result = BuildResult(tree=tree, app_dir=target_dir, image=None)
+    check_names([source.relative_to(tree.app_dir).as_posix() for source in sources])
+    for index, source in enumerate(sources, 1):
+        rel = source.relative_to(tree.app_dir).as_posix()
+        if source.suffix == ".py":
+            check_compiles(source, rel, tree.build_dir)
+        (target_dir / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(source, target_dir / rel)
+        result.files.append(rel)
+        progress(f"  [{index}/{len(sources)}] checked   {rel}")
+    found = check_imports(target_dir, board)
+    progress(f"  imports: {', '.join(sorted(found.builtin))} built into CircuitPython on {board.circuitpython.board}; "
+             f"{len(found.local)} modules of the app")
+    result.native_note = ("no native module: CircuitPython loads none, the app runs the pure-Python kernel "
+                          "(lib/dr_fallback.py)")
+    progress(f"  {result.native_note}")
+    progress(f"  next: deadreckon upload {tree.root} --drive PATH-OF-CIRCUITPY")
+    record_build(tree.root, built_from)
+    return result
+
+
+def check_compiles(source: Path, rel: str, scratch: Path) -> None:
+    """A syntax check of one module with MicroPython's compiler (CircuitPython's is the same parser and compiler,
+    with the same limits); the .mpy it writes is thrown away."""
+    target = scratch / "check.mpy"
+    command = [find_mpy_cross("1.28.0"), "-o", str(target), "-s", rel, str(source)]
+    done = subprocess.run(command, capture_output=True, text=True)
+    if target.exists():
+        target.unlink()
+    if done.returncode != 0:
+        message = (done.stderr or done.stdout).strip() or f"exit status {done.returncode}"
+        raise UserError(f"{rel} does not compile: {message}", hint="this is a bug in deadreckon's templates")

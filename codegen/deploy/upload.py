@@ -483,6 +483,11 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
             if "ENOSPC" in text or "28]" in text:
                 raise UserError("the board's filesystem is full", hint="remove files from the board, or flash a "
                                 "fresh filesystem image with `deadreckon flash`")
+            if "EROFS" in text or "30]" in text:  # CircuitPython: the drive is the computer's until boot.py takes it
+                raise UserError("the board's filesystem is read-only to programs: a CircuitPython board gives its "
+                                "CIRCUITPY drive to the computer unless boot.py remounts it",
+                                hint="copy the app over USB: deadreckon upload OUT --drive PATH; after the next "
+                                     "reset its boot.py takes the drive and the serial route works too")
             raise UserError(f"upload to {port} failed: {text.splitlines()[-1] if text else 'no answer'}",
                             hint="is MicroPython running on the board (not its bootloader, not another program "
                                  "holding the port)? Try again after pressing RESET")
