@@ -2,8 +2,8 @@
 font; its terminalio font is 6x12, five lines on a 64-pixel screen where the app shows eight).
 
 Drawn here, one glyph per printable ASCII character: 5 pixels wide and 7 tall from the top row (lowercase with
-descenders sits in the same 7 rows, on a 5-row x-height), set in an 8x8 cell one column in from the left, so 16 characters fit a 128-pixel line
-as with MicroPython's framebuf. `cell_columns` gives a glyph as the display stores it (MONO_VLSB: one byte per
+descenders sits in the same 7 rows, on a 5-row x-height), set in an 8x8 cell one column in from the left, so 16
+characters fit a 128-pixel line as with MicroPython's framebuf. `cell_columns` gives a glyph as the display stores it (MONO_VLSB: one byte per
 column, bit 0 the top row); `FONT` is the whole table the app's lib/textfb.py carries and the emulated display
 decodes the screen with.
 """

@@ -134,7 +134,8 @@ def test_a_micropython_tree_has_no_drive(tmp_path):
 def test_a_full_drive_is_refused_up_front(built, tmp_path, monkeypatch):
     drive = _drive(tmp_path)
     before = _snapshot(drive)
-    monkeypatch.setattr(drive_module.shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1 << 20, 1 << 20, 1000))
+    monkeypatch.setattr(drive_module.shutil, "disk_usage",
+                        lambda path: shutil._ntuple_diskusage(1 << 20, 1 << 20, 1000))
     with pytest.raises(UserError, match=r"the app needs \d+ more bytes .* it has 1000 free; nothing was written"):
         upload_drive(built["first"], drive, progress=_quiet)
     assert _snapshot(drive) == before

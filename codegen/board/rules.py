@@ -97,7 +97,8 @@ def _check_pins(board: Board, chip: ChipPins, source: SourceMap) -> Iterator[Dia
                 )
         elif use.pin.strapping_by_design:
             yield error(
-                f"{use.role}: `strapping_by_design` on {use.pin.label}, which is not a strapping pin of the {chip.name}",
+                f"{use.role}: `strapping_by_design` on {use.pin.label}, which is not a strapping pin of the "
+                f"{chip.name}",
                 source.value(use.path + ("strapping_by_design",)),
                 f"strapping pins are {', '.join(f'GPIO{p}' for p in sorted(chip.strapping)) or 'none'}",
             )

@@ -467,8 +467,8 @@ def flash(out: Path, port: str, firmware: Optional[Path] = None, erase: bool = F
     if board.target == "circuitpython":
         raise UserError(f"{out} is a CircuitPython app: a CircuitPython board takes its files over its CIRCUITPY "
                         "drive, not a flashed image",
-                        hint=f"deadreckon upload {out} --drive PATH (where the computer mounts CIRCUITPY); CircuitPython "
-                             "itself is installed from circuitpython.org (UF2 file or its web installer)")
+                        hint=f"deadreckon upload {out} --drive PATH (where the computer mounts CIRCUITPY); "
+                             "CircuitPython itself is installed from circuitpython.org (UF2 file or web installer)")
     check_build_current(tree.root)
     if board.chip not in ("esp32", "esp32s3"):
         raise UserError(f"flashing {board.chip} boards is not supported (esptool is for Espressif chips)")

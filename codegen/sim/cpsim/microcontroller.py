@@ -1,7 +1,7 @@
 """Emulated CircuitPython `microcontroller`: Pin, pin (GPIOn names), cpu, reset(), watchdog.
 
-Pins are the chip's GPIOs; board.* names are aliases of them (board.py). reset() restarts the board (mpsim's machine.reset: the launcher
-runs boot.py and code.py again, with the world as it is). The watchdog is the world's (mpsim's machine.WDT): in
+Pins are the chip's GPIOs; board.* names are aliases of them (board.py). reset() restarts the board (mpsim's
+machine.reset: the launcher runs boot.py and code.py again, with the world as it is). The watchdog is the world's (mpsim's machine.WDT): in
 RESET mode, not fed for its timeout, it resets the board.
 """
 
