@@ -204,3 +204,14 @@ def test_same_fixes_and_outage_estimates_as_the_micropython_app(apps, name, tmp_
               f"{cp_enu.round(3)} at sample {cp_end}: {gap:.4f} m apart ({abs(cp_end - mp_end) / rate:.3f} s of "
               f"samples between their ends)")
         assert gap <= moved + mp_ref[1] + cp_ref[1], (fix_n, gap, moved)
+
+
+def test_without_a_log_boot_py_leaves_the_drive_to_the_computer(tmp_path):
+    from codegen.generate import render_tree
+
+    yaml = tmp_path / "nolog.yaml"
+    yaml.write_text(f"extends: {PICO}\nname: nolog\nlogging: {{enabled: false}}\n")
+    boot = render_tree(load_board(yaml))["app/boot.py"].content.decode()
+    assert "remount" not in boot.split('"""')[-1] and "stays the computer's" in boot
+    s3 = render_tree(load_board(S3))["app/boot.py"].content.decode()
+    assert "board.IO4" in s3 and "board.IO0" not in s3  # not the BOOT button: held at reset, it selects the ROM
