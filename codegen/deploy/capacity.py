@@ -27,6 +27,8 @@ def fit_diagnostics(loaded: "LoadedBoard", files: Optional[dict[str, "RenderedFi
     from codegen.generate import render_tree
 
     board = loaded.board
+    if board.target == "circuitpython":
+        return []  # its CIRCUITPY drive is the firmware's (FAT, its size per build): `upload --drive` checks the room
     fs = board.micropython.filesystem
     if files is None:
         files = render_tree(loaded)
