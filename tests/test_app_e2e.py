@@ -187,6 +187,20 @@ def test_imu_missing_keeps_gps(micropython, tbeam, tmp_path):
     assert "IMU missing" in screen
 
 
+def test_a_native_module_the_firmware_refuses_falls_back_and_says_so(micropython, tbeam, tmp_path):
+    """A dr_native.mpy built for another MicroPython (here .mpy version 5, as before 1.19) makes `import` raise
+    ValueError, not ImportError: the app runs on the pure-Python kernel and says why on the screen and console."""
+    natmod = tmp_path / "natmod"
+    natmod.mkdir()
+    (natmod / "dr_native.mpy").write_bytes(b"M\x05\x00\x1f" + bytes(60))
+    counts = write_counts(tmp_path / "imu.bin", imu_counts(3, RATE))
+    gps = write_stream(tmp_path / "gps.txt", gps_chunks(1, 3))
+    run = run_app(micropython, tbeam, tbeam_scenario(tmp_path, counts, gps, 3), tmp_path, extra_path=[natmod])
+    assert run.returncode == 0, run.stderr
+    assert "kernel=python" in run.stdout and "WARN native refused" in run.stdout
+    assert "native refused" in run.screen_at(2.9)
+
+
 def test_imu_lost_mid_run_keeps_gps(micropython, tbeam, tmp_path):
     counts = write_counts(tmp_path / "imu.bin", imu_counts(20, RATE))
     gps = write_stream(tmp_path / "gps.txt", gps_chunks(1, 20))

@@ -38,14 +38,17 @@ from mpu6050 import Mpu6050  # noqa: E402
 from nmea import Nmea  # noqa: E402
 import power  # noqa: E402
 
+KERNEL_NOTE = ""
 try:
     import dr_native as dr
 
     KERNEL = "native"
-except ImportError:
+except (ImportError, ValueError) as e:  # ValueError: a dr_native.mpy this firmware cannot load (.mpy version, arch)
     import dr_fallback as dr
 
     KERNEL = "python"
+    if isinstance(e, ValueError):
+        KERNEL_NOTE = "native refused"  # fits the 16-character status line
 
 try:
     from display import Oled
@@ -196,6 +199,8 @@ class App:
         self.log_error = self.log.error
         if self.log.error:
             self.warn(self.log.error)
+        if KERNEL_NOTE:
+            self.warn(KERNEL_NOTE)
         cause = machine.reset_cause()
         if cause == getattr(machine, "WDT_RESET", -1):
             self.warn("reset: watchdog")
