@@ -21,6 +21,8 @@ from typing import Any, Optional, TextIO
 
 from pydantic import BaseModel, ValidationError
 
+from codegen.board.circuitpython import BOARDS as CIRCUITPYTHON_BOARDS
+from codegen.board.circuitpython import close_board_ids, find_board
 from codegen.board.diagnostics import (
     Diagnostic,
     DiagnosticsError,
@@ -35,8 +37,6 @@ from codegen.board.flashlayout import (
     read_partition_csv,
     version_tuple,
 )
-from codegen.board.circuitpython import BOARDS as CIRCUITPYTHON_BOARDS
-from codegen.board.circuitpython import close_board_ids, find_board
 from codegen.board.model import CIRCUITPYTHON_PINS, Board, PinSpec
 from codegen.board.yamlsource import KeyPath, SourceMap, YamlError, read_yaml
 from codegen.errors import Location, UserError

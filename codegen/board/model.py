@@ -22,7 +22,6 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from codegen.board.circuitpython import DEFAULT_CIRCUITPYTHON, CircuitPythonBoard, strip_board_prefix
-
 from codegen.kernel.layout import FUSED, FUSED_MEDIAN_MAX  # noqa: F401  (FUSED_MEDIAN_MAX: for the rules)
 
 STANDARD_GRAVITY = 9.80665  # m/s^2
