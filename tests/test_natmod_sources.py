@@ -169,3 +169,56 @@ def test_the_tree_abi_is_the_one_mpy_ld_and_the_loader_use():
         check_header(Header(6, 2, "xtensawin", 31), "6.3", "xtensawin", RELEASE)
     with pytest.raises(UserError, match="built for armv6m, the board runs xtensawin"):
         check_header(Header(6, 3, "armv6m", 31), "6.3", "xtensawin", RELEASE)
+
+
+def archive(*members: tuple[str, str, str]) -> tarfile.TarFile:
+    """An in-memory tar of (kind, name, content-or-link-target) members, opened for reading."""
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w") as tar:
+        for kind, name, payload in members:
+            info = tarfile.TarInfo(name)
+            if kind == "file":
+                info.size = len(payload)
+                tar.addfile(info, io.BytesIO(payload.encode()))
+            else:
+                info.type = {"sym": tarfile.SYMTYPE, "dir": tarfile.DIRTYPE, "fifo": tarfile.FIFOTYPE}[kind]
+                info.linkname = payload
+                tar.addfile(info)
+    buffer.seek(0)
+    return tarfile.open(fileobj=buffer)
+
+
+CHECKS = ["deadreckon's own check (Python < 3.11.4)"] + (["tarfile's data filter"] if hasattr(tarfile, "data_filter")
+                                                          else [])
+
+
+@pytest.mark.parametrize("checked_by", CHECKS)
+@pytest.mark.parametrize("hostile", [
+    ("file", "../escaped.txt", "x"),
+    ("file", "{outside}/absolute.txt", "x"),
+    ("sym", "micropython-1.28.0/out", "../../.."),
+    ("sym", "micropython-1.28.0/abs", "/etc"),
+    ("fifo", "micropython-1.28.0/pipe", ""),
+])
+def test_an_archive_member_that_leaves_the_tree_is_refused(hostile, checked_by, tmp_path, monkeypatch):
+    """Refused (TarError), or, for an absolute name under tarfile's filter, written inside the tree: never outside."""
+    if checked_by.startswith("deadreckon"):
+        monkeypatch.delattr(tarfile, "data_filter", raising=False)
+    kind, name, payload = hostile
+    into = tmp_path / "unpacked"
+    try:
+        sources.unpack(archive(("dir", "micropython-1.28.0", ""), (kind, name.format(outside=tmp_path), payload)), into)
+    except tarfile.TarError:
+        pass
+    else:
+        assert kind == "file" and name.startswith("{outside}") and checked_by.startswith("tarfile")
+        assert (into / str(tmp_path).lstrip("/") / "absolute.txt").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) in ([], ["unpacked"])
+
+
+def test_the_fallback_check_unpacks_a_plain_tree_with_in_tree_links(tmp_path, monkeypatch):
+    monkeypatch.delattr(tarfile, "data_filter", raising=False)
+    into = tmp_path / "unpacked"
+    sources.unpack(archive(("dir", "mp", ""), ("file", "mp/py/obj.c", "int x;\n"), ("sym", "mp/link.c", "py/obj.c")),
+                   into)
+    assert (into / "mp/link.c").read_text() == "int x;\n"

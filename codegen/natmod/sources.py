@@ -76,6 +76,30 @@ def micropython_source(version: str, progress: Progress = print) -> tuple[Path, 
     return fetch_release(version, progress), f"downloaded into {cached}"
 
 
+def unpack(tar: tarfile.TarFile, into: Path) -> None:
+    """Extract `tar` into `into`, refusing any member that would land outside it or is not a plain file, directory or
+    in-tree link. Python 3.12 (and 3.11.4+) has this as `filter="data"`; Debian 12's Python 3.11.2 does not, and
+    there an unchecked extractall would follow "../" or absolute names out of the cache."""
+    if hasattr(tarfile, "data_filter"):
+        tar.extractall(into, filter="data")
+        return
+    root = into.resolve()
+    members = []
+    for member in tar.getmembers():
+        where = (root / member.name).resolve()
+        if os.path.isabs(member.name) or not where.is_relative_to(root):
+            raise tarfile.TarError(f"{member.name!r} would be written outside the tree")
+        if member.issym() or member.islnk():
+            base = where.parent if member.issym() else root
+            if os.path.isabs(member.linkname) or not (base / member.linkname).resolve().is_relative_to(root):
+                raise tarfile.TarError(f"{member.name!r} links outside the tree ({member.linkname!r})")
+        elif not (member.isfile() or member.isdir()):
+            raise tarfile.TarError(f"{member.name!r} is a device or pipe, not source")
+        member.mode &= 0o755  # no set-uid or group/other write bits from an archive
+        members.append(member)
+    tar.extractall(into, members=members)
+
+
 def fetch_release(version: str, progress: Progress = print) -> Path:
     """Download, check and unpack the source of MicroPython `version` into the cache; return the tree."""
     pinned = RELEASE_SHA256.get(version)
@@ -108,7 +132,7 @@ def fetch_release(version: str, progress: Progress = print) -> Path:
         unpacked = Path(tmp) / "unpacked"
         try:
             with tarfile.open(archive) as tar:
-                tar.extractall(unpacked, filter="data")
+                unpack(tar, unpacked)
         except (tarfile.TarError, OSError) as exc:
             raise UserError(f"the MicroPython {version} source archive does not unpack: {exc}") from None
         tops = [p for p in unpacked.iterdir() if p.is_dir()]
