@@ -132,3 +132,21 @@ def test_carried_devices_shake_like_walkers(board):
     assert stats["walk-pocket"][0] > 0.1 and stats["walk-backpack"][0] > 0.1
     assert 60.0 < stats["walk-pocket"][1] < 250.0
     assert stats["bike"][0] > 0.15 and stats["bike"][2] >= 32767
+
+
+def test_a_stopped_car_keeps_its_pitch():
+    """The road's grade belongs to the road (a function of the distance driven): a car stopped on a hill does not
+    rotate, so an IMU at rest sees no rate a rest detector could mistake for gyro bias (the grade once followed
+    the clock and tilted stopped cars by up to a degree a minute)."""
+    for seed in range(3):
+        tr = trajectory.car(seed=seed, duration=300.0, mount="dashboard", vibration=False)
+        speed = np.linalg.norm(tr.vel[:, :2], axis=1)
+        still = np.convolve(speed < 1e-6, np.ones(2 * int(tr.rate_hz) + 1), mode="same")
+        stopped = (still > 2 * tr.rate_hz) & (tr.t > tr.rest_s)  # stopped for a second either side (the braking
+        # pitch settles)
+        assert stopped.sum() > 3 * tr.rate_hz  # it stops at lights
+        rate = np.degrees(np.linalg.norm(tr.gyro[stopped], axis=1))
+        assert rate.max() < 1e-6, rate.max()
+        climb = tr.vel[stopped, 2]
+        assert np.abs(climb).max() < 1e-9
+        assert np.ptp(np.abs(tr.euler[:, 1])) > np.radians(1.0)  # the road does rise and fall

@@ -26,6 +26,7 @@ from codegen.board.model import STANDARD_GRAVITY
 from codegen.sim import SIMULATED
 
 TRUTH_RATE_HZ = 1000.0
+GRADE_GRID_M = 0.012  # m of road per sample of the car's grade profile (its 20 s smoothing at 12 m/s: ~240 m)
 SCENARIOS = SIMULATED
 
 
@@ -426,8 +427,12 @@ def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: floa
     w_cmd = gaussian_filter1d(_segments(n, rate, script_w, start), 0.5 * rate, mode="nearest")
     speed = np.maximum(np.cumsum(a_cmd) / rate, 0.0)
     course = rng.uniform(0, 2 * np.pi) + np.cumsum(w_cmd) / rate
-    grade = 0.06 * np.tanh(gaussian_filter1d(rng.standard_normal(n), 20.0 * rate, mode="nearest") * 150)
-    grade *= np.clip((t - rest_s) / 5.0, 0.0, 1.0)
+    # the road's grade is a property of the road: a function of the distance driven (a car stopped on a hill keeps
+    # its pitch), varying over ~240 m (a smooth profile drawn on a grid of GRADE_GRID_M along the road), flat for the
+    # first 50 m (the parking spot where the device calibrates)
+    profile = 0.06 * np.tanh(gaussian_filter1d(rng.standard_normal(n), 20.0 * rate, mode="nearest") * 150)
+    distance = np.cumsum(speed) / rate
+    grade = np.interp(distance, np.arange(n) * GRADE_GRID_M, profile) * np.clip(distance / 50.0, 0.0, 1.0)
     climb = speed * grade
     a_long = np.gradient(speed, 1.0 / rate)
     a_lat = speed * np.gradient(course, 1.0 / rate)
@@ -439,7 +444,6 @@ def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: floa
     engine_on = 0.0 if rng.random() < 0.5 else rest_s - rng.uniform(2.0, 4.0)
     if vibration:
         road = vib.Road(gd_n0=float(np.exp(rng.uniform(np.log(64e-6), np.log(256e-6)))))
-        distance = np.cumsum(speed) / rate
         heave, pitch_v, roll_v = vib.road_shake(distance, rate, vib.VehicleBody(), road, rng)
         engine = vib.Engine()
         angles, _, _, engine_vel = vib.engine_shake(t, engine.rpm(speed), t >= engine_on, engine, rng)
