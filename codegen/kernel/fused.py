@@ -1,12 +1,13 @@
-"""The fused real-time algorithm (`algorithm: fused`, issue 8): the executable specification, float64.
+"""The fused real-time algorithm (`algorithm: fused`, issues 8 and 19): the executable specification, float64.
 
-Per sample (`process`): tilt corrected towards gravity, motion statistics (rest, walking), a travel direction turned
-by the gyro (a walker's slow swings held back) and a speed along it, the position in true ENU. At each GPS fix
-(`position_update`, then `gps_update`): the fix smoothed with the Doppler and the IMU, the heading alignment of the
-kernel frame to North, the travel direction, the speed, the along-track bias, the walking speed, and a 4-state
-Kalman filter of the tilt and the accelerometer's offsets (`tilt_and_offset_update`). docs/fused.md gives the
-equations and how the defaults were tuned; native_ext/dr_fused.c and the fallback's fused_* are the same steps in
-float32.
+Per sample (`process`): tilt corrected towards gravity, motion statistics (rest, walking, a vehicle's vibration), a
+travel direction turned by the gyro (a walker's slow swings held back) and a speed along it (a walker's learned
+speed, a vehicle's integrated acceleration with its zero-velocity updates), the position in true ENU; at rest, every
+rest_update_s, the gyro bias and the tilt/offset filter (`rest_update`). At each GPS fix (`position_update`, then
+`gps_update`): the fix smoothed with the Doppler and the IMU, the heading alignment of the kernel frame to North, the
+travel direction, the speed, the along-track bias, the walking speed, and a 5-state Kalman filter of the tilt and
+the accelerometer's offsets (`tilt_and_offset_update`). docs/fused.md gives the equations and how the defaults were
+tuned; native_ext/dr_fused.c and the fallback's fused_* are the same steps in float32.
 
 The state is a flat vector of floats and the parameters a FusedConfig, both from the declaration
 (codegen/kernel/layout.py) that also lays out the C kernel's caller-owned buffer and the fallback's offsets: FusedState
