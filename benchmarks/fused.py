@@ -1,15 +1,16 @@
 """Speed of the fused algorithm (issue 8) per window, beside the kernel's budget (<= 5 ms per 512-sample window at
 240 MHz by instruction count).
 
-    python3 benchmarks/fused.py [--before REV] [--repeat N]
+    python3 benchmarks/fused.py [--before REV] [--repeat N] [--no-device]
 
 Rows: the C kernel (dr_fused_process + one dr_fused_position and dr_fused_gps) through cffi, the float64 reference
 (codegen/kernel/fused.py), the generated fallback's fused_* on the unix-port `micropython` (the template of git
 revision REV, default main, beside today's: plain, @micropython.native, viper) and the x64 natmod there, each with
 the bytes it allocates per window (benchmarks/mpbench.py says how they are counted); then valgrind callgrind's
 instruction count of the C harness native_ext/tests/bench_fused.c per window and what it means at 240 MHz (as
-benchmarks/kernel.py does for the seed kernel: x86-64 instructions as a proxy for the ESP32's single-issue LX6).
-Measured on the x86-64 host.
+benchmarks/kernel.py does for the seed kernel: x86-64 instructions as a proxy for the ESP32's single-issue LX6),
+measured on the x86-64 host; then the boards' instruction sets (benchmarks/device.py: QEMU counts of the natmod and
+the fallback on ARM cores, the natmod's ESP32 code on Xtensa).
 """
 
 from __future__ import annotations
@@ -79,6 +80,7 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=int, default=5, help="timed repetitions of the MicroPython rows (best of)")
     parser.add_argument("--before", default="main", help="git revision whose fallback template to run beside "
                         "today's (default main; '' for none)")
+    parser.add_argument("--no-device", action="store_true", help="skip the QEMU rows (boards' instruction sets)")
     args = parser.parse_args(argv)
     loaded = load_board(None)
     board = loaded.board
@@ -126,6 +128,10 @@ def main(argv=None) -> int:
               f"({instructions / n:.0f} per sample)")
         print(f"  at 240 MHz, 1 instruction per cycle: {instructions / ESP32_HZ * 1e3:.2f} ms per window (budget 5 ms); "
               f"2 cycles per instruction: {2 * instructions / ESP32_HZ * 1e3:.2f} ms")
+    if not args.no_device:
+        from device import device_table
+
+        device_table(loaded, "fused")
     return 0
 
 

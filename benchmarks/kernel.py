@@ -1,13 +1,16 @@
 """Benchmark: one 512x6 window through every implementation of the kernel; prints a table.
 
-    python3 benchmarks/kernel.py [--board BOARD.yaml] [--repeat N] [--before REV]
+    python3 benchmarks/kernel.py [--board BOARD.yaml] [--repeat N] [--before REV] [--no-device]
 
 Rows: the C kernel via cffi, the NumPy reference, the generated dr_fallback on the unix-port `micropython` (the
 template of git revision REV, default main, beside today's: plain, @micropython.native, @micropython.viper), the x64
 natmod in that same interpreter (built against MPY_DIR or the shared MicroPython tree), each with the bytes it
 allocates per window (benchmarks/mpbench.py says how they are counted), and the C kernel's instruction count per
-window (valgrind callgrind on a small C harness) with what that means on a 240 MHz ESP32. A script that prints, not a
-timed test: numbers vary with the machine (here: x86-64 host).
+window (valgrind callgrind on a small C harness) with what that means on a 240 MHz ESP32. Then the boards'
+instruction sets (benchmarks/device.py): instructions per window in QEMU, the natmod against every fallback variant
+on the same ARM core, and the ESP32 code of the natmod on qemu-system-xtensa with the ESP32 time it implies
+(--no-device skips them: they take a few minutes, plus the QEMU port's build on first use). A script that prints,
+not a timed test: numbers vary with the machine (here: x86-64 host).
 """
 
 from __future__ import annotations
@@ -98,6 +101,7 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=int, default=20, help="timed repetitions (best of)")
     parser.add_argument("--before", default="main", help="git revision whose fallback template to run beside "
                         "today's (default main; '' for none)")
+    parser.add_argument("--no-device", action="store_true", help="skip the QEMU rows (boards' instruction sets)")
     args = parser.parse_args(argv)
 
     loaded = load_board(args.board)
@@ -147,6 +151,11 @@ def main(argv=None) -> int:
         print(f"  at 240 MHz and 1 instruction per cycle: {instructions / ESP32_HZ * 1e3:.2f} ms per window "
               f"(goal <= 5 ms; {instructions / n:.0f} instructions per sample). The ESP32's LX6 is single-issue: "
               f"x86-64 counts are a proxy; 2 cycles per instruction would give {2 * instructions / ESP32_HZ * 1e3:.2f} ms")
+    if not args.no_device:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from device import device_table
+
+        device_table(loaded, "seed")
     return 0
 
 

@@ -1,8 +1,9 @@
 """Accuracy of `deadreckon post` (issue 7): the synthetic acceptance table and the real walk recording.
 
-    python3 benchmarks/post.py            # both (about two minutes on one core)
+    python3 benchmarks/post.py            # all three (about fifteen minutes on one core)
     python3 benchmarks/post.py synthetic  # only the acceptance table
     python3 benchmarks/post.py walk       # only ../shared/data/gnss-imu-walk
+    python3 benchmarks/post.py gaps       # GPS gaps of 1/5/20/60 s: bridge vs Hermite, 1-sigma coverage
 
 Synthetic: a vehicle with the device at a known mounting, 0.1 m/s Doppler noise per ENU component, a 50 mg
 accelerometer bias, MPU-6050 noise and int16 quantisation, and an injected IMU delay. Walk: rtklibexplorer's handheld
@@ -156,9 +157,82 @@ def walk() -> None:
     print()
 
 
+TUNING_SEEDS = (1, 2, 3, 4, 5)  # bridge.CORRELATION_FRACTION was chosen on these (gaps starting at 100..168 s)
+REPORT_SEEDS = (31, 32, 33, 34, 35, 36)  # reported on, as in tests/test_post_gaps.py
+GAP_LENGTHS = (1.0, 5.0, 20.0, 60.0)  # s of missing epochs
+
+
+def _gap_row(label: str, errors: list) -> str:
+    post = np.sqrt(np.mean([e.post_rms**2 for e in errors]))
+    hermite = np.sqrt(np.mean([e.hermite_rms**2 for e in errors]))
+    one = np.mean(np.concatenate([e.covered.ravel() for e in errors]))
+    two = np.mean(np.concatenate([(np.abs(e.post) <= 2 * e.sigma).ravel() for e in errors]))
+    wins = sum(e.post_rms < e.hermite_rms for e in errors)
+    worst = max(float(np.abs(e.post).max()) for e in errors)
+    sigma = np.median(np.concatenate([e.sigma.ravel() for e in errors]))
+    return (f"| {label} | {len(errors)} | {post:.2f} | {hermite:.2f} | {wins}/{len(errors)} | {one:.2f} | {two:.2f} | "
+            f"{sigma:.2f} | {worst:.2f} |")
+
+
+GAP_HEADER = ("| gap | runs | post RMS [m] | Hermite RMS [m] | post better | within 1 sigma (0.68) | within 2 sigma (0.95) "
+              "| median 1 sigma [m] | worst error [m] |\n|---|---|---|---|---|---|---|---|---|")
+
+
+def gaps() -> None:
+    """GPS gaps cut out of runs whose path is known: post's bridge and its 1-sigma against the truth and against the
+    GPS-only cubic Hermite bridge (positions and Doppler velocities of the two epochs around the gap)."""
+    from codegen.post.gapcheck import cut_gap, gap_errors, truth_about
+    from codegen.post.synthetic import ORIGIN
+
+    print("## GPS gaps: the bridge, its 1-sigma (east and north, per row) and the GPS-only Hermite bridge")
+    print()
+    print("Synthetic: 200 s runs (tuning seeds: 300 s), the gap's epochs cut out; rows every 0.1 s inside the gap.")
+    for gyro in (True, False):
+        for name, seeds in (("tuning seeds 1-5", TUNING_SEEDS), ("report seeds 31-36", REPORT_SEEDS)):
+            print()
+            print(f"### synthetic, {'with' if gyro else 'without'} the gyro, {name}")
+            print()
+            print(GAP_HEADER)
+            for gap in GAP_LENGTHS:
+                errors = []
+                for seed in seeds:
+                    tuning = seeds is TUNING_SEEDS
+                    log, truth = make_run(Scenario(duration=300.0 if tuning else 200.0, seed=seed))
+                    if not gyro:
+                        log.imu.gyro = None
+                    start = 100.0 + 17 * (seed % 5) if tuning else 60.0 + (7.3 * seed) % 50
+                    r = process(cut_gap(log, start, gap), PostOptions(plots=False))
+                    errors.append(gap_errors(r, start, gap, r.track.t, truth_about(r, truth.position(r.track.t), ORIGIN)))
+                print(_gap_row(f"{gap:.0f} s", errors))
+    if not WALK.exists():
+        return
+    log = load_log(WALK)
+    full = process(log, PostOptions(plots=False))
+    fixed = log.gps.quality == 1
+    for gyro in (True, False):
+        print()
+        print(f"### the walk ({WALK.name}), {'with' if gyro else 'without'} the gyro: gaps starting every 20 s "
+              f"(60 s gaps: every 30 s), truth = the RTK-fixed epochs cut out")
+        print()
+        print(GAP_HEADER)
+        walk_log = log if gyro else PostLog(log.name, ImuSeries(log.imu.t, log.imu.acc), log.gps, notes=[],
+                                            time_scale=log.time_scale)
+        for gap in GAP_LENGTHS:
+            errors = []
+            for start in np.arange(log.gps.t[0] + 15.0, log.gps.t[-1] - gap - 10.0, 30.0 if gap >= 60 else 20.0):
+                r = process(cut_gap(walk_log, start, gap), PostOptions(plots=False))
+                e = gap_errors(r, start, gap, log.gps.t[fixed], full.gps_enu[fixed])
+                if len(e.t):
+                    errors.append(e)
+            print(_gap_row(f"{gap:.0f} s", errors))
+    print()
+
+
 if __name__ == "__main__":
-    which = sys.argv[1:] or ["synthetic", "walk"]
+    which = sys.argv[1:] or ["synthetic", "walk", "gaps"]
     if "synthetic" in which:
         synthetic()
     if "walk" in which:
         walk()
+    if "gaps" in which:
+        gaps()

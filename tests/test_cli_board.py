@@ -222,8 +222,9 @@ def test_every_bundled_board_generates_byte_identically(tmp_path, name):
     assert manifest["board"] == name
     listed = {rel: entry["sha256"] for rel, entry in manifest["files"].items()}
     assert listed == {rel: sha for rel, sha in digest.items() if rel != "MANIFEST.json"}
-    assert "app/board_config.py" in listed
-    assert "imu.address" in manifest["files"]["app/board_config.py"]["keys"]
+    config = "app/lib/board_config.py" if "app/lib/board_config.py" in listed else "app/board_config.py"  # CircuitPython
+    assert config in listed
+    assert "imu.address" in manifest["files"][config]["keys"]
 
 
 def test_generate_protects_foreign_and_edited_folders(tmp_path):
@@ -258,3 +259,31 @@ def test_retarget_by_yaml_alone(tmp_path):
     assert "IMU_SDA = const(13)" in config and "IMU_SCL = const(14)" in config
     assert "IMU_ADDR = const(0x69)" in config
     assert "IMU_AXIS_MAP = ((1, -1), (0, 1), (2, 1), )" in config
+
+
+def test_generate_removes_stale_files_it_wrote_and_keeps_edited_ones(tmp_path):
+    """A file an older generation wrote and this one does not: removed while unedited, kept (and named) once the
+    user edited it, even with --force."""
+    from codegen.generate import seal
+
+    out = tmp_path / "out"
+    assert run("generate", "-o", str(out)).returncode == 0
+
+    def add_stale(text: str, recorded: str) -> None:
+        manifest = json.loads((out / "MANIFEST.json").read_text())
+        manifest.pop("seal")
+        manifest["files"]["app/old_module.py"] = {"sha256": hashlib.sha256(recorded.encode()).hexdigest()}
+        (out / "MANIFEST.json").write_text(json.dumps(seal(manifest)))
+        (out / "app" / "old_module.py").write_text(text)
+
+    add_stale("X = 1\n", "X = 1\n")
+    assert run("generate", "-o", str(out)).returncode == 0
+    assert not (out / "app" / "old_module.py").exists()
+
+    add_stale("X = 2  # my change\n", "X = 1\n")
+    result = run("generate", "-o", str(out))
+    assert result.returncode == 2 and "app/old_module.py" in result.stderr
+    result = run("generate", "--force", "-o", str(out))
+    assert result.returncode == 0 and "kept 1 edited file(s)" in result.stderr and "app/old_module.py" in result.stderr
+    assert (out / "app" / "old_module.py").read_text() == "X = 2  # my change\n"
+    assert "app/old_module.py" not in json.loads((out / "MANIFEST.json").read_text())["files"]

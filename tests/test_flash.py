@@ -12,7 +12,7 @@ from codegen.deploy.fsimage import mount_image, read_tree
 from codegen.errors import UserError
 from conftest import require
 from peers.esp_rom import RomLoaderPeer
-from peers.trees import default_board, esp_image, make_tree
+from peers.trees import MICROPYTHON_4MIB, default_board, make_tree, merged_firmware
 
 
 def _have_esptool() -> bool:
@@ -30,7 +30,7 @@ def built(tmp_path_factory):
     tree = make_tree(root / "out")
     result = build(tree, board=default_board(), progress=lambda _: None)
     firmware = root / "micropython.bin"
-    firmware.write_bytes(esp_image())
+    firmware.write_bytes(merged_firmware())
     return tree, result, firmware
 
 
@@ -58,9 +58,11 @@ def assert_flashed(peer: RomLoaderPeer, result, firmware, board=None) -> None:
 
 def test_flash_over_the_rom_loader(built, peer, tmp_path):
     """The ROM path alone (--no-stub --no-compress): 0x400-byte blocks, 4-word FLASH_BEGIN, hex MD5 verification.
-    A 256 KiB filesystem keeps it quick (the full 2 MiB image this way: tests/peers/bench_flash.py)."""
-    _, _, firmware = built
+    A 256 KiB filesystem (and a firmware whose partition table says so) keeps it quick (the full 2 MiB image this
+    way: tests/peers/bench_flash.py)."""
     board = default_board(**{"micropython.filesystem.size": 0x40000})
+    firmware = tmp_path / "small-vfs.bin"
+    firmware.write_bytes(merged_firmware(rows=MICROPYTHON_4MIB[:-1] + (("vfs", 0x01, 0x81, 0x200000, 0x40000),)))
     tree = make_tree(tmp_path / "out")
     result = build(tree, board=board, progress=quiet)
     started = time.monotonic()
@@ -68,7 +70,7 @@ def test_flash_over_the_rom_loader(built, peer, tmp_path):
     print(f"ROM path: 256 KiB image + {firmware.stat().st_size} byte firmware in {time.monotonic() - started:.1f} s")
     assert_flashed(peer, result, firmware, board)
     assert peer.stats.stub_runs == 0
-    assert peer.stats.commands.get(0x03, 0) >= 256 + 192  # every 0x400 block went over the wire, uncompressed
+    assert peer.stats.commands.get(0x03, 0) >= 256 + 252  # every 0x400 block went over the wire, uncompressed
     assert peer.stats.commands.get(0x13) == 2  # one MD5 verification per region
     assert peer.stats.commands.get(0x04, 0) == 0  # no FLASH_END: it would leave the ROM loader
     assert [r.offset for r in outcome.regions] == [0x1000, 0x200000]
@@ -144,6 +146,7 @@ def test_wrong_chip_is_refused_before_writing(built, peer):
 def test_flash_smaller_than_the_layout(built):
     tree, result, firmware = built
     with RomLoaderPeer(flash_size=2 * 1024 * 1024) as small:
+        small.flash[0x1000 : 0x1000 + firmware.stat().st_size] = firmware.read_bytes()  # MicroPython is on it
         with pytest.raises(UserError, match="less flash"):
             flash(tree, small.url, board=default_board(), progress=quiet)
 
@@ -151,7 +154,7 @@ def test_flash_smaller_than_the_layout(built):
 def test_firmware_for_another_chip(built, peer, tmp_path):
     tree, result, _ = built
     s3 = tmp_path / "s3.bin"
-    s3.write_bytes(esp_image(chip_id=9, segment_bytes=0x1000))
+    s3.write_bytes(merged_firmware(chip_id=9, app_bytes=0x1000))
     with pytest.raises(UserError, match="not built for an ESP32"):
         flash(tree, peer.url, firmware=s3, board=default_board(), progress=quiet)
 
@@ -167,9 +170,12 @@ def test_layout_checks_before_touching_the_board(built, tmp_path):
         text = tmp_path / "fw.uf2"
         text.write_bytes(b"UF2\n" * 100)
         plan_regions(board, result.image, text)
-    with pytest.raises(UserError, match="runs into the vfs partition"):
+    with pytest.raises(UserError, match="no partition table at 0x8000"):
         huge = tmp_path / "huge.bin"
-        huge.write_bytes(b"\xe9" + b"\0" * 0x200000)
+        huge.write_bytes(b"\xe9" + b"\0" * 0x200000)  # an app-only image, as a build's micropython.bin is
+        plan_regions(board, result.image, huge)
+    with pytest.raises(UserError, match="runs 48 bytes past its own app partition"):
+        huge.write_bytes(merged_firmware(app_bytes=0x1F0000))  # 0x1F0000 of segment + 48 bytes of headers
         plan_regions(board, result.image, huge)
 
 
@@ -203,7 +209,7 @@ def test_default_board_generate_build_flash(tmp_path, peer, capsys):
     assert main(["generate", "-o", str(out)]) == 0
     assert main(["build", str(out)]) == 0  # the board comes from OUT/MANIFEST.json
     firmware = tmp_path / "ESP32_GENERIC.bin"
-    firmware.write_bytes(esp_image(segment_bytes=0x1000))
+    firmware.write_bytes(merged_firmware(app_bytes=0x1000))
     assert main(["flash", str(out), "--port", peer.url, "--erase"]) == 2  # would leave no firmware
     assert "--erase without --firmware" in capsys.readouterr().err
     assert main(["flash", str(out), "--port", peer.url, "--erase", "--firmware", str(firmware)]) == 0
@@ -259,3 +265,17 @@ def test_falls_back_to_115200_when_the_line_cannot_go_faster(built, peer, tmp_pa
     assert outcome.baud == 115200 and outcome.attempts[0].startswith("460800: exit 2")
     assert any("trying 115200" in line for line in lines)
     assert_flashed(peer, result, firmware)
+
+
+@pytest.mark.parametrize("stub", [True, False], ids=["stub", "rom"])
+def test_filesystem_only_flash_reads_the_boards_partition_table_first(built, peer, stub):
+    """Without --firmware the image joins the MicroPython already on the board: its partition table is read
+    (the stub's READ_FLASH, or the ROM's 64-byte READ_FLASH_SLOW) and checked before anything is written."""
+    tree, result, firmware = built
+    peer.flash[0x1000 : 0x1000 + firmware.stat().st_size] = firmware.read_bytes()
+    flash(tree, peer.url, board=default_board(), stub=stub, progress=quiet)
+    read = peer.stats.commands.get(0xD2 if stub else 0x0E, 0)
+    assert read == (1 if stub else 0xC00 // 64)
+    fs = default_board().micropython.filesystem
+    assert peer.flash[fs.offset : fs.offset + fs.size] == result.image.read_bytes()
+    assert peer.flash[0x1000 : 0x1000 + firmware.stat().st_size] == firmware.read_bytes()

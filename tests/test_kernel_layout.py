@@ -203,9 +203,10 @@ def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
     outside its limits; the public offsets stay."""
     cc = require_tool("cc")
     micropython = require_tool("micropython")
+    from pydantic import ValidationError
+
     import codegen.generate
     from codegen.board import model
-    from pydantic import ValidationError
 
     fused = L.FUSED
     ring = [f.name for f in fused.state].index("med_i")

@@ -2,23 +2,26 @@
 
 Built against MPY_DIR, or the shared MicroPython v1.28.0 tree beside the project (conftest.mpy_dir). x64: the
 equivalence vectors run through dr_native inside the unix-port `micropython` and must equal the cffi build of the
-same C bit for bit. xtensawin: linked from clang-22/llc-22 objects (tests/xtensa_llvm_gcc.py stands in for the
-missing xtensa-esp32-elf-gcc).
+same C bit for bit. Every bundled board: `deadreckon build` makes and checks the natmod for its arch (the ESP32 code
+itself is run in tests/test_natmod_xtensa.py, the ARM code in tests/test_natmod_qemu.py).
 """
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
-from codegen.tools import tool_env
+from codegen.board.loader import bundled_boards
+from codegen.tools import find_tool, tool_env
 from conftest import mpy_dir, require_tool
 from kernelkit import run_c, run_driver
 from test_kernel_equivalence import _mp_cases
+
+BOARDS = [name for name, _, _ in bundled_boards("micropython")]  # CircuitPython boards have no native module
 
 
 def native_tree(folder: Path) -> Path:
@@ -65,25 +68,36 @@ def test_x64_natmod_equals_cffi_kernel(tmp_path):
             assert np.array_equal(np.array(mq, np.float32), q.astype(np.float32))
 
 
-def test_xtensawin_natmod_links_with_llvm_objects(tmp_path, capsys):
-    """MicroPython's natmod linker (tools/mpy_ld.py) takes the clang-22/llc-22 objects once tests/xtensa_llvm_gcc.py
-    has reshaped them the way GCC lays them out; the .mpy is checked by its header (no ESP32 here to run it)."""
+@pytest.mark.parametrize("board_name", BOARDS)
+def test_deadreckon_build_makes_a_verified_natmod_for_every_bundled_board(board_name, tmp_path, monkeypatch, capsys):
+    """`deadreckon build` on each bundled board's generated tree: the route it names, the checks it passed, and a
+    dr_native.mpy for the board's arch in the app (ESP32 boards through the LLVM route when Espressif's GCC is
+    absent, the Pico through arm-none-eabi-gcc with libgcc's helpers)."""
+    from codegen.board.loader import load_board
+    from codegen.cli import main
+    from codegen.natmod import mpyfile
+
     mpy_dir()
     require_tool("make")
-    for tool in ("clang-22", "llc-22", "llvm-mc-22"):
-        require_tool(tool)
-    native = native_tree(tmp_path)
-    wrapper = tmp_path / "bin" / "xtensa-llvm-gcc"
-    wrapper.parent.mkdir()
-    shutil.copy(Path(__file__).with_name("xtensa_llvm_gcc.py"), wrapper)
-    wrapper.chmod(0o755)
-    done = make(native, "xtensawin", f"CROSS={wrapper.parent}/xtensa-llvm-")
-    lines = [line for line in (done.stdout + done.stderr).splitlines() if line.strip() and not line.startswith("make")]
-    sizes = " ".join(line.strip() for line in lines if line.startswith(("text size", "rodata size", "bss size")))
-    with capsys.disabled():
-        print(f"\n  xtensawin natmod from llc-22 objects: {'linked, ' + sizes if done.returncode == 0 else lines[-1]}")
-    assert done.returncode == 0, "\n".join(lines[-20:])
-    mpy = (native / "dr_native.mpy").read_bytes()
-    # header: "M", version 6, arch xtensawin (MP_NATIVE_ARCH_XTENSAWIN = 10) in the top 6 bits of the flags byte
-    assert mpy[0:1] == b"M" and mpy[1] == 6 and mpy[2] >> 2 == 10, mpy[:4]
-    assert "bss size:     0" in done.stdout
+    loaded = load_board(board_name)
+    arch = loaded.board.mpy_arch
+    if arch == "xtensawin":
+        for tool in ("clang-22", "llc-22", "llvm-mc-22", "deadreckon-xtensa-llvm-gcc"):
+            require_tool(tool)
+    else:
+        require_tool("arm-none-eabi-gcc")
+    monkeypatch.delenv("CROSS", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert main(["generate", str(loaded.files[0]), "-o", "out"]) == 0
+    capsys.readouterr()
+    assert main(["build", "out"]) == 0
+    text = capsys.readouterr().out
+    module = tmp_path / "out" / "build" / "app" / "dr_native.mpy"
+    assert module.is_file(), text
+    header = mpyfile.parse(module.read_bytes()).header
+    assert (header.arch, header.format) == (arch, "6.3")
+    route = "LLVM 22 Xtensa route" if arch == "xtensawin" and find_tool("xtensa-esp32-elf-gcc") is None else "gcc"
+    assert f"built for {arch} by the" in text and route in text, text
+    assert "verifier passed" in text and "what MicroPython 1.28.0 loads" in text, text
+    if arch == "xtensawin":
+        assert "relocations verified" in text, text

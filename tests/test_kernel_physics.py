@@ -17,7 +17,7 @@ import pytest
 
 from codegen.kernel import reference as ref
 from conftest import require_tool
-from kernelkit import U, Case, f32, run_driver, write_fallback
+from kernelkit import Case, U, f32, run_driver, write_fallback
 
 IMPLEMENTATIONS = ("reference", "c", "fallback")
 DEFAULT = ref.KernelConfig()

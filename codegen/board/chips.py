@@ -88,3 +88,29 @@ PMU_RAILS = {
 }
 PMU_CHIP_ID_REGISTER = 0x03
 PMU_CHIP_IDS = {"axp192": 0x03, "axp2101": 0x4A}
+
+
+# The Python heap a chip's release firmware (MicroPython 1.24.1, the bundled boards' release) gives the app, KiB,
+# by (chip, PSRAM). Sources (docs/emulated-board.md has the reasoning):
+# - ESP32 without PSRAM: ports/esp32/mpconfigport.h starts the heap at 56 KiB (MICROPY_GC_INITIAL_HEAP_SIZE) and
+#   grows it from the IDF heap, a size "chosen so they can grow the heap once (double it) and still have enough
+#   internal RAM to start WiFi": 112 KiB. (Before the split heap, 1.13 gave 111168 bytes: micropython#7043.)
+# - ESP32 with PSRAM (ESP32_GENERIC-SPIRAM, CONFIG_SPIRAM_USE_MALLOC): the heap grows into the PSRAM, of which the
+#   ESP32 maps 4 MiB (the pre-split main.c gave exactly 4 MiB for 32/64 Mbit chips): 4096 KiB.
+# - ESP32-S3 with octal PSRAM (8 MiB): "max new split: 8257536" on a fresh ESP32-S3 SPIRAM board (micropython#12237,
+#   dpgeorge): 8064 KiB. Without PSRAM: 64 KiB initial, grown once: 128 KiB.
+# - RP2040 (RPI_PICO): the heap is all RAM after .bss (ports/rp2/memmap_mp_rp2040.ld: __GcHeapStart .. end of the
+#   256 KiB); gc.mem_free() after boot 209936 bytes (micropython#12557): 205 KiB.
+FIRMWARE_HEAP_KB = {
+    ("esp32", False): 112,
+    ("esp32", True): 4096,
+    ("esp32s3", False): 128,
+    ("esp32s3", True): 8064,
+    ("rp2040", False): 205,
+    ("rp2040", True): 205,  # no PSRAM on an RP2040
+}
+WATCHDOG_MAX_S = {"rp2040": 8.3}  # the RP2040's watchdog counts at most 0xffffff us (RP2040 datasheet 4.7)
+
+
+def firmware_heap_kb(chip: str, psram: bool) -> int:
+    return FIRMWARE_HEAP_KB[(chip, psram)]

@@ -21,6 +21,8 @@ from typing import Any, Optional, TextIO
 
 from pydantic import BaseModel, ValidationError
 
+from codegen.board.circuitpython import BOARDS as CIRCUITPYTHON_BOARDS
+from codegen.board.circuitpython import close_board_ids, find_board
 from codegen.board.diagnostics import (
     Diagnostic,
     DiagnosticsError,
@@ -28,8 +30,15 @@ from codegen.board.diagnostics import (
     print_all,
     sort_key,
 )
-from codegen.board.model import Board
-from codegen.board.yamlsource import KeyPath, SourceMap, read_yaml
+from codegen.board.flashlayout import (
+    AUTO_VFS_SINCE,
+    ROM_BOOTLOADER_OFFSET,
+    FlashLayout,
+    read_partition_csv,
+    version_tuple,
+)
+from codegen.board.model import CIRCUITPYTHON_PINS, Board, PinSpec
+from codegen.board.yamlsource import KeyPath, SourceMap, YamlError, read_yaml
 from codegen.errors import Location, UserError
 from codegen.paths import board_configs_dir, default_board_path
 
@@ -46,6 +55,7 @@ class LoadedBoard:
     data: dict[str, Any]  # the merged YAML data, before defaults
     lines_by_file: dict[str, list[str]]
     warnings: list[Diagnostic] = field(default_factory=list)
+    extra_files: list[Path] = field(default_factory=list)  # files the board names (its partition table CSV)
 
     @property
     def source_name(self) -> str:
@@ -54,7 +64,7 @@ class LoadedBoard:
     @property
     def content_sha256(self) -> str:
         digest = hashlib.sha256()
-        for path in self.files:
+        for path in [*self.files, *self.extra_files]:
             digest.update(path.read_bytes())
         return digest.hexdigest()
 
@@ -91,15 +101,18 @@ def display_name(path: Path) -> str:
         return str(path)
 
 
-def bundled_boards() -> list[tuple[str, Path, str]]:
-    """(name, path, description) of each board YAML shipped with deadreckon, default first."""
+def bundled_boards(target: Optional[str] = None) -> list[tuple[str, Path, str]]:
+    """(name, path, description) of each board YAML shipped with deadreckon, default first; only those generated
+    for `target` (micropython, circuitpython) when given."""
     boards = []
     for path in sorted(board_configs_dir().glob("*.yaml")):
         try:
-            description = str(read_yaml(path).data.get("description", ""))
+            data = read_yaml(path).data
         except UserError:
-            description = "(unreadable)"
-        boards.append((path.stem, path, description))
+            data = {"description": "(unreadable)"}
+        if target is not None and data.get("target", "micropython") != target:
+            continue
+        boards.append((path.stem, path, str(data.get("description", ""))))
     boards.sort(key=lambda item: item[1] != default_board_path())
     return boards
 
@@ -149,7 +162,9 @@ def _read_chain(path: Path, lines_by_file: dict[str, list[str]]) -> tuple[dict, 
             raise UserError(f"`extends:` chain deeper than {MAX_EXTENDS_DEPTH} files", location=via)
         try:
             document = read_yaml(current, display_name(current))
-        except UserError as problem:
+        except YamlError as problem:
+            if problem.lines:  # the message shows the offending line and a caret, as every other error does
+                lines_by_file[display_name(current)] = problem.lines
             if via and problem.location is None:
                 problem.location = via
             raise
@@ -249,10 +264,16 @@ def _schema_diagnostics(exc: ValidationError, data: dict, source: SourceMap) -> 
             message = item["msg"]
             if kind in ("model_type", "dict_type", "model_attributes_type"):
                 message = "should be a mapping of keys"
+                if _field_model(Board, path) is PinSpec:
+                    diagnostic = _pin_type_diagnostic(path, item.get("input"), source)
+                    if diagnostic.message not in {d.message for d in found}:
+                        found.append(diagnostic)
+                    continue
             elif message.startswith("Input should be "):
                 message = "should be " + message[len("Input should be "):]
             elif message.startswith("Value error, "):
                 message = message[len("Value error, "):]
+            hint = (item.get("ctx") or {}).get("hint", hint)
             got = item.get("input")
             shown = "" if isinstance(got, (dict, list)) or kind == "missing" else f" (got {got!r})"
             diagnostic = error(f"{_dotted(path)}: {message}{shown}", source.value(path), hint)
@@ -261,6 +282,28 @@ def _schema_diagnostics(exc: ValidationError, data: dict, source: SourceMap) -> 
             seen.add(signature)
             found.append(diagnostic)
     return found
+
+
+def _pin_type_diagnostic(path: KeyPath, got: Any, source: SourceMap) -> Diagnostic:
+    """A pin written as something other than a GPIO number: say so in terms of pins, with the fix."""
+    where = source.value(path)
+    if isinstance(got, bool):
+        return error(f"{_dotted(path)}: a pin is a GPIO number, not {str(got).lower()} (a boolean)", where,
+                     "true and false are booleans in YAML; write the GPIO number, e.g. `pin: 21`")
+    if isinstance(got, float):
+        whole = got.is_integer()
+        return error(f"{_dotted(path)}: a pin is a whole GPIO number, not {got!r}", where,
+                     f"write `{int(got)}`" if whole else "GPIO numbers are whole numbers")
+    if isinstance(got, str):
+        digits = got.strip()
+        hint = (f"write {digits} without quotes: quoted, YAML reads it as text" if digits.isdigit()
+                else "write the GPIO number, e.g. 21; board names such as 'GP4' or 'IO21' are CircuitPython's "
+                     "(`target: circuitpython` with `circuitpython: {board: ...}`)")
+        return error(f"{_dotted(path)}: a pin is a GPIO number, not the string {got!r}", where, hint)
+    if isinstance(got, list):
+        return error(f"{_dotted(path)}: a pin is one GPIO number, not a list", where)
+    return error(f"{_dotted(path)}: a pin is a GPIO number or {{pin: N, strapping_by_design: true}} (got {got!r})",
+                 where)
 
 
 def _data_path(data: Any, loc: tuple) -> KeyPath:
@@ -282,6 +325,59 @@ def _data_path(data: Any, loc: tuple) -> KeyPath:
     return tuple(path)
 
 
+def _own_partition_table(board: Board, source: SourceMap, chain: list[Path], lines_by_file: dict[str, list[str]]
+                         ) -> tuple[Optional[FlashLayout], list[Path]]:
+    """The partition table CSV the board names (relative to the file that names it), read into a layout."""
+    table = board.micropython.partitions.table
+    if table is None:
+        return None, []
+    where = source.value(("micropython", "partitions", "table"))
+    named_in = next((p for p in chain if where and display_name(p) == where.file), chain[0])
+    path = named_in.parent / table
+    name = display_name(path)
+    try:
+        rows, lines = read_partition_csv(path, name, board.micropython.partitions.partition_table)
+    except YamlError as problem:
+        if problem.lines:
+            lines_by_file[name] = problem.lines
+        if problem.location is None:
+            problem.location = where
+            problem.message = f"micropython.partitions.table: {problem.message}"
+        raise
+    lines_by_file[name] = lines
+    chip_rom = ROM_BOOTLOADER_OFFSET.get(board.chip)
+    layout = FlashLayout(f"the partition table {name}", chip_rom, board.micropython.partitions.partition_table,
+                         tuple(rows), auto_filesystem=version_tuple(board.micropython.version) >= AUTO_VFS_SINCE)
+    return layout, [path]
+
+
+def pin_context(data: dict, source: SourceMap) -> tuple[dict, list[Diagnostic]]:
+    """The validation context pins are read in: for `target: circuitpython`, the board whose board.* names they
+    use (None, with a located error, when circuitpython.board is missing or not a board deadreckon knows)."""
+    if data.get("target") != "circuitpython":
+        return {}, []
+    section = data.get("circuitpython")
+    board_id = section.get("board") if isinstance(section, dict) else None
+    if not isinstance(board_id, str):
+        if isinstance(section, dict) and "board" in section:
+            return {CIRCUITPYTHON_PINS: None}, []  # a board id of the wrong kind: the schema says so
+        known = ", ".join(CIRCUITPYTHON_BOARDS)
+        return {CIRCUITPYTHON_PINS: None}, [error(
+            "target: circuitpython needs circuitpython.board, the board's CircuitPython board_id",
+            source.value(("circuitpython",)) if isinstance(section, dict) else source.value(("target",)),
+            f"add `circuitpython: {{board: raspberry_pi_pico}}`; deadreckon knows {known}",
+        )]
+    board = find_board(board_id)
+    if board is None:
+        close = close_board_ids(board_id)
+        return {CIRCUITPYTHON_PINS: None}, [error(
+            f"circuitpython.board: deadreckon has no pin table for the CircuitPython board {board_id!r}",
+            source.value(("circuitpython", "board")),
+            f"did you mean `{close[0]}`?" if close else f"deadreckon knows {', '.join(CIRCUITPYTHON_BOARDS)}",
+        )]
+    return {CIRCUITPYTHON_PINS: board}, []
+
+
 # --- both phases ----------------------------------------------------------------------------------------------
 
 
@@ -295,16 +391,23 @@ def load_board_report(board: Optional[str | Path] = None) -> BoardReport:
     except UserError as problem:
         return BoardReport(name, [error(problem.message, problem.location, problem.hint)], lines_by_file)
 
+    context, board_problems = pin_context(data, source)
     try:
-        model = Board.model_validate(data)
+        model = Board.model_validate(data, context=context)
     except ValidationError as exc:
-        diagnostics = sorted(_schema_diagnostics(exc, data, source), key=sort_key)
+        diagnostics = sorted(board_problems + _schema_diagnostics(exc, data, source), key=sort_key)
         return BoardReport(name, diagnostics, lines_by_file)
+    if board_problems:
+        return BoardReport(name, board_problems, lines_by_file)
 
     from codegen.board.rules import check_board
 
-    diagnostics = sorted(check_board(model, source), key=sort_key)
-    loaded = LoadedBoard(model, source, chain, data, lines_by_file)
+    try:
+        own_layout, table_files = _own_partition_table(model, source, chain, lines_by_file)
+    except UserError as problem:
+        return BoardReport(name, [error(problem.message, problem.location, problem.hint)], lines_by_file)
+    diagnostics = sorted(check_board(model, source, own_layout), key=sort_key)
+    loaded = LoadedBoard(model, source, chain, data, lines_by_file, extra_files=table_files)
     loaded.warnings = [d for d in diagnostics if d.severity == "warning"]
     return BoardReport(name, diagnostics, lines_by_file, loaded)
 

@@ -14,11 +14,14 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
+    ValidationInfo,
     WithJsonSchema,
     create_model,
     field_validator,
 )
+from pydantic_core import PydanticCustomError
 
+from codegen.board.circuitpython import DEFAULT_CIRCUITPYTHON, CircuitPythonBoard, strip_board_prefix
 from codegen.kernel.layout import FUSED, FUSED_MEDIAN_MAX  # noqa: F401  (FUSED_MEDIAN_MAX: for the rules)
 
 STANDARD_GRAVITY = 9.80665  # m/s^2
@@ -41,33 +44,88 @@ class Part(BaseModel):
 
 
 class PinSpec(Part):
-    """A GPIO, written either as a number or as a mapping with the escape hatch for strapping pins."""
+    """A GPIO, written as a number (MicroPython) or as the board's CircuitPython name (`board.GP4` or `GP4`; target
+    circuitpython), or as a mapping with the escape hatch for strapping pins."""
 
     pin: int = Field(ge=0, le=63, description="GPIO number")
+    name: Optional[str] = Field(
+        None, pattern=r"^[A-Z][A-Z0-9_]*$",
+        description="the board.* name the pin was written as (target circuitpython; set from the board's pin table)",
+    )
     strapping_by_design: bool = Field(
         False, description="this strapping pin is used on purpose (silences the warning; an error on other pins)"
     )
 
+    @property
+    def label(self) -> str:
+        """How messages name the pin: GPIO4, or board.GP4 (GPIO4) on a CircuitPython board."""
+        return f"board.{self.name} (GPIO{self.pin})" if self.name else f"GPIO{self.pin}"
 
-def _pin_from_number(value: object) -> object:
-    return {"pin": value} if isinstance(value, int) and not isinstance(value, bool) else value
+
+# The validation context key under which the loader passes the CircuitPython board whose names pins are written in
+# (codegen.board.loader.pin_context): absent for target micropython, None when the board is not known.
+CIRCUITPYTHON_PINS = "circuitpython_pins"
+
+
+def _pin_from_written(value: object, info: ValidationInfo) -> object:
+    """A pin as written -> the PinSpec mapping: a GPIO number for MicroPython; for CircuitPython a board.* name
+    resolved through the board's pin table (a name the board lacks, or a bare number, is an error here)."""
+    context = info.context or {}
+    mapping = dict(value) if isinstance(value, dict) else {"pin": value}
+    if "name" in mapping:
+        raise PydanticCustomError(
+            "pin_name_key", "`name` is not written in a board file: it is set from the board's pin table",
+            {"hint": "write the pin itself: `pin: GP4` on a CircuitPython board, `pin: 4` on a MicroPython one"},
+        )
+    written = mapping.get("pin")
+    if CIRCUITPYTHON_PINS not in context:
+        return {"pin": value} if isinstance(value, int) and not isinstance(value, bool) else value
+    board: Optional[CircuitPythonBoard] = context[CIRCUITPYTHON_PINS]
+    if isinstance(written, int) and not isinstance(written, bool):
+        names = board.names_of(written) if board else []
+        raise PydanticCustomError(
+            "circuitpython_pin_number",
+            "a CircuitPython pin is written as the board's name for it, not as a GPIO number",
+            {"hint": (f"GPIO{written} is `{names[0]}` (board.{names[0]}) on the {board.title}" if names else
+                      f"the {board.title} has no board.* name for GPIO{written}") if board else
+                     "set circuitpython.board to the board's CircuitPython board_id"},
+        )
+    if not isinstance(written, str):
+        return value  # the schema says what is wrong with it
+    name = strip_board_prefix(written.strip())
+    if board is None:
+        return {**mapping, "pin": 0, "name": name} if name else value  # unchecked: the board id is reported
+    if name not in board.pins:
+        close = board.close_names(name)
+        raise PydanticCustomError(
+            "circuitpython_pin_name",
+            "the {title} has no pin of that name",
+            {"title": board.title,
+             "hint": (f"did you mean `{close[0]}`?" if close else
+                      f"its pins: {', '.join(list(board.pins)[:8])}, ... (CircuitPython's pins.c for "
+                      f"{board.board_id})")},
+        )
+    return {**mapping, "pin": board.pins[name], "name": name}
 
 
 Pin = Annotated[
     PinSpec,
-    BeforeValidator(_pin_from_number),
+    BeforeValidator(_pin_from_written),
     WithJsonSchema(
         {
             "anyOf": [
                 {"type": "integer", "minimum": 0, "maximum": 63},
+                {"type": "string", "pattern": r"^(board\.)?[A-Z][A-Z0-9_]*$"},
                 {
                     "type": "object",
-                    "properties": {"pin": {"type": "integer"}, "strapping_by_design": {"type": "boolean"}},
+                    "properties": {"pin": {"anyOf": [{"type": "integer"}, {"type": "string"}]},
+                                   "strapping_by_design": {"type": "boolean"}},
                     "required": ["pin"],
                     "additionalProperties": False,
                 },
             ],
-            "description": "GPIO number, or {pin: N, strapping_by_design: true}",
+            "description": "GPIO number (MicroPython), board.* name such as GP4 (CircuitPython), or "
+                           "{pin: N, strapping_by_design: true}",
         }
     ),
 ]
@@ -78,9 +136,15 @@ def pin_number(pin: PinSpec) -> int:
 
 
 class Partitions(Part):
-    bootloader: int = Field(0x1000, ge=0, description="bootloader offset")
+    bootloader: int = Field(0x1000, ge=0, description="bootloader offset: 0x1000 on the ESP32, 0x0 on the ESP32-S3")
     partition_table: int = Field(0x8000, ge=0, description="partition table offset")
     app: int = Field(0x10000, ge=0, description="MicroPython firmware (app) offset")
+    table: Optional[str] = Field(
+        None,
+        pattern=r"^[^\x00]+\.csv$",
+        description="the ESP-IDF partition table CSV of a custom MicroPython build (a path relative to this board "
+        "file); by default the layout of MicroPython's own firmware for the chip, flash size and release",
+    )
 
 
 class Filesystem(Part):
@@ -97,9 +161,41 @@ class Filesystem(Part):
 
 
 class MicroPython(Part):
-    version: str = Field("1.24.1", pattern=r"^\d+\.\d+(\.\d+)?$", description="MicroPython release on the board")
+    version: str = Field("1.28.0", pattern=r"^\d+\.\d+(\.\d+)?$", description="MicroPython release on the board")
     partitions: Partitions = Partitions()
     filesystem: Filesystem = Filesystem()
+    # issue 16: what the firmware gives the app, and how long a stuck app may run
+    heap_kb: Optional[int] = Field(
+        None, ge=32, le=65536,
+        description="KiB of Python heap the firmware gives the app (gc.mem_free() after boot); default: the chip's "
+        "release firmware with or without PSRAM (codegen/board/chips.py FIRMWARE_HEAP_KB)",
+    )
+    watchdog_s: float = Field(
+        5.0, ge=1.0, le=60.0,
+        description="s: the app feeds machine.WDT from its loop; stuck this long, the board resets (RP2040: <= 8.3)",
+    )
+
+
+class CircuitPython(Part):
+    """The CircuitPython firmware a `target: circuitpython` board runs (codegen/board/circuitpython.py)."""
+
+    board: str = Field(
+        pattern=r"^[a-z0-9][a-z0-9_]*$",
+        description="the board's CircuitPython board_id (board.board_id on the device), e.g. raspberry_pi_pico; "
+        "pins are written as its board.* names",
+    )
+    version: str = Field(DEFAULT_CIRCUITPYTHON, pattern=r"^\d+\.\d+(\.\d+)?$",
+                         description="CircuitPython release on the board")
+    heap_kb: Optional[int] = Field(
+        None, ge=32, le=65536,
+        description="KiB of Python heap the app gets (gc.mem_free() in the REPL); default: MicroPython's figure for "
+        "the chip (codegen/board/chips.py FIRMWARE_HEAP_KB), not measured on CircuitPython",
+    )
+    watchdog_s: float = Field(
+        5.0, ge=1.0, le=60.0,
+        description="s: the app feeds microcontroller.watchdog from its loop; stuck this long, the board resets "
+        "(CircuitPython on the RP2040 takes at most 8)",
+    )
 
 
 class I2CBus(Part):
@@ -134,7 +230,10 @@ class Imu(I2CDevice):
         max_length=3,
         description="board x, y, z <- sensor axis, e.g. [-y, x, z] for a sensor turned 90 degrees",
     )
-    use_fifo: bool = False
+    use_fifo: bool = Field(
+        True,
+        description="read the samples from the MPU-6050's FIFO (85 samples): the app keeps its rate through a flash erase (~45 ms), a GPS epoch or a kernel batch; false: poll the data-ready flag",
+    )
 
     @field_validator("axes")
     @classmethod
@@ -272,6 +371,7 @@ class Logging(Part):
 
 
 Chip = Literal["esp32", "esp32s3", "rp2040"]
+Target = Literal["micropython", "circuitpython"]
 
 
 class Board(Part):
@@ -279,10 +379,16 @@ class Board(Part):
 
     name: str = Field(pattern=r"^[a-z0-9][a-z0-9._-]*$")
     description: str = ""
+    target: Target = Field(
+        "micropython",
+        description="the firmware the app is generated for: micropython (app + native module) or circuitpython "
+        "(code.py + lib/, pins as board.* names, the pure-Python kernel)",
+    )
     chip: Chip = "esp32"
     flash_size: Literal["2MB", "4MB", "8MB", "16MB"] = "4MB"
     psram: bool = False
     micropython: MicroPython = MicroPython()
+    circuitpython: Optional[CircuitPython] = None
     i2c: dict[str, I2CBus] = Field(default_factory=dict)
     uart: dict[str, UARTBus] = Field(default_factory=dict)
     power: Power = Power()
@@ -302,6 +408,28 @@ class Board(Part):
     @property
     def mpy_arch(self) -> str:
         return {"esp32": "xtensawin", "esp32s3": "xtensawin", "rp2040": "armv6m"}[self.chip]
+
+    @property
+    def heap_bytes(self) -> int:
+        """The Python heap the app gets on this board (micropython.heap_kb or circuitpython.heap_kb, else the
+        chip's MicroPython firmware's default)."""
+        from codegen.board.chips import firmware_heap_kb
+
+        kb = self.circuitpython.heap_kb if self.target == "circuitpython" else self.micropython.heap_kb
+        return 1024 * (kb if kb is not None else firmware_heap_kb(self.chip, self.psram))
+
+    @property
+    def drive_button(self) -> Optional[tuple[str, Button]]:
+        """(role, button) a CircuitPython board's boot.py reads to leave the CIRCUITPY drive to the computer: the
+        first configured button that is not a strapping pin (one held at reset would select the chip's boot
+        mode instead), or None."""
+        from codegen.board.chips import CHIPS
+
+        for role in ("calibrate", "test_mode"):
+            button = getattr(self.buttons, role)
+            if button is not None and button.pin.pin not in CHIPS[self.chip].strapping:
+                return role, button
+        return None
 
     @property
     def calibration_samples(self) -> int:

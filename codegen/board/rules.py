@@ -10,14 +10,21 @@ import difflib
 from dataclasses import dataclass
 from typing import Iterator, Optional
 
-from codegen.board.chips import CHIPS, PMU_RAILS, ChipPins
+from codegen.board.chips import CHIPS, PMU_RAILS, WATCHDOG_MAX_S, ChipPins
+from codegen.board.circuitpython import find_board
+from codegen.board.circuitpython_rules import check_circuitpython
 from codegen.board.diagnostics import Diagnostic, error, warning
+from codegen.board.flashlayout import FlashLayout, check_flash_layout, version_tuple
 from codegen.board.model import DLPF_BANDWIDTH_HZ, FUSED, FUSED_MEDIAN_MAX, Board, PinSpec
 from codegen.board.yamlsource import KeyPath, SourceMap
 
 MPU6050_ADDRESSES = (0x68, 0x69)
 MPU6050_MAX_ACCEL_RATE_HZ = 1000.0
 RESERVED_I2C_ADDRESSES = set(range(0x00, 0x08)) | set(range(0x78, 0x80))
+# The oldest MicroPython the app runs on. `deadreckon build` links dr_native.mpy against a v1.28 tree, which writes
+# .mpy 6.3; a release before 1.23 (6.2 and older) refuses native code of another sub-version with ValueError
+# ("incompatible .mpy file"), not the ImportError the app's fallback catches, so the app would stop at boot.
+MIN_MICROPYTHON = (1, 23)
 
 
 @dataclass(frozen=True)
@@ -58,47 +65,49 @@ def _check_pins(board: Board, chip: ChipPins, source: SourceMap) -> Iterator[Dia
         number = use.pin.pin
         where = source.value(use.path)
         if number not in chip.existing:
-            yield error(f"{use.role}: GPIO{number} does not exist on the {chip.name}", where)
+            yield error(f"{use.role}: {use.pin.label} does not exist on the {chip.name}", where)
             continue
         if number in chip.flash:
             yield error(
-                f"{use.role}: GPIO{number} is wired to the SPI flash on the {chip.name}",
+                f"{use.role}: {use.pin.label} is wired to the SPI flash on the {chip.name}",
                 where,
                 "using it stops the chip from reading its own firmware; pick another pin",
             )
         if board.psram and number in chip.psram:
-            yield error(f"{use.role}: GPIO{number} is wired to the PSRAM on this board (psram: true)", where)
+            yield error(f"{use.role}: {use.pin.label} is wired to the PSRAM on this board (psram: true)", where)
         if number in chip.input_only and use.output:
             yield error(
-                f"{use.role}: GPIO{number} is input-only on the {chip.name} and cannot drive an output",
+                f"{use.role}: {use.pin.label} is input-only on the {chip.name} and cannot drive an output",
                 where,
                 f"GPIO{min(chip.input_only)}..{max(chip.input_only)} can only be inputs (a UART rx, a button)",
             )
         if number in chip.input_only and use.pull:
             yield error(
-                f"{use.role}: GPIO{number} has no internal pull resistor on the {chip.name}",
+                f"{use.role}: {use.pin.label} has no internal pull resistor on the {chip.name}",
                 where,
                 "set `pull: none` and fit an external pull-up, or use another pin",
             )
         if number in chip.strapping and not use.reserved:
             if not use.pin.strapping_by_design:
                 yield warning(
-                    f"{use.role}: GPIO{number} is a strapping pin: the level at reset selects the boot mode",
+                    f"{use.role}: {use.pin.label} is a strapping pin: the level at reset selects the boot mode",
                     where,
-                    "if the board is designed this way, write `{pin: %d, strapping_by_design: true}`" % number,
+                    "if the board is designed this way, write `{pin: %s, strapping_by_design: true}`"
+                    % (use.pin.name or number),
                 )
         elif use.pin.strapping_by_design:
             yield error(
-                f"{use.role}: `strapping_by_design` on GPIO{number}, which is not a strapping pin of the {chip.name}",
+                f"{use.role}: `strapping_by_design` on {use.pin.label}, which is not a strapping pin of the "
+                f"{chip.name}",
                 source.value(use.path + ("strapping_by_design",)),
                 f"strapping pins are {', '.join(f'GPIO{p}' for p in sorted(chip.strapping)) or 'none'}",
             )
         if number in chip.board_taken and not use.reserved:
-            yield warning(f"{use.role}: GPIO{number} is used by the board ({chip.board_taken[number]})", where)
+            yield warning(f"{use.role}: {use.pin.label} is used by the board ({chip.board_taken[number]})", where)
         previous = first_use.get(number)
         if previous is not None:
             yield error(
-                f"GPIO{number} is used twice: by {previous.role} and by {use.role}",
+                f"{use.pin.label} is used twice: by {previous.role} and by {use.role}",
                 where,
                 f"{previous.role} is at {source.value(previous.path)}",
             )
@@ -299,22 +308,49 @@ def _check_algorithm(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
         )
 
 
-def check_board(board: Board, source: SourceMap) -> list[Diagnostic]:
-    """Every whole-board finding, errors and warnings."""
-    chip = CHIPS[board.chip]
+def _check_micropython_version(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    version = board.micropython.version
+    if version_tuple(version) < MIN_MICROPYTHON:
+        minimum = ".".join(map(str, MIN_MICROPYTHON))
+        yield error(
+            f"micropython.version: the app does not run on MicroPython {version}; it needs {minimum} or newer",
+            source.value(("micropython", "version")),
+            f"{minimum} is the first release that loads the native module `deadreckon build` makes (.mpy 6.3); "
+            "on older ones `import dr_native` raises ValueError, which the app's fallback does not catch, and "
+            "before 1.19 none of the app's .mpy files load. Flash a newer MicroPython and set this to its release",
+        )
+
+
+def _check_watchdog(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    limit = WATCHDOG_MAX_S.get(board.chip)
+    if limit is not None and board.micropython.watchdog_s > limit:
+        yield error(
+            f"micropython.watchdog_s: {board.micropython.watchdog_s:g} s is longer than the {CHIPS[board.chip].name}'s "
+            f"watchdog can count ({limit:g} s)",
+            source.value(("micropython", "watchdog_s")),
+            f"use watchdog_s <= {limit:g}",
+        )
+
+
+def check_board(board: Board, source: SourceMap, own_layout: Optional[FlashLayout] = None) -> list[Diagnostic]:
+    """Every whole-board finding, errors and warnings; `own_layout` is the partition table the board names."""
+    # a CircuitPython board's pin names stand for its own chip's GPIOs, whatever `chip:` says (that is checked)
+    chip = CHIPS[find_board(board.circuitpython.board).chip if board.target == "circuitpython" else board.chip]
     found: list[Diagnostic] = []
     found += _check_pins(board, chip, source)
-    found += _check_fixed_muxing(board, chip, source)
     found += _check_i2c_devices(board, source)
     found += _bus_reference(board.gps.uart, "uart", board.uart, ("gps", "uart"), source)
     found += _check_power(board, source)
     found += _check_algorithm(board, source)
-    fs = board.micropython.filesystem
-    if fs.offset + fs.size > board.flash_bytes:
-        found.append(
-            error(
-                f"micropython.filesystem: ends at {fs.offset + fs.size:#x}, beyond the {board.flash_size} flash",
-                source.value(("micropython", "filesystem")),
-            )
-        )
+    if board.target == "circuitpython":
+        found += check_circuitpython(board, chip, source)
+        return found
+    if board.circuitpython is not None:
+        found.append(warning("circuitpython: applies to `target: circuitpython` only; this board is generated for "
+                             "MicroPython", source.key(("circuitpython",)),
+                             "add `target: circuitpython`, or remove the section"))
+    found += _check_fixed_muxing(board, chip, source)
+    found += _check_micropython_version(board, source)
+    found += check_flash_layout(board, source, own_layout)
+    found += _check_watchdog(board, source)
     return found

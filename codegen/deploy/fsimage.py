@@ -10,8 +10,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Optional
 
 from codegen.errors import UserError
+from codegen.safeio import write_atomically
 
 READ_SIZE = 32  # bytes
 PROG_SIZE = 32  # bytes
@@ -79,11 +81,32 @@ def image_bytes(source: Path, size: int, block_size: int = 4096) -> bytes:
     return image
 
 
+def free_after(files: dict[str, bytes], size: int, block_size: int = 4096) -> Optional[int]:
+    """The bytes a LittleFS of `size` bytes has free once `files` ({relative/path: bytes}) are in it, counted in
+    whole blocks as LittleFS allocates them; None when they do not fit at all."""
+    import littlefs
+
+    params = LfsParams(size, block_size)
+    _check(params)
+    fs = littlefs.LittleFS(**params.kwargs())
+    try:
+        for rel, data in sorted(files.items()):
+            folder = rel.rpartition("/")[0]
+            if folder:
+                fs.makedirs(folder, exist_ok=True)
+            with fs.open(rel, "wb") as handle:
+                handle.write(data)
+    except littlefs.errors.LittleFSError as exc:
+        if exc.code == littlefs.errors.LittleFSError.Error.LFS_ERR_NOSPC:
+            return None
+        raise
+    return (params.block_count - fs.used_block_count) * block_size
+
+
 def make_image(source: Path, target: Path, size: int, block_size: int = 4096) -> Path:
     """Write the LittleFS image of `source` to `target`; return `target`."""
     data = image_bytes(source, size, block_size)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    target.write_bytes(data)
+    write_atomically(target, data)
     return target
 
 

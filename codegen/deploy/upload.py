@@ -10,12 +10,18 @@ Only files whose SHA-256 differs from the board's copy are sent, each to a tempo
 so an interrupted upload never leaves half a module. A `.py` on the board that would shadow a new `.mpy` of the
 same module (MicroPython imports `.py` first) is removed, and the other way round. A soft reset ends the upload,
 which starts the app. Ports may be device paths or pyserial URLs (`socket://host:port`, `rfc2217://host:port`).
+
+A port is not trusted to behave: every read has a deadline and a size bound (a device that talks continuously, a
+GPS module say, is told apart from a silent one), every write a timeout, and a port that closes or drops ends the
+upload with a UserError, never a traceback.
 """
 
 from __future__ import annotations
 
 import base64
 import hashlib
+import os
+import stat
 import struct
 import time
 from dataclasses import dataclass, field
@@ -31,6 +37,15 @@ CHUNK = 2048  # file bytes per REPL command (base64 makes it ~2.7 kB of code), s
 PACED_WRITE = 256  # bytes per write in standard raw mode, with a pause, so a board's UART buffer keeps up
 PACE_SECONDS = 0.01
 KEEP_AS_SOURCE = ("main.py", "boot.py")
+# Every wait has an end. A board that keeps talking extends a wait for an answer, but never past twice its timeout;
+# a reply is at most 1 MiB (our commands print a few KB); a write the port does not take within 10 s is a dead port;
+# the quiet wait before entering the raw REPL and the discarding of old input stop after a second.
+PORT_TIMEOUT_S = 0.05  # one read waits this long for a byte
+TALKING_GRACE_FACTOR = 2.0
+MAX_REPLY_BYTES = 1024 * 1024
+WRITE_TIMEOUT_S = 10.0
+QUIET_LIMIT_S = 1.0
+CHATTER_BYTES = 2048  # more than this arriving while we try to enter the raw REPL: the device talks on its own
 
 
 class ReplError(Exception):
@@ -50,11 +65,18 @@ def open_port(port: str, baud: int = 115200):
     """Open a serial port or pyserial URL without resetting the board; UserError with the fix if it fails."""
     import serial
 
+    if "://" in port:
+        check_port_url(port)
+    else:
+        check_port_path(port)
     try:
         if "://" in port:
-            handle = serial.serial_for_url(port, baudrate=baud, timeout=0.05, do_not_open=True)
+            # pyserial's rfc2217 refuses write_timeout; its socket has a 5 s timeout of its own on every send
+            write_timeout = None if port.lower().startswith("rfc2217://") else WRITE_TIMEOUT_S
+            handle = serial.serial_for_url(port, baudrate=baud, timeout=PORT_TIMEOUT_S, write_timeout=write_timeout,
+                                           do_not_open=True)
         else:
-            handle = serial.Serial(baudrate=baud, timeout=0.05)
+            handle = serial.Serial(baudrate=baud, timeout=PORT_TIMEOUT_S, write_timeout=WRITE_TIMEOUT_S)
             handle.port = port
             handle.exclusive = True
         handle.dtr = False  # with auto-reset circuits, DTR/RTS would reset or hold the ESP32 in its bootloader
@@ -82,23 +104,97 @@ def open_port(port: str, baud: int = 115200):
             raise UserError(f"port {port} is busy", hint=_busy_hint())
         if "refused" in lower:
             raise UserError(f"nothing answers at {port}", hint="is the bridge or telnet server running?")
+        if "inappropriate ioctl" in lower:  # termios on /dev/null, /dev/zero and other non-terminals
+            raise not_a_port(port)
+        if "does not seem to support rfc2217" in lower:
+            raise rfc2217_refused(port)
         raise UserError(f"cannot open {port}: {text}")
 
 
+def check_port_path(port: str) -> None:
+    """A local port must be a terminal device: refuse a regular file, a folder, a FIFO or a device that is not a
+    tty (/dev/null, /dev/zero) with a message about ports, before pyserial tries to configure it."""
+    try:
+        mode = os.stat(port).st_mode
+    except FileNotFoundError:
+        return  # the caller says "no such port" with the ports it can see
+    except OSError:
+        return
+    if stat.S_ISCHR(mode):
+        return  # a character device: pyserial finds out whether it is a terminal (see not_a_port)
+    kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else
+            "a regular file" if stat.S_ISREG(mode) else "a socket" if stat.S_ISSOCK(mode) else "a block device")
+    raise not_a_port(port, kind)
+
+
+def rfc2217_refused(port: str) -> UserError:
+    return UserError(f"the server at {port} does not speak RFC 2217 (it did not negotiate the serial options)",
+                     hint="a plain TCP serial bridge is socket://HOST:PORT; rfc2217:// needs ser2net in telnet mode "
+                          "or esp_rfc2217_server")
+
+
+def not_a_port(port: str, kind: str = "a device that is not a terminal") -> UserError:
+    return UserError(f"{port} is not a serial port: it is {kind}",
+                     hint="a board's port is a terminal device (/dev/ttyUSB0, /dev/ttyACM0, COM3) or a URL "
+                          "(socket://HOST:PORT)")
+
+
+def check_port_url(port: str) -> None:
+    """A pyserial URL that pyserial can open (socket://host:port, rfc2217://host:port, ...), or a UserError."""
+    if "://" not in port:
+        return
+    import urllib.parse
+
+    import serial
+
+    scheme = port.split("://", 1)[0]
+    try:
+        serial.serial_for_url(port, do_not_open=True)  # checks the scheme (hwgrep:// also looks for the port)
+    except (ValueError, serial.SerialException) as exc:
+        if "not known" not in str(exc):
+            raise UserError(f"cannot use port {port}: {exc}") from None
+        raise UserError(f"unknown port URL scheme {scheme + '://'!r} in {port}",
+                        hint="ports are device paths (/dev/ttyUSB0, COM3) or pyserial URLs: socket://HOST:PORT, "
+                             "rfc2217://HOST:PORT") from None
+    if scheme.lower() in ("socket", "rfc2217"):
+        parts = urllib.parse.urlsplit(port)
+        try:
+            number = parts.port
+        except ValueError:
+            number = None
+        if not parts.hostname or not number:
+            raise UserError(f"bad port URL {port}: it needs a host and a port number 1-65535",
+                            hint=f"write it as {scheme}://HOST:PORT, e.g. {scheme}://192.168.4.1:23")
+
+
 class RawRepl:
-    """A raw-REPL session on an open pyserial port."""
+    """A raw-REPL session on an open pyserial port. Every read has a deadline and a size bound."""
 
     def __init__(self, serial, use_raw_paste: bool = True, paced: bool = True):
         self.serial = serial
         self.paced = paced  # a TCP link has its own flow control; a UART into a small buffer does not
         self.use_raw_paste = use_raw_paste
         self.raw_paste_used = False
+        self.received = 0  # bytes read from the port so far
         self._buffer = b""
+        # pyserial's socket:// reports in_waiting as 0 or 1; setting its timeout costs nothing (on a tty it would)
+        self._socket_port = type(serial).__module__.endswith("protocol_socket")
 
     def _fill(self) -> bool:
         """Move what the port has (waiting up to its short timeout for one byte) into the buffer."""
-        chunk = self.serial.read(max(1, min(self.serial.in_waiting, 4096)))
+        waiting = self.serial.in_waiting
+        chunk = self.serial.read(max(1, min(waiting, 4096)))
+        if chunk and waiting <= 1 and self._socket_port:  # a socket:// port says only "something": take the rest
+            self.serial.timeout = 0
+            try:
+                chunk += self.serial.read(4096)
+            finally:
+                self.serial.timeout = PORT_TIMEOUT_S
         self._buffer += chunk
+        self.received += len(chunk)
+        if len(self._buffer) > MAX_REPLY_BYTES:
+            raise ReplError(f"the board sent more than {MAX_REPLY_BYTES // 1024} KiB without the end of a reply "
+                            "(is something printing continuously?)")
         return bool(chunk)
 
     def _take(self, count: int) -> bytes:
@@ -106,16 +202,25 @@ class RawRepl:
         return data
 
     def read_until(self, ending: bytes, timeout: float) -> bytes:
-        """Everything up to and including the first `ending`; the rest stays buffered."""
-        deadline = time.monotonic() + timeout
+        """Everything up to and including the first `ending`; the rest stays buffered. A board still talking
+        extends the wait, to at most TALKING_GRACE_FACTOR times `timeout`."""
+        started = time.monotonic()
+        deadline = started + timeout
+        limit = started + TALKING_GRACE_FACTOR * timeout
+        searched = 0
         while True:
-            found = self._buffer.find(ending)
+            found = self._buffer.find(ending, searched)
             if found >= 0:
                 return self._take(found + len(ending))
+            searched = max(0, len(self._buffer) - len(ending) + 1)
+            now = time.monotonic()
             if self._fill():
-                deadline = max(deadline, time.monotonic() + min(timeout, 1.0))  # still talking: keep waiting
-            elif time.monotonic() > deadline:
+                deadline = min(limit, max(deadline, time.monotonic() + min(timeout, 1.0)))  # still talking
+            elif now > deadline:
                 raise ReplError(f"timed out waiting for {ending!r}; got {self._buffer[-80:]!r}")
+            if now > limit:
+                raise ReplError(f"the board kept talking for {now - started:.0f} s without sending {ending!r}; "
+                                f"last: {self._buffer[-80:]!r}")
 
     def read_exact(self, count: int, timeout: float) -> bytes:
         deadline = time.monotonic() + timeout
@@ -127,30 +232,40 @@ class RawRepl:
     def waiting(self) -> bool:
         return bool(self._buffer) or self.serial.in_waiting > 0
 
-    def drain(self, quiet: float = 0.1) -> bytes:
-        """Read whatever the board prints until it has been quiet for `quiet` seconds."""
-        last = time.monotonic()
-        while time.monotonic() - last < quiet:
+    def drain(self, quiet: float = 0.1, limit: float = QUIET_LIMIT_S) -> bytes:
+        """Read whatever the board prints until it has been quiet for `quiet` seconds, or `limit` seconds passed."""
+        started = last = time.monotonic()
+        while time.monotonic() - last < quiet and time.monotonic() - started < limit:
             if self._fill():
                 last = time.monotonic()
         return self._take(len(self._buffer))
 
-    def discard_input(self) -> None:
+    def discard_input(self, limit: float = QUIET_LIMIT_S) -> None:
+        """Forget what arrived so far (pyserial's reset_input_buffer never returns while a socket keeps talking)."""
         self._buffer = b""
-        self.serial.reset_input_buffer()
+        started = time.monotonic()
+        while time.monotonic() - started < limit and self.serial.in_waiting:
+            self.received += len(self.serial.read(4096))
 
     def enter(self) -> None:
         """Stop the running program and enter raw mode."""
+        started, before = time.monotonic(), self.received
         for attempt in range(3):
-            self.serial.write(b"\r\x03\x03")  # interrupt main.py (twice: one may land inside a handler)
-            self.drain(0.1 + 0.2 * attempt)
-            self.discard_input()
-            self.serial.write(b"\r\x01")
             try:
+                self.serial.write(b"\r\x03\x03")  # interrupt main.py (twice: one may land inside a handler)
+                self.drain(0.1 + 0.2 * attempt)
+                self.discard_input()
+                self.serial.write(b"\r\x01")
                 self.read_until(RAW_BANNER + b">", timeout=2.0)
                 return
             except ReplError:
+                self._buffer = b""
                 continue
+        heard = self.received - before
+        if heard > CHATTER_BYTES:
+            raise ReplError(f"the device talks continuously ({heard} bytes in {time.monotonic() - started:.1f} s) "
+                            "but never answered as MicroPython's raw REPL: is it a GPS module, or a program that "
+                            "ignores Ctrl-C?")
         raise ReplError("the board did not enter the raw REPL (is MicroPython running on it?)")
 
     def _send_raw_paste(self, code: bytes) -> bool:
@@ -328,6 +443,8 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
     files = local_files(app_dir)
     if not files:
         raise UserError(f"{app_dir} is empty: nothing to upload", hint="run `deadreckon build OUT` first")
+    import serial
+
     result = UploadResult()
     handle = open_port(port)
     try:
@@ -366,11 +483,27 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
             if "ENOSPC" in text or "28]" in text:
                 raise UserError("the board's filesystem is full", hint="remove files from the board, or flash a "
                                 "fresh filesystem image with `deadreckon flash`")
+            if "EROFS" in text or "30]" in text:  # CircuitPython: the drive is the computer's until boot.py takes it
+                raise UserError("the board's filesystem is read-only to programs: a CircuitPython board gives its "
+                                "CIRCUITPY drive to the computer unless boot.py remounts it",
+                                hint="copy the app over USB: deadreckon upload OUT --drive PATH; after the next "
+                                     "reset its boot.py takes the drive and the serial route works too")
             raise UserError(f"upload to {port} failed: {text.splitlines()[-1] if text else 'no answer'}",
                             hint="is MicroPython running on the board (not its bootloader, not another program "
                                  "holding the port)? Try again after pressing RESET")
+        except serial.SerialTimeoutException:
+            raise UserError(f"the board on {port} stopped taking data (a write waited {WRITE_TIMEOUT_S:.0f} s)",
+                            hint="check the cable and press RESET; the upload starts over and sends only what "
+                                 "differs") from None
+        except (serial.SerialException, OSError) as exc:
+            raise UserError(f"the connection to the board on {port} was lost: {exc}",
+                            hint="check the cable and run the same command again; files arrive whole or not at "
+                                 "all (each is renamed into place)") from None
     finally:
-        handle.close()
+        try:
+            handle.close()
+        except (serial.SerialException, OSError):
+            pass  # the port is gone already
     result.seconds = time.monotonic() - started
     progress(f"uploaded {len(result.sent)} file(s), {len(result.unchanged)} unchanged, in {result.seconds:.1f} s"
              f"{' (raw-paste)' if result.raw_paste else ''}")
@@ -381,9 +514,11 @@ def upload(out: Path, port: str, force: bool = False, use_raw_paste: bool = True
            progress: Progress = print) -> UploadResult:
     """Upload OUT/build/app (from `deadreckon build OUT`) to the board on `port`."""
     from codegen.deploy.build import BUILD_DIR
+    from codegen.deploy.buildrecord import check_build_current
 
     app_dir = Path(out) / BUILD_DIR / "app"
     if not app_dir.is_dir():
         raise UserError(f"{app_dir} does not exist", hint=f"run `deadreckon build {out}` first")
+    check_build_current(Path(out))
     progress(f"uploading {app_dir} to {port}")
     return upload_folder(app_dir, port, force=force, use_raw_paste=use_raw_paste, progress=progress)

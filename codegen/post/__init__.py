@@ -18,9 +18,12 @@ __all__ = ["PostOptions", "PostResult", "load_log", "process", "run_post"]
 
 def run_post(log_path: Path, out_dir: Path, gps: Optional[Path] = None, options: PostOptions = PostOptions(),
              progress=None) -> tuple[PostResult, dict[str, Path]]:
+    from codegen.post.outdir import check_output_folder
     from codegen.post.outputs import write_outputs
 
+    inputs = [Path(log_path)] + ([Path(gps)] if gps is not None else [])
+    check_output_folder(Path(out_dir), inputs)  # before the work: a refusal costs nothing
     log = load_log(Path(log_path), Path(gps) if gps is not None else None)
     result = process(log, options, progress=progress)
-    files = write_outputs(result, Path(out_dir), plots=options.plots)
+    files = write_outputs(result, Path(out_dir), plots_too=options.plots)
     return result, files

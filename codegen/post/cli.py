@@ -41,6 +41,43 @@ def _triple(text: str, what: str) -> np.ndarray:
     return values
 
 
+MAX_LAG_LIMIT = 30.0  # s: streams further apart than this are on different clocks, not delayed
+MAX_HALF_WINDOW = 1000  # GPS intervals on each side
+MAX_RATE = 1000.0  # Hz, trajectory rows
+MAX_DELAY = 60.0  # s
+MAX_MIN_HORIZONTAL_ACCEL = 10.0  # m/s^2: about 1 g; above it no interval would ever be solved
+
+
+def _in_range(value: float, name: str, low: float, high: float, hint: str, low_open: bool = False) -> None:
+    below = value <= low if low_open else value < low
+    if not np.isfinite(value) or below or value > high:
+        bound = f"{'above' if low_open else 'at least'} {low:g} and at most {high:g}"
+        raise UserError(f"{name} is {value:g}; it must be {bound}", hint=hint)
+
+
+def check_ranges(args: argparse.Namespace) -> None:
+    """Every numeric option inside the range where it means something, before any file is read."""
+    _in_range(args.max_lag, "--max-lag", 0.0, MAX_LAG_LIMIT, "the delay search covers -max-lag..+max-lag seconds; "
+              "to fix the delay instead, give --delay", low_open=True)
+    _in_range(args.window, "--window", 1, MAX_HALF_WINDOW, "GPS intervals solved together on each side of each one "
+              "(default 10): the device must keep its orientation relative to the track over the window")
+    _in_range(args.rate, "--rate", 0.0, MAX_RATE, "trajectory rows per second (default 10)", low_open=True)
+    _in_range(args.min_horizontal_accel, "--min-horizontal-accel", 0.0, MAX_MIN_HORIZONTAL_ACCEL,
+              "m/s^2 (default 0.5)")
+    if args.delay is not None:
+        _in_range(args.delay, "--delay", -MAX_DELAY, MAX_DELAY, "seconds the IMU stamps are late by")
+    if args.accel_scale:
+        scale = _triple(args.accel_scale, "--accel-scale")
+        if not np.all(np.isfinite(scale)) or np.any(np.abs(scale) < 0.5) or np.any(np.abs(scale) > 2.0):
+            raise UserError(f"--accel-scale {args.accel_scale}: each factor must be within 0.5..2 (or -2..-0.5)",
+                            hint="a calibration scale is close to 1")
+    if args.accel_offset:
+        offset = _triple(args.accel_offset, "--accel-offset")
+        if not np.all(np.isfinite(offset)) or np.any(np.abs(offset) > 1.0):
+            raise UserError(f"--accel-offset {args.accel_offset}: each offset must be within -1..1 g",
+                            hint="offsets are in g, for example 0.01,-0.02,0.0")
+
+
 class Progress:
     """Stage and percentage on stderr, at most every half second (a long log keeps the user informed)."""
 
@@ -69,10 +106,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             offset=_triple(args.accel_offset, "--accel-offset") * STANDARD_GRAVITY if args.accel_offset else np.zeros(3),
             scale=_triple(args.accel_scale, "--accel-scale") if args.accel_scale else np.ones(3),
         )
-    if args.window < 1:
-        raise UserError("--window must be at least 1")
-    if args.rate <= 0:
-        raise UserError("--rate must be positive")
+    check_ranges(args)
     options = PostOptions(
         orientation=OrientationOptions(half_window=args.window, min_horizontal_accel=args.min_horizontal_accel,
                                        estimate_bias=not args.no_bias),

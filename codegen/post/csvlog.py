@@ -1,4 +1,5 @@
-"""The plain CSV pair: `t,ax,ay,az` (s, g) and `t,lat,lon,sog,cog,climb` (s, deg, m/s, deg from North, m/s)."""
+"""The plain CSV pair: `t,ax,ay,az[,gx,gy,gz]` (s, g, deg/s) and `t,lat,lon,sog,cog,climb` (s, deg, m/s, deg from
+North, m/s)."""
 
 from __future__ import annotations
 
@@ -7,21 +8,33 @@ from pathlib import Path
 import numpy as np
 
 from codegen.board.model import STANDARD_GRAVITY
-from codegen.post.model import GpsSeries, ImuSeries, PostLog
-from codegen.post.table import check_increasing, read_table
+from codegen.post.model import GpsSeries, ImuSeries
+from codegen.post.table import Table, check_increasing, check_range, read_table
 
 IMU_COLUMNS = ("t", "ax", "ay", "az")
+GYRO_COLUMNS = ("gx", "gy", "gz")  # deg/s, optional: the orientation across GPS gaps
 GPS_COLUMNS = ("t", "lat", "lon", "sog", "cog", "climb")
 DEFAULT_DOPPLER_SIGMA = 0.1  # m/s, u-blox 6 velocity accuracy (NEO-6M datasheet: 0.1 m/s)
 DEFAULT_POSITION_SIGMA = 2.5  # m, u-blox 6 horizontal CEP
 
 
 def read_imu_csv(path: Path) -> tuple[ImuSeries, list[str]]:
-    table = read_table(path, "IMU log", IMU_COLUMNS)
+    table = read_table(path, "IMU log", IMU_COLUMNS, optional=GYRO_COLUMNS)
     check_increasing(table, "IMU log")
     c = table.columns
     acc = np.stack([c["ax"], c["ay"], c["az"]], axis=1) * STANDARD_GRAVITY
-    return ImuSeries(c["t"], acc), table.notes
+    gyro = np.radians(np.stack([c[k] for k in GYRO_COLUMNS], axis=1)) if all(k in c for k in GYRO_COLUMNS) else None
+    return ImuSeries(c["t"], acc, gyro), table.notes
+
+
+MAX_SPEED = 600.0  # m/s: faster than an airliner is not a GPS speed logger's reading
+
+
+def check_gps_ranges(table: Table, what: str) -> None:
+    check_range(table, what, "lat", -90.0, 90.0, "deg", "latitude is in degrees, -90..90 (south negative)")
+    check_range(table, what, "lon", -180.0, 180.0, "deg", "longitude is in degrees, -180..180 (west negative)")
+    check_range(table, what, "sog", 0.0, MAX_SPEED, "m/s", "speed over ground is in m/s and never negative")
+    check_range(table, what, "climb", -MAX_SPEED, MAX_SPEED, "m/s", "climb rate is in m/s")
 
 
 def velocity_from_sog_cog(sog, cog_deg, climb) -> np.ndarray:
@@ -44,6 +57,7 @@ def read_gps_csv(path: Path, doppler_sigma: float = DEFAULT_DOPPLER_SIGMA,
                  position_sigma: float = DEFAULT_POSITION_SIGMA) -> tuple[GpsSeries, list[str]]:
     table = read_table(path, "GPS log", GPS_COLUMNS, optional=("alt", "h"))
     check_increasing(table, "GPS log", strict=False)
+    check_gps_ranges(table, "GPS log")
     c = table.columns
     vel = velocity_from_sog_cog(c["sog"], c["cog"], c["climb"])
     h = c.get("alt", c.get("h", np.full(len(table), np.nan)))
@@ -56,9 +70,3 @@ def read_gps_csv(path: Path, doppler_sigma: float = DEFAULT_DOPPLER_SIGMA,
     sigma_pos = np.tile([position_sigma, position_sigma, np.nan if np.isnan(h).all() else 2 * position_sigma], (m, 1))
     gps = GpsSeries(t, lat, lon, h, vel, np.full((m, 3), doppler_sigma), sigma_pos, np.zeros(m, dtype=int))
     return gps, notes
-
-
-def read_csv_pair(imu_path: Path, gps_path: Path, **gps_options) -> PostLog:
-    imu, imu_notes = read_imu_csv(Path(imu_path))
-    gps, gps_notes = read_gps_csv(Path(gps_path), **gps_options)
-    return PostLog(Path(imu_path).stem, imu, gps, notes=imu_notes + gps_notes)

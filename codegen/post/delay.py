@@ -24,6 +24,7 @@ class DelayEstimate:
     cost: np.ndarray  # normalised misfit on the grid (1 = no better than zero IMU signal)
     correlation: float  # correlation coefficient at the delay
     sigma: float  # s, 1-sigma from the curvature of the misfit
+    at_edge: bool = False  # the best lag is the grid's first or last: the delay lies at or beyond the search range
 
 
 def estimate_delay(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gps_vel: np.ndarray,
@@ -70,7 +71,7 @@ def estimate_delay(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gp
     # the curvature trusts white residuals; motion the model misses is not white, so also resample the intervals in
     # blocks and take the spread of the best lag (a broad or two-humped misfit shows here)
     sigma = max(sigma, _block_bootstrap_sigma(lags, per_interval))
-    return DelayEstimate(delay, lags, costs, corr, sigma)
+    return DelayEstimate(delay, lags, costs, corr, sigma, at_edge=len(lags) > 1 and best in (0, len(lags) - 1))
 
 
 BOOTSTRAP_DRAWS = 200

@@ -19,6 +19,7 @@ from codegen.board.model import STANDARD_GRAVITY
 from codegen.errors import Location, UserError
 from codegen.post.csvlog import average_duplicate_epochs
 from codegen.post.model import GpsSeries, ImuSeries, PostLog
+from codegen.post.table import check_input_file, read_bytes
 
 DEVICE_LOG_SUFFIXES = (".bin",)
 REC_PAD, REC_HEADER, REC_IMU, REC_GPS, REC_WINDOW, REC_EVENT = 0x00, 0x48, 0x49, 0x47, 0x57, 0x45
@@ -37,6 +38,7 @@ def is_device_log(path: Path) -> bool:
         return any(p.suffix in DEVICE_LOG_SUFFIXES for p in path.iterdir()) and not any(path.glob("*.pos"))
     if path.suffix in DEVICE_LOG_SUFFIXES:
         return True
+    check_input_file(path, "log")
     try:
         with path.open("rb") as f:
             return f.read(1) == bytes([REC_HEADER])
@@ -68,7 +70,7 @@ def _block_size(data: bytes, path: Path) -> int:
 
 
 def parse_device_log(path: Path, block: int | None = None) -> RawDeviceLog:
-    data = path.read_bytes()
+    data = read_bytes(path, "device log")
     if not data:
         raise UserError(f"device log {path} is empty", location=Location(str(path), 1, 1),
                         hint="the device wrote no complete block: the run was shorter than one block or logging was off")
@@ -138,18 +140,24 @@ def to_post_log(raw: RawDeviceLog) -> PostLog:
                         hint="logging.imu must be on to post-process a run")
     try:
         lsb = float(raw.header.get("accel_lsb_per_g", 16384))
+        gyro_lsb = float(raw.header.get("gyro_lsb_per_dps", 131))
         axes = _axes(raw.header.get("axes", "+0+1+2"))
     except ValueError:
-        raise UserError(f"{path}: header has a bad accel_lsb_per_g or axes value", location=Location(str(path), 1, 1)) from None
+        raise UserError(f"{path}: header has a bad accel_lsb_per_g, gyro_lsb_per_dps or axes value", location=Location(str(path), 1, 1)) from None
     imu = np.array(raw.imu, dtype=float)
     t_dev = imu[:, 0] * 1e-6
     counts = imu[:, 1:4]
     body = np.stack([sign * counts[:, index] for sign, index in axes], axis=1)
     acc = body / lsb * STANDARD_GRAVITY
+    rate_counts = imu[:, 4:7]
+    gyro = None
+    if np.any(rate_counts != 0):  # a log written without the gyro holds zeros there
+        gyro = np.radians(np.stack([sign * rate_counts[:, index] for sign, index in axes], axis=1) / gyro_lsb)
     keep = np.concatenate([[True], np.diff(t_dev) > 0])
     if not keep.all():
         notes.append(f"{path.name}: dropped {np.sum(~keep)} IMU record(s) with a repeated time stamp")
     t_dev, acc = t_dev[keep], acc[keep]
+    gyro = gyro[keep] if gyro is not None else None
     if not raw.gps:
         raise UserError(f"{path}: no GPS fix in the log", location=Location(str(path), 1, 1),
                         hint="the receiver never had a fix during this run; post-processing needs GPS velocities")
@@ -197,7 +205,7 @@ def to_post_log(raw: RawDeviceLog) -> PostLog:
     if len(t_gps) < n_epochs:
         notes.append(f"{path.name}: averaged {n_epochs - len(t_gps)} duplicate GPS epoch(s)")
     gps = GpsSeries(t_gps, lat_deg, lon_deg, alt_m, vel, sigma_vel, sigma_pos, np.round(q).astype(int))
-    return PostLog(path.stem, ImuSeries(t_imu, acc), gps, notes=notes, time_scale=time_scale)
+    return PostLog(path.stem, ImuSeries(t_imu, acc, gyro), gps, notes=notes, time_scale=time_scale)
 
 
 def read_device_log(path: Path) -> PostLog:

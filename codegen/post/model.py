@@ -16,7 +16,7 @@ class ImuSeries:
     """Accelerometer samples in the sensor frame.
 
     t: (N,) s, strictly increasing, on the GPS time axis. acc: (N,3) specific force, m/s^2 (a device at rest, flat,
-    reads +g on its up axis). gyro: optional (N,3) rad/s (read when present, not used by the method).
+    reads +g on its up axis). gyro: optional (N,3) rad/s (turns the accelerations across GPS gaps when present).
     """
 
     t: np.ndarray

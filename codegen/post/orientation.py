@@ -155,7 +155,10 @@ def build_intervals(imu_t, acc, gps_t, gps_vel, gps_sigma_vel, min_speed: float)
     t0, t1 = gps_t[:-1], gps_t[1:]
     dt = t1 - t0
     gps_accel = np.diff(gps_vel, axis=0) / dt[:, None]
-    sigma_a = np.sqrt(np.mean(gps_sigma_vel[:-1] ** 2 + gps_sigma_vel[1:] ** 2, axis=1)) / dt
+    # one weight per interval, from the horizontal velocities: the angles are fixed by the horizontal residuals (a
+    # tilt lets g into them), and a log without a climb rate (NMEA, GPX) would otherwise drown them in its vertical
+    # sigma, leaving the bias to its prior
+    sigma_a = np.sqrt(np.mean(gps_sigma_vel[:-1, :2] ** 2 + gps_sigma_vel[1:, :2] ** 2, axis=1)) / dt
     sigma = np.sqrt(sigma_a**2 + ACCEL_MEAN_NOISE**2)
     usable = (t0 >= imu_t[0]) & (t1 <= imu_t[-1])
     gap = dt > GPS_GAP_FACTOR * np.median(dt)

@@ -10,12 +10,23 @@ from scipy.spatial.transform import Rotation
 
 from codegen.board.model import STANDARD_GRAVITY
 from codegen.errors import UserError
+from codegen.post.bridge import GapModel, gap_model
 from codegen.post.delay import DelayEstimate, estimate_delay
 from codegen.post.geodesy import geodetic_to_enu
 from codegen.post.model import Calibration, PostLog
 from codegen.post.orientation import (
-    GPS_GAP_FACTOR, Intervals, OrientationOptions, OrientationResult, Track, build_intervals, cumulative_integral, euler_matrix,
-    fit_mounting, interval_means, solve_orientations, turn_compensated_means,
+    GPS_GAP_FACTOR,
+    Intervals,
+    OrientationOptions,
+    OrientationResult,
+    Track,
+    build_intervals,
+    cumulative_integral,
+    euler_matrix,
+    fit_mounting,
+    interval_means,
+    solve_orientations,
+    turn_compensated_means,
 )
 from codegen.post.smoother import SmootherOptions, SmootherResult, smooth
 
@@ -49,7 +60,9 @@ class PostResult:
     gps_enu: np.ndarray  # (M,3), U NaN when the log has no height
     velocity_residual: np.ndarray  # (M,3) GPS - smoothed at GPS epochs (NaN outside)
     imu_velocity_residual: np.ndarray  # (K,3) GPS - IMU velocity change per interval, m/s
+    gaps: GapModel  # GPS gaps, the orientation across them and its uncertainty
     notes: list[str] = field(default_factory=list)
+    options: PostOptions = field(default_factory=PostOptions)
 
     @property
     def velocity_residual_rms(self) -> float:
@@ -80,6 +93,14 @@ def check_log(log: PostLog) -> None:
         )
     if not np.all(np.isfinite(gps.vel)):
         raise UserError(f"{log.name}: GPS velocities contain gaps (NaN)")
+    if np.all(gps.vel == gps.vel[0]):
+        still = not np.any(gps.vel[0])
+        raise UserError(
+            f"{log.name}: the GPS velocity is {'zero' if still else np.round(gps.vel[0], 3).tolist()} m/s at all "
+            f"{len(gps)} epochs: {'the device stood still' if still else 'it never changes'}, so there is no velocity "
+            "change to align the accelerometer to (nor to find the delay by)",
+            hint="post-processing needs a run with speed changes or turns; a GPS log that repeats one velocity may "
+                 "also come from a logger that writes its last value again when it has no new fix")
 
 
 def _segments(gps_t: np.ndarray) -> list[tuple[int, int]]:
@@ -90,43 +111,21 @@ def _segments(gps_t: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[:-1], edges[1:]))
 
 
-def smooth_segments(t, a_enu, gps, gps_enu, options: SmootherOptions, bridge: bool, progress: Progress = None
-                    ) -> SmootherResult:
-    """KF + RTS on each stretch of GPS without gaps; with `bridge`, the gaps are filled from one run over the whole
-    log (dead reckoning on the interpolated orientation), which never touches the stretches GPS covers."""
+def smooth_segments(t, a_enu, gps, gps_enu, options: SmootherOptions) -> list[SmootherResult]:
+    """KF + RTS on each stretch of GPS without gaps, alone (dead reckoning across a gap would bend the track
+    direction the orientation is solved against)."""
     parts = []
-    segments = _segments(gps.t)
-    for a, b in segments:
+    for a, b in _segments(gps.t):
         margin = 2.0 * float(np.median(np.diff(t)))  # a sample either side: the stretch starts at its first epoch
         inside = (t >= gps.t[a] - margin) & (t <= gps.t[b - 1] + margin)
         if b - a < 2 or inside.sum() < MIN_IMU_SAMPLES:
             continue
         sel = slice(a, b)
         parts.append(smooth(t[inside], a_enu[inside], gps.t[sel], gps.vel[sel], gps.sigma_vel[sel], gps_enu[sel],
-                            gps.sigma_pos[sel], options, progress=progress if len(segments) == 1 else None))
+                            gps.sigma_pos[sel], options))
     if not parts:
         raise UserError("no stretch of the log has both GPS epochs and IMU samples")
-    if bridge and len(segments) > 1:
-        whole = smooth(t, a_enu, gps.t, gps.vel, gps.sigma_vel, gps_enu, gps.sigma_pos, options, progress=progress)
-        covered = np.zeros(len(whole.t), dtype=bool)
-        for p in parts:
-            covered |= (whole.t >= p.t[0]) & (whole.t <= p.t[-1])
-        parts.append(_select(whole, ~covered))
-    merged = [np.concatenate([getattr(p, name) for p in parts]) for name in
-              ("t", "pos", "vel", "bias", "sigma_pos", "sigma_vel", "filtered_vel")]
-    order = np.argsort(merged[0], kind="stable")
-    merged = [m[order] for m in merged]
-    gps_index = np.full(len(gps.t), -1)
-    at = np.searchsorted(merged[0], gps.t)
-    ok = (at < len(merged[0])) & (merged[0][np.minimum(at, len(merged[0]) - 1)] == gps.t)
-    gps_index[ok] = at[ok]
-    t_, pos, vel, bias, sp, sv, fv = merged
-    return SmootherResult(t_, pos, vel, bias, sp, sv, gps_index, fv)
-
-
-def _select(r: SmootherResult, mask: np.ndarray) -> SmootherResult:
-    return SmootherResult(r.t[mask], r.pos[mask], r.vel[mask], r.bias[mask], r.sigma_pos[mask], r.sigma_vel[mask],
-                          np.full(0, -1), r.filtered_vel[mask])
+    return parts
 
 
 def _rotate_mounted(mounting, track: Track, t: np.ndarray, acc: np.ndarray) -> np.ndarray:
@@ -162,6 +161,30 @@ def _orient(t, acc, log: PostLog, options: OrientationOptions, track: Optional[T
     if mounting2 is not None:
         mounting2.bias = result.bias
     return result, iv
+
+
+def _imu_noise_density(t: np.ndarray, a_enu: np.ndarray, iv: Intervals, gps) -> np.ndarray:
+    """(3,) m/s^2/sqrt(Hz): the white acceleration noise that explains the misfit between the IMU's and the GPS's
+    velocity change per interval (mean removed, less the Doppler noise of both epochs)."""
+    nodes, cum = cumulative_integral(t, a_enu)
+    dt = iv.t1 - iv.t0
+    residual = np.diff(gps.vel, axis=0) - interval_means(nodes, cum, iv.t0, iv.t1) * dt[:, None]
+    ok = iv.usable & np.isfinite(residual).all(axis=1)
+    if ok.sum() < 3:
+        return np.zeros(3)
+    r = residual[ok] - residual[ok].mean(axis=0)
+    doppler = gps.sigma_vel[:-1][ok] ** 2 + gps.sigma_vel[1:][ok] ** 2
+    return np.sqrt(np.maximum(np.mean((r**2 - doppler) / dt[ok, None], axis=0), 0.0))
+
+
+def _bias_sigma(orientation: OrientationResult, options: OrientationOptions, parts: list[SmootherResult]) -> float:
+    """m/s^2 per axis: the accelerometer bias left after the removal: the mounting fit's 1-sigma where the bias was
+    fitted, else what the smoother found the horizontal ENU accelerations off by where GPS covers the run (RMS)."""
+    m = orientation.mounting
+    if m is not None and not m.bias_rejected and options.estimate_bias:
+        return float(np.sqrt(np.mean(m.sigma_bias**2)))
+    found = np.concatenate([p.bias[:, :2] for p in parts])
+    return float(min(options.bias_prior, np.sqrt(np.mean(found**2))))
 
 
 def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progress = None) -> PostResult:
@@ -224,7 +247,14 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
                            correlation=refined.correlation)
         if abs(refined.delay) < 0.25 * step:
             break
-    if estimate is not None and abs(delay - coarse_delay) > max(3.0 * estimate.sigma, step):
+    if curve is not None and (curve.at_edge or abs(delay) > options.max_lag):
+        # the first search's best lag at its edge, or the refinement walked out of its range: the range was too small
+        estimate = replace(estimate, at_edge=True)
+        notes.append(f"the delay search ended at its edge (first search {curve.delay * 1e3:+.0f} ms, range "
+                     f"+-{options.max_lag * 1e3:.0f} ms): the streams are shifted by about --max-lag or more; the "
+                     f"refinement went on to {delay * 1e3:+.0f} ms, but lags beyond the range were never searched: run "
+                     f"again with --max-lag {2 * max(options.max_lag, abs(delay)):.3g}")
+    elif estimate is not None and abs(delay - coarse_delay) > max(3.0 * estimate.sigma, step):
         notes.append(f"the delay moved from {coarse_delay * 1e3:+.0f} ms (first search) to {delay * 1e3:+.0f} ms as "
                      f"the orientation was refitted: the data do not pin it down; treat it as uncertain by "
                      f"{abs(delay - coarse_delay) * 1e3:.0f} ms")
@@ -232,12 +262,27 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     # 2. the smoothed velocity gives a quieter track direction than raw Doppler: orient again with it, and with the
     #    interval means turned back for the device's own turning
     #    (per stretch without GPS gaps: dead reckoning across a gap would bend the track)
-    first = smooth_segments(t, _rotate(orientation, t, acc), gps, gps_enu, options.smoother, bridge=False)
-    track = Track(first.t, first.vel, options.orientation.min_speed)
+    parts = smooth_segments(t, _rotate(orientation, t, acc), gps, gps_enu, options.smoother)
+    track = Track(np.concatenate([p.t for p in parts]), np.concatenate([p.vel for p in parts]),
+                  options.orientation.min_speed)
     orientation, iv = _orient(t, acc, log, options.orientation, track, progress)
-    a_enu = _rotate(orientation, t, acc)
-    # 3. final smoothing
-    result = smooth_segments(t, a_enu, gps, gps_enu, options.smoother, bridge=True, progress=progress)
+    # 3. across GPS gaps: the orientation from the gyro (where logged) or Slerp, and how uncertain it is there
+    ok = orientation.valid
+    gaps = gap_model(orientation.slerp(), orientation.t[ok], orientation.euler[ok], orientation.sigma[ok], gps.t, t,
+                     log.imu.gyro, _bias_sigma(orientation, options.orientation, parts))
+    notes += gaps.notes
+    a_enu, a_noise = gaps.rotate(t, acc, orientation.bias)
+    # where GPS covers the run, how far the IMU's velocity change over an interval misses the GPS's: beyond what the
+    # smoother assumes, that is noise the IMU carries into a gap too (a hand's swing, a lever arm)
+    excess = np.maximum(_imu_noise_density(t, a_enu, iv, gps) ** 2 - options.smoother.accel_noise**2, 0.0)
+    a_noise[gaps.inside(t)] = np.sqrt(a_noise[gaps.inside(t)] ** 2 + excess)
+
+    def gap_noise(nodes):
+        return a_noise[np.clip(np.searchsorted(t, nodes), 0, len(t) - 1)]
+
+    # 4. final smoothing: one pass over the whole log, so position and velocity carry across every GPS gap
+    result = smooth(t, a_enu, gps.t, gps.vel, gps.sigma_vel, gps_enu, gps.sigma_pos, options.smoother,
+                    progress=progress, extra_accel_noise=gap_noise)
     residual = np.full((len(gps), 3), np.nan)
     ok = result.gps_index >= 0
     residual[ok] = gps.vel[ok] - result.vel[result.gps_index[ok]]
@@ -248,4 +293,4 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     imu_residual = np.diff(gps.vel, axis=0) - dv_imu
     imu_residual[~iv.usable] = np.nan
     return PostResult(log, delay, estimate, orientation, iv, t, a_enu, result, origin, gps_enu, residual,
-                      imu_residual, notes)
+                      imu_residual, gaps, notes, options)

@@ -28,7 +28,7 @@ import numpy as np
 from codegen.board.model import STANDARD_GRAVITY
 from codegen.errors import Location, UserError
 from codegen.post.model import GpsSeries, ImuSeries, PostLog
-from codegen.post.table import read_text
+from codegen.post.table import read_bytes, read_text
 
 TAG_MAGIC = b"TIMETAG RTKLIB"
 TAG_HEADER_LEN = 64  # bytes, including tick_f
@@ -53,7 +53,7 @@ class TimeTag:
 def read_tag(path: Path) -> TimeTag:
     if not path.exists():
         raise UserError(f"time-tag file {path} does not exist", hint="RTKLIB writes it beside the log with -t / ::T")
-    data = path.read_bytes()
+    data = read_bytes(path, "time-tag file")
     if len(data) < TAG_HEADER_LEN + TAG_TIME_LEN or not data.startswith(TAG_MAGIC):
         raise UserError(f"{path} is not an RTKLIB time-tag file (no 'TIMETAG RTKLIB' header)",
                         location=Location(str(path), 1, 1))
@@ -123,6 +123,11 @@ def read_pos(path: Path) -> GpsSeries:
     if np.any(step < 0):
         i = int(np.flatnonzero(step < 0)[0]) + 1
         raise UserError(f"{path}: solution time goes back", location=Location(str(path), numbers[i], 1))
+    for name, values, limit in (("latitude", lat, 90.0), ("longitude", lon, 180.0)):
+        bad = np.flatnonzero(np.abs(values) > limit)
+        if bad.size:
+            raise UserError(f"{path}: {name} {values[bad[0]]:g} deg is outside -{limit:g}..{limit:g}",
+                            location=Location(str(path), numbers[bad[0]], 1), hint="the file is damaged here")
     sv = np.where(sv > 0, sv, 0.05)
     sp = np.where(sp > 0, sp, 0.01)
     return GpsSeries(t, lat, lon, h, vel, sv, sp, q)
@@ -140,7 +145,7 @@ def read_raw_imu(path: Path, tag: TimeTag) -> tuple[ImuSeries, list[str]]:
     IMU's own millisecond clock is smooth, the receive times are not (USB/serial buffering only ever delays), so the
     map is the line t_gps = a + b * tick fitted to the lower envelope of the receive times.
     """
-    raw = path.read_bytes()
+    raw = read_bytes(path, "IMU log")
     if not raw.strip():
         raise UserError(f"IMU log {path} is empty", location=Location(str(path), 1, 1))
     crlf_in_file = b"\r\n" in raw[:4096]

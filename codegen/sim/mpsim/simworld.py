@@ -43,6 +43,8 @@ def at_end(fn):
 
 
 def _finish():
+    global _ballast
+    _ballast = None  # the app is done: the finalisers may use its heap
     for fn in _finishers:
         try:
             fn()
@@ -53,8 +55,16 @@ def _finish():
         _trace.flush()
 
 
-def load():
-    global _scenario, _trace
+_loaded = False
+
+
+def load(hold_heap=False):
+    """Load the scenario named by MPSIM_SCENARIO (once: machine.py calls it at import). With hold_heap the heap
+    stays whole until leave_heap() (a firmware loads its own modules first: codegen/sim/cpsim/launch.py)."""
+    global _scenario, _trace, _loaded
+    if _loaded:
+        return
+    _loaded = True
     path = os.getenv("MPSIM_SCENARIO")
     if not path:
         raise RuntimeError("MPSIM_SCENARIO is not set")
@@ -66,7 +76,37 @@ def load():
     time._configure(_scenario.get("ticks_start_us", 0), int(duration * 1000000), _scenario.get("epoch_s", 0), _finish)
     fs = _scenario.get("fs")
     if fs:
-        _mount_ramdisk(fs)
+        _mount_disk(fs)
+    for bus, devices in _scenario.get("i2c", {}).items():  # the chips, and their models' data, before the app
+        for opts in devices:
+            device(int(bus), opts)
+    if not hold_heap:
+        leave_heap()
+
+
+def leave_heap():
+    """Give the app the board's heap (the scenario's heap_bytes), no more."""
+    heap = _scenario.get("heap_bytes")
+    if heap:
+        _leave_heap(heap)
+
+
+_ballast = None
+
+
+def _leave_heap(free_bytes):
+    """Take the heap beyond `free_bytes` away from the app: the emulated board's own modules and buffers stay
+    outside the figure the board's firmware gives (the process runs with a heap a little larger than it)."""
+    global _ballast
+    import gc
+
+    gc.collect()
+    extra = gc.mem_free() - free_bytes
+    if extra < 0:
+        raise RuntimeError("the heap is %d bytes short of the board's %d" % (-extra, free_bytes))
+    if extra > 64:
+        _ballast = bytearray(extra - 64)  # its own header and the allocation unit round it
+        gc.collect()
 
 
 # ---------------------------------------------------------------- rails (power gating of the GPS)
@@ -89,47 +129,129 @@ def set_rail(name, on):
 # ---------------------------------------------------------------- filesystem
 
 
-class RamDisk:
-    """A block device in RAM for a LittleFS filesystem the size of the board's partition (or smaller)."""
+class FileDisk:
+    """A block device the size of the board's partition (or smaller), kept in a host file so that it takes no
+    room in the MicroPython heap the app runs in. LittleFS reads and programs through it (extended block device
+    interface: offsets within a block, erase by ioctl 6)."""
 
-    def __init__(self, block, count):
+    def __init__(self, path, block, count, fresh):
         self.block = block
-        self.data = bytearray(block * count)
+        self.count = count
+        self.file = open(path, "w+b" if fresh else "r+b")
+        if fresh:
+            chunk = bytearray(block)
+            for _ in range(count):
+                self.file.write(chunk)
+            self.file.flush()
+        self.flash = (_scenario.get("clock") or {}).get("flash")  # the chip's times (the CPU waits), or none
+        self.erases = 0
+        self.programmed = 0
 
     def readblocks(self, n, buf, off=0):
-        a = n * self.block + off
-        buf[:] = self.data[a : a + len(buf)]
+        self.file.seek(n * self.block + off)
+        self.file.readinto(buf)
+        if self.flash:
+            time.advance(len(buf) * self.flash["read_us_per_byte"])
 
     def writeblocks(self, n, buf, off=0):
-        a = n * self.block + off
-        self.data[a : a + len(buf)] = buf
+        if time.halted:  # the board is resetting: the old code's writes never reach the flash
+            return
+        if 0 <= _write_error_us <= time.now():
+            raise OSError(5)  # EIO: the flash stopped taking writes (fs.write_error_after_s)
+        self.file.seek(n * self.block + off)
+        if 0 <= _power_cut_us <= time.now():
+            self.file.write(memoryview(buf)[: len(buf) // 2])  # the page program is cut half way
+            self.file.flush()
+            trace("power_cut", block=n, offset=off, bytes=len(buf))
+            power_cut()
+        self.file.write(buf)
+        self.file.flush()
+        self.programmed += len(buf)
+        if self.flash:
+            page = self.flash["page_bytes"]
+            time.advance((len(buf) + page - 1) // page * self.flash["page_program_us"])
+        if off == 0 and len(buf) == self.block:  # the basic interface: erase and program a whole block
+            self._erase()
 
     def ioctl(self, op, arg):
         if op == 4:
-            return len(self.data) // self.block
+            return self.count
         if op == 5:
             return self.block
+        if op == 6:
+            self._erase()
         return 0
 
+    def _erase(self):
+        if time.halted:
+            return
+        self.erases += 1
+        if self.flash:
+            time.advance(self.flash["sector_erase_us"] * (self.block // 4096 or 1))
 
-def _mount_ramdisk(fs):
-    disk = RamDisk(fs.get("block", 4096), fs["bytes"] // fs.get("block", 4096))
+
+
+
+_filesystem = None  # (block device, mount point) of the board's filesystem, for firmwares that remount it (cpsim)
+
+
+def filesystem():
+    return _filesystem
+
+
+def _mount_disk(fs):
+    """The board's log partition: a fresh LittleFS, optionally partly taken by a file that is not the app's
+    (fs.prefill_bytes: a nearly full filesystem). At the end of the run the files are copied out as the flash holds
+    them: through a second, fresh mount of the image, so whatever the app had not written and flushed is gone, as
+    after a power cut."""
+    global _power_cut_us, _write_error_us, _filesystem
+    block = fs.get("block", 4096)
+    count = fs["bytes"] // block
+    disk = FileDisk(fs["image"], block, count, fresh=True)
+    if fs.get("power_cut_s") is not None:
+        _power_cut_us = int(fs["power_cut_s"] * 1000000)
+    if fs.get("write_error_after_s") is not None:
+        _write_error_us = int(fs["write_error_after_s"] * 1000000)
     os.VfsLfs2.mkfs(disk)
     mount = fs.get("mount", "/logs")
     os.mount(os.VfsLfs2(disk), mount)
+    _filesystem = (disk, mount)
+    if fs.get("prefill_bytes"):
+        chunk = bytearray(block)
+        with open("/" + mount.strip("/") + "/user.dat", "wb") as f:
+            for _ in range(fs["prefill_bytes"] // block):
+                f.write(chunk)
     dump = fs.get("dump")
     if dump:
 
         def copy_out():
-            for name in os.listdir(mount):
-                with open(mount + "/" + name, "rb") as src:
-                    data = src.read()
-                with open(dump + "/" + name, "wb") as dst:
-                    dst.write(data)
-            st = os.statvfs(mount)
-            trace("fs", files=sorted(os.listdir(mount)), free=st[0] * st[3], total=st[0] * st[2])
+            flash = FileDisk(fs["image"], block, count, fresh=False)
+            os.mount(os.VfsLfs2(flash), "/flash")
+            buf = bytearray(512)
+            names = sorted(os.listdir("/flash"))
+            for name in names:
+                with open("/flash/" + name, "rb") as src:
+                    with open(dump + "/" + name, "wb") as dst:
+                        while True:
+                            n = src.readinto(buf)
+                            if not n:
+                                break
+                            dst.write(buf if n == len(buf) else buf[:n])
+            st = os.statvfs("/flash")
+            trace("fs", files=names, free=st[0] * st[3], total=st[0] * st[2], erases=disk.erases,
+                  programmed=disk.programmed)
 
         at_end(copy_out)
+
+
+_power_cut_us = -1  # fs.power_cut_s: the first block write from then on is cut half way and the run ends
+_write_error_us = -1  # fs.write_error_after_s: block writes fail from then on
+
+
+def power_cut():
+    """The supply is gone: nothing more reaches the flash; the world's end (copy-out, trace) runs."""
+    _finish()
+    raise SystemExit(4)
 
 
 # ---------------------------------------------------------------- I2C devices
@@ -151,11 +273,9 @@ class Mpu6050:
         self.who = opts.get("who_am_i", 0x68)
         self.reset()
         path = opts.get("counts")
-        self.stream = b""
-        if path:
-            with open(path, "rb") as f:
-                self.stream = f.read()
-        self.nsamples = len(self.stream) // 12
+        self.counts = open(path, "rb") if path else None  # read a record at a time: nothing of it in the heap
+        self.nsamples = self.counts.seek(0, 2) // 12 if path else 0
+        self.rec = bytearray(12)
         self.stream_rate = opts.get("rate_hz", 200.0)
         self.stream_ag = opts.get("accel_range_g", 2)
         self.stream_gd = opts.get("gyro_range_dps", 250)
@@ -184,7 +304,9 @@ class Mpu6050:
         i = int(t_s * self.stream_rate)
         if i >= self.nsamples:
             i = self.nsamples - 1
-        raw = struct.unpack_from("<6h", self.stream, 12 * i)
+        self.counts.seek(12 * i)
+        self.counts.readinto(self.rec)
+        raw = struct.unpack_from("<6h", self.rec, 0)
         ag = (2, 4, 8, 16)[(self.regs[0x1C] >> 3) & 3]
         gd = (250, 500, 1000, 2000)[(self.regs[0x1B] >> 3) & 3]
         out = []
@@ -385,6 +507,17 @@ class Oled:
 
 
 def _glyphs():
+    """The 8x8 cells the display's text is read back with: the scenario's "display_font" when the app draws with a
+    font of its own ({"first": code, "cell": 8, "data": hex of 8 column bytes a glyph}: the CircuitPython app's,
+    codegen/font.py), else MicroPython's framebuf font."""
+    font = _scenario.get("display_font")
+    if font:
+        data = bytes.fromhex(font["data"])
+        cell = font["cell"]
+        table = {}
+        for i in range(len(data) // cell):
+            table.setdefault(data[i * cell : (i + 1) * cell], chr(font["first"] + i))
+        return table
     import framebuf
 
     table = {}
@@ -448,48 +581,84 @@ KINDS = {"mpu6050": Mpu6050, "ssd1306": Oled, "ssd1315": Oled, "sh1106": Oled, "
 
 
 def make_device(opts):
+    """A device model from its scenario entry, with its faults: nack (never answers), nack_after_s/nack_until_s
+    (stops answering, and answers again), hang_at_s/hang_s (holds the bus once)."""
     if opts.get("nack"):
         return Nacker()
     dev = KINDS[opts["kind"]](opts)
     if "nack_after_s" in opts:
         dev.nack_after_us = int(opts["nack_after_s"] * 1000000)
+    if "nack_until_s" in opts:
+        dev.nack_until_us = int(opts["nack_until_s"] * 1000000)
+    if "hang_at_s" in opts:
+        dev.hang_at_us = int(opts["hang_at_s"] * 1000000)
+        dev.hang_us = int(opts.get("hang_s", 10.0) * 1000000)
     return dev
+
+
+_devices = {}  # (bus, address) -> model: the chips keep their state when the board resets
+_streams = {}  # uart id -> NmeaStream
+
+
+def device(bus, opts):
+    key = (bus, opts["address"])
+    if key not in _devices:
+        _devices[key] = make_device(opts)
+    return _devices[key]
+
+
+def uart_stream(uart_id, baud):
+    if uart_id not in _streams:
+        opts = _scenario.get("uart", {}).get(str(uart_id), {})
+        _streams[uart_id] = NmeaStream(opts, baud)
+    return _streams[uart_id]
 
 
 # ---------------------------------------------------------------- UART streams
 
 
 class NmeaStream:
-    """Bytes of a GPS receiver: chunks "t_us<TAB>text" delivered at the line rate, only while the rail is on."""
+    """Bytes of a GPS receiver: chunks "t_us<TAB>text" delivered at the line rate, only while the rail is on.
+    The stream file is read a chunk at a time (it stays out of the heap the app runs in)."""
 
     def __init__(self, opts, baud):
-        self.chunks = []
         path = opts.get("stream")
-        if path:
-            with open(path, "rb") as f:
-                for line in f:
-                    tab = line.find(b"\t")
-                    if tab < 0:
-                        continue
-                    data = line[tab + 1 :].rstrip(b"\n").replace(b"\\r\\n", b"\r\n")
-                    self.chunks.append((int(line[:tab]), data))
+        self.file = open(path, "rb") if path else None
+        self.chunk = None  # (t_us, data) of the chunk being delivered
         self.power = opts.get("power")
-        self.idx = 0
-        self.sent = 0  # bytes of chunks[idx] already delivered
+        self.sent = 0  # bytes of the chunk already delivered
         self.us_per_byte = 10 * 1000000 / baud
         self.lost_unpowered = 0
+        silent = opts.get("silent", [])  # [start s, end s]: the receiver says nothing (a fault), then talks again
+        self.silent = (int(silent[0] * 1000000), int(silent[1] * 1000000)) if silent else (-1, -1)
+        self._next()
+
+    def _next(self):
+        self.chunk = None
+        self.sent = 0
+        while self.file is not None:
+            line = self.file.readline()
+            if not line:
+                self.file.close()
+                self.file = None
+                return
+            tab = line.find(b"\t")
+            if tab >= 0:
+                data = line[tab + 1 :].rstrip(b"\n").replace(b"\\r\\n", b"\r\n")
+                self.chunk = (int(line[:tab]), data)
+                return
 
     def pull(self, now, room):
         """Return the bytes that arrived until `now`, at most `room`; the rest beyond the buffer are lost."""
         out = b""
         lost = 0
-        while self.idx < len(self.chunks):
-            t, data = self.chunks[self.idx]
+        while self.chunk is not None:
+            t, data = self.chunk
             if t > now:
                 break
-            if not rail_on(self.power):
+            if not rail_on(self.power) or self.silent[0] <= t < self.silent[1]:
                 self.lost_unpowered += len(data)
-                self.idx += 1
+                self._next()
                 continue
             arrived = min(len(data), int((now - t) / self.us_per_byte) + 1)
             if arrived > self.sent:
@@ -500,6 +669,5 @@ class NmeaStream:
                 lost += len(piece) - take
             if self.sent < len(data):
                 break
-            self.idx += 1
-            self.sent = 0
+            self._next()
         return out, lost

@@ -11,6 +11,16 @@ _HALF = TICKS_PERIOD >> 1
 _MASK = TICKS_PERIOD - 1
 READ_COST_US = 3  # each clock read costs the program this much virtual time
 
+class Reset(BaseException):
+    """The board resets (machine.reset(), the watchdog): not an Exception, so no app handler catches it; the
+    launcher boots the app again with the world as it is (launch.py)."""
+
+
+_watchdog = -1  # virtual us by which the app must feed the watchdog (-1: none armed)
+_watchdog_us = 0
+reset_cause = 1  # machine.reset_cause() after the next boot (1 power-on, 3 watchdog, 5 soft)
+halted = False  # between a reset and the next boot: the old code's last gasps (finally blocks) reach no flash
+
 _now = 0  # virtual microseconds since the start of the run (unbounded)
 _start_ticks = 0  # ticks_us() value at _now == 0
 _end = -1  # end of the run in virtual us (-1: never)
@@ -32,13 +42,43 @@ def now():
 
 
 def advance(us):
-    global _now, _end
-    _now += int(us)
+    global _now, _end, _watchdog, reset_cause
+    later = _now + int(us)
+    if 0 <= _watchdog < later:  # the watchdog fires inside this wait, not after it
+        later = _watchdog + 1
+    _now = later
     if 0 <= _end <= _now:
         _end = -1
         if _on_end is not None:
             _on_end()
         raise SystemExit(0)
+    if 0 <= _watchdog < _now:
+        _watchdog = -1
+        reset_cause = 3
+        raise signal_reset("watchdog")
+
+
+def signal_reset(why):
+    global halted
+    halted = True
+    return Reset(why)
+
+
+def arm_watchdog(timeout_us):
+    global _watchdog, _watchdog_us
+    _watchdog_us = timeout_us
+    _watchdog = _now + timeout_us
+
+
+def feed_watchdog():
+    global _watchdog
+    if _watchdog >= 0:
+        _watchdog = _now + _watchdog_us
+
+
+def disarm_watchdog():
+    global _watchdog
+    _watchdog = -1
 
 
 def ticks_us():

@@ -1,0 +1,231 @@
+"""Instructions per window on the boards' instruction sets, for benchmarks/kernel.py (seed) and fused.py (fused).
+
+    python3 benchmarks/device.py [--algorithm seed|fused] [--windows N]
+
+ARM: MicroPython 1.28's QEMU port (codegen.natmod.qemu_arm; MICROBIT = Cortex-M0, the RP2040's armv6m; MPS2_AN385 =
+Cortex-M3, armv7m) runs the board's dr_native.mpy built for that arch and the generated dr_fallback compiled by
+mpy-cross for it (plain; @micropython.native; for the seed kernel also @viper sort/median), through the same driver
+(codegen/natmod/device_driver.py) on the recorded walk. Counts are exact: QEMU runs with -icount shift=0 (one
+instruction per virtual ns) and the driver reads a hardware timer of the emulated SoC around each call.
+Xtensa: the ESP32 code of the same dr_native.mpy (LLVM route) on qemu-system-xtensa de233_fpu, the kernel called
+by a bare-metal harness, counted by the core's ICOUNT register (codegen.natmod.qemu_xtensa).
+
+ESP32 time per window is estimated from the Xtensa count: the LX6 is a single-issue 5-stage pipeline, the natmod's
+code sits in IRAM (MicroPython's ESP32 port commits native code there: no flash cache misses) and its data in DRAM,
+so one instruction per cycle is the floor; FPU latencies, load-use stalls and taken branches raise it, which the
+table brackets with two cycles per instruction. Both at 240 MHz.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from codegen.tools import micropython_tree, tool_env  # noqa: E402
+
+ESP32_HZ = 240e6
+QEMU_ARM = (("MICROBIT", "armv6m", "Cortex-M0 (armv6m: RP2040)"), ("MPS2_AN385", "armv7m", "Cortex-M3 (armv7m)"),
+            ("MPS2_AN500", "armv7emsp", "Cortex-M7 FPU (armv7emsp)"))
+
+
+def _native_dir(folder: Path, files) -> Path:
+    native = folder / "native"
+    for name, rendered in files.items():
+        if name.startswith("native/"):
+            (native / name[7:]).parent.mkdir(parents=True, exist_ok=True)
+            (native / name[7:]).write_bytes(rendered.content)
+    return native
+
+
+def natmod(files, arch: str, folder: Path) -> tuple[bytes | None, str]:
+    """dr_native.mpy of the rendered tree for `arch` (make against the MicroPython tree), or (None, why)."""
+    from codegen.deploy.build import find_mpy_cross
+
+    tree = micropython_tree()
+    if tree is None:
+        return None, "no MicroPython tree"
+    native = _native_dir(folder / arch, files)
+    done = subprocess.run(["make", f"MPY_DIR={tree}", f"ARCH={arch}", f"MPY_CROSS={find_mpy_cross('1.28.0')}",
+                           f"PYTHON={sys.executable}"], cwd=native, capture_output=True, text=True, env=tool_env())
+    if done.returncode:
+        return None, f"natmod build failed: {(done.stdout + done.stderr).strip().splitlines()[-1][:60]}"
+    return (native / "dr_native.mpy").read_bytes(), ""
+
+
+def fallback_variants(source: str, algorithm: str) -> dict:
+    """label -> the fallback's source with that emitter on its hot functions."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from kernel import variant
+
+    if algorithm == "seed":
+        return {"plain": source, "@native": variant(source, "native"), "@viper sort/median": variant(source, "viper")}
+    native = "import micropython\n" + re.sub(r"^def ", "@micropython.native\ndef ", source, flags=re.M)
+    return {"plain": source, "@native": native}
+
+
+def compile_for(source: str, arch: str, folder: Path) -> tuple[bytes | None, str]:
+    from codegen.deploy.build import find_mpy_cross
+
+    folder.mkdir(parents=True, exist_ok=True)
+    py = folder / "dr_fallback.py"
+    py.write_text(source)
+    done = subprocess.run([find_mpy_cross("1.28.0"), f"-march={arch}", str(py)], capture_output=True, text=True)
+    if done.returncode:
+        return None, (done.stderr.strip().splitlines() or ["mpy-cross failed"])[-1][:60]
+    return py.with_suffix(".mpy").read_bytes(), ""
+
+
+def walk_steps(board, algorithm: str, windows: int) -> list:
+    """The app's calibration then `windows` windows of the recorded walk (and a GPS fix after each, for fused)."""
+    from codegen.sim.run import build_run
+
+    run = build_run("replay-walk", board)
+    t = run.t_us * 1e-6
+    dt = np.diff(run.t_us).astype(np.int32)
+    k = board.calibration_samples
+    n = board.algorithm.window
+    steps = [("C", run.counts[:k])]
+    vel = run.gps.device_velocity()
+    for j in range(windows):
+        steps.append(("P", run.counts[k + j * n:k + (j + 1) * n], dt[k + j * n:k + (j + 1) * n]))
+        if algorithm == "fused":
+            second = int(t[k + (j + 1) * n])
+            d = run.gps.enu[second, :2] - run.gps.enu[second - 1, :2]
+            steps.append(("G", float(vel[second, 0]), float(vel[second, 1]), float(d[0]), float(d[1])))
+    return steps
+
+
+def per_window(answers, steps) -> float:
+    """Median instructions of the window steps (a fused window counts its GPS fix with it)."""
+    counts = []
+    for item, answer in zip(steps, answers):
+        if item[0] == "P":
+            counts.append(answer.instructions)
+        elif item[0] == "G":
+            counts[-1] += answer.instructions
+    return float(np.median(counts))
+
+
+def arm_row(board_name: str, arch: str, modules: dict, algorithm: str, steps_all: list, fallback_windows: int,
+            state_floats: int) -> dict:
+    """label -> (instructions per window or None, why)."""
+    from codegen.natmod import qemu_arm, windows
+
+    elf = qemu_arm.firmware(micropython_tree(), board_name, log=lambda m: print(f"  ({m})", file=sys.stderr))
+    row = {}
+    for label, (mpy, why) in modules.items():
+        if mpy is None:
+            row[label] = (None, why)
+            continue
+        module = "dr_native" if label == "natmod" else "dr_fallback"
+        steps = steps_all if label == "natmod" else _first_windows(steps_all, fallback_windows)
+        try:
+            with qemu_arm.Session(elf, board_name, timeout=900) as session:
+                session.put_file(f"{module}.mpy", mpy)
+                answers = windows.run(session, module, algorithm, steps, state_floats)
+            row[label] = (per_window(answers, steps), "")
+        except Exception as exc:  # a failed variant is a row with its reason, not a crashed benchmark
+            row[label] = (None, str(exc).strip().splitlines()[-1][:60])
+    return row
+
+
+def _first_windows(steps: list, windows: int) -> list:
+    kept, seen = [], 0
+    for item in steps:
+        seen += item[0] == "P"
+        if seen > windows:
+            break
+        kept.append(item)
+    return kept
+
+
+def xtensa_count(files, algorithm: str, steps: list, state_floats: int, folder: Path) -> tuple[float | None, str]:
+    from codegen.natmod import linkmap, mpyfile, qemu_xtensa
+    from codegen.natmod.build import LOG_NAME, NoRoute, build_module
+
+    try:
+        built = build_module(_native_dir(folder / "xtensa", files), folder / "xtensa-build", "xtensawin", "1.28.0",
+                             progress=lambda _: None)
+        work = folder / "xtensa-build"
+        link = linkmap.parse((work / LOG_NAME).read_text(), work)
+        harness = qemu_xtensa.build_harness(work, built.tree, folder / "harness")
+        module = mpyfile.parse(built.module.read_bytes())
+        answers = qemu_xtensa.run(module, link, harness, steps, algorithm, state_floats)
+    except (NoRoute, Exception) as exc:
+        return None, str(exc).strip().splitlines()[0][:70]
+    return per_window(answers, steps), ""
+
+
+def device_table(loaded, algorithm: str, windows: int = 4, fallback_windows: int = 2) -> None:
+    """Print the device-ISA table of one algorithm for the board `loaded`."""
+    from codegen.generate import render_tree
+    from codegen.kernel import fused as F
+
+    board = loaded.board
+    files = render_tree(loaded)
+    state_floats = 10 if algorithm == "seed" else F.STATE_LEN
+    steps = walk_steps(board, algorithm, windows)
+    n = board.algorithm.window
+    what = "window" if algorithm == "seed" else "window + its GPS fix"
+    print(f"\non the boards' instruction sets ({algorithm}): instructions per {what} of {n} x 6 samples, recorded "
+          f"walk, exact counts in QEMU")
+    header = f"{'core':34s} {'natmod':>10s}"
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        variants = fallback_variants(files["app/dr_fallback.py"].content.decode(), algorithm)
+        for label in variants:
+            header += f" {'fallback ' + label:>20s}"
+        print(header + f" {'best fallback / natmod':>23s}")
+        for board_name, arch, core in QEMU_ARM:
+            modules = {"natmod": natmod(files, arch, folder)}
+            for label, source in variants.items():
+                modules[label] = compile_for(source, arch, folder / f"{arch}-{label.strip('@').split()[0]}")
+            row = arm_row(board_name, arch, modules, algorithm, steps, fallback_windows, state_floats)
+            line = f"{core + ' MicroPython':34s}"
+            notes = []
+            for label in modules:
+                value, why = row[label]
+                width = 10 if label == "natmod" else 20
+                line += f" {value / 1e6:>{width - 2}.2f} M" if value else f" {'-':>{width}s}"
+                if why:
+                    notes.append(f"{label}: {why}")
+            natmod_count = row["natmod"][0]
+            best = min((v for label, (v, _) in row.items() if label != "natmod" and v), default=None)
+            line += f" {best / natmod_count:>22.0f}x" if best and natmod_count else f" {'-':>23s}"
+            print(line + (f"   ({'; '.join(notes)})" if notes else ""))
+        count, why = xtensa_count(files, algorithm, steps, state_floats, folder)
+    if count is None:
+        print(f"{'ESP32 code, de233_fpu (bare kernel)':34s} {'-':>10s}   ({why})")
+        return
+    print(f"{'ESP32 code, de233_fpu (bare kernel)':34s} {count / 1e6:>8.3f} M")
+    print(f"ESP32 at 240 MHz (estimate from the Xtensa count, code in IRAM): {count / ESP32_HZ * 1e3:.2f} ms per "
+          f"{what} at 1 cycle/instruction, {2 * count / ESP32_HZ * 1e3:.2f} ms at 2 (goal <= 5 ms); the app's "
+          f"MicroPython call around it adds a few thousand instructions")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--board", default=None, help="board YAML (default: the bundled default board)")
+    parser.add_argument("--algorithm", choices=("seed", "fused"), default=None, help="default: both")
+    parser.add_argument("--windows", type=int, default=4, help="natmod windows per run (the median is reported)")
+    parser.add_argument("--fallback-windows", type=int, default=2, help="fallback windows per run")
+    args = parser.parse_args(argv)
+    from codegen.board.loader import load_board
+
+    loaded = load_board(args.board)
+    for algorithm in ([args.algorithm] if args.algorithm else ["seed", "fused"]):
+        device_table(loaded, algorithm, args.windows, args.fallback_windows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,240 @@
+"""MicroPython's QEMU port (ports/qemu) on the ARM cores our boards' natmods target, built once and cached.
+
+    MICROBIT     Cortex-M0 (armv6m, the RP2040's instruction set), nRF51; built with native code loading on
+                 (MICROPY_EMIT_THUMB without ARMv7-M, as the rp2 port has it), 256 KiB RAM
+    MPS2_AN385   Cortex-M3 (armv7m)
+    MPS2_AN500   Cortex-M7 with FPU, built with single-precision floats (armv7emsp natmods): the benchmark's stand-in
+                 for a core with hardware float, as the ESP32 has
+
+The firmware is built (Debian gcc-arm-none-eabi + picolibc) from a copy of a MicroPython tree, keyed by the tree's
+content, the board, the flags and the compiler, in $DEADRECKON_CACHE/qemu-arm/KEY/firmware.elf; the copy is removed
+after the build. `Session` runs it under qemu-system-arm with `-icount shift=0` (one instruction per virtual
+nanosecond: a virtual clock is an exact instruction counter) and talks MicroPython's raw REPL over the emulated UART;
+files (the .mpy) are sent in chunks into a RAM filesystem mounted at /mem. `CLOCK_SOURCE[board]` is MicroPython code
+defining `clock()`, a hardware timer of the emulated SoC read through machine.mem32, and `CLOCK_NS[board]`
+the virtual nanoseconds (= instructions) per count.
+"""
+
+from __future__ import annotations
+
+import base64
+import fcntl
+import hashlib
+import os
+import select
+import shutil
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+from codegen.errors import UserError
+
+HEAP = "MICROPY_HEAP_SIZE=196608"  # 192 KiB, about what MicroPython has on an RP2040 or an ESP32 without PSRAM
+BOARDS = {
+    "MICROBIT": dict(arch="armv6m", make=[HEAP], machine=["microbit", "-global", "nrf51-soc.flash-size=1048576",
+                                             "-global", "nrf51-soc.sram-size=262144"],
+                     cflags="-DMICROPY_EMIT_THUMB=1 -DMICROPY_EMIT_THUMB_ARMV7M=0 -DMICROPY_EMIT_INLINE_THUMB=1 "
+                            "-DMICROPY_EMIT_INLINE_THUMB_FLOAT=0"),
+    "MPS2_AN385": dict(arch="armv7m", machine=["mps2-an385"], cflags="", make=[HEAP]),
+    # Cortex-M7 with its FPU, MicroPython floats in single precision as on the ESP32: the nearest QEMU core to the
+    # ESP32's (hardware float for both the natmod and the interpreter)
+    "MPS2_AN500": dict(arch="armv7emsp", machine=["mps2-an500"], cflags="", make=[HEAP, "MICROPY_FLOAT_IMPL=float"]),
+}
+# a free-running 32-bit timer of each SoC as QEMU models it: nRF51 TIMER0 at 16 MHz (counts up), CMSDK APB timer 0
+# at the AN385's 25 MHz peripheral clock (counts down)
+CLOCK_SOURCE = {
+    "MICROBIT": ("import machine\n_m = machine.mem32\n_m[0x40008504] = 0\n_m[0x40008508] = 3\n_m[0x40008510] = 0\n"
+                 "_m[0x40008000] = 1\ndef clock():\n    _m[0x40008040] = 1\n    return _m[0x40008540]\n"),
+    "MPS2_AN385": ("import machine\n_m = machine.mem32\n_m[0x40000008] = 0xFFFFFFFF\n_m[0x40000004] = 0xFFFFFFFF\n"
+                   "_m[0x40000000] = 1\ndef clock():\n    return (0xFFFFFFFF - _m[0x40000004]) & 0xFFFFFFFF\n"),
+}
+CLOCK_SOURCE["MPS2_AN500"] = CLOCK_SOURCE["MPS2_AN385"]
+CLOCK_NS = {"MICROBIT": 1e9 / 16e6, "MPS2_AN385": 1e9 / 25e6, "MPS2_AN500": 1e9 / 25e6}
+PORT_DIRS = ("py", "extmod", "shared", "lib", "drivers", "ports/qemu", "tools")  # what the port's build reads
+CHUNK = 6000  # bytes of a file per raw-REPL command (base64 in the command text)
+MEM_FS = """
+import io, sys, vfs
+class _MemFile(io.IOBase):
+    def __init__(self, data):
+        self.data = data
+        self.pos = 0
+    def readinto(self, buf):
+        n = min(len(buf), len(self.data) - self.pos)
+        buf[:n] = memoryview(self.data)[self.pos:self.pos + n]
+        self.pos += n
+        return n
+    def ioctl(self, request, arg):
+        return 0
+class _MemFs:
+    def __init__(self):
+        self.files = {}
+    def mount(self, readonly, mkfs):
+        pass
+    def umount(self):
+        pass
+    def chdir(self, path):
+        pass
+    def stat(self, path):
+        name = path.strip('/')
+        if not name:
+            return (0x4000, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+        if name in self.files:
+            return (0x8000, 0, 0, 0, 0, 0, len(self.files[name]), 0, 0, 0)
+        raise OSError(2)
+    def open(self, path, mode):
+        return _MemFile(self.files[path.strip('/')])
+_memfs = _MemFs()
+vfs.mount(_memfs, '/mem')
+sys.path.insert(0, '/mem')
+"""
+
+
+class QemuError(UserError):
+    pass
+
+
+def _cache() -> Path:
+    root = os.environ.get("DEADRECKON_CACHE")
+    return (Path(root) if root else Path.home() / ".cache" / "deadreckon") / "qemu-arm"
+
+
+def tree_digest(tree: Path) -> str:
+    """SHA-256 over the paths and contents of the tree's files the port's build reads."""
+    h = hashlib.sha256()
+    for top in PORT_DIRS:
+        for path in sorted((tree / top).rglob("*")):
+            if path.is_file() and "__pycache__" not in path.parts:
+                h.update(path.relative_to(tree).as_posix().encode() + b"\0")
+                h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def _compiler_version() -> str:
+    gcc = shutil.which("arm-none-eabi-gcc")
+    if gcc is None:
+        raise QemuError("arm-none-eabi-gcc is not installed", hint="apt-get install gcc-arm-none-eabi "
+                        "picolibc-arm-none-eabi")
+    return subprocess.run([gcc, "--version"], capture_output=True, text=True).stdout.splitlines()[0]
+
+
+def firmware(tree: Path, board: str, log=None) -> Path:
+    """The QEMU port's firmware.elf for `board`, built from `tree` into the cache on first use."""
+    spec = BOARDS[board]
+    make_args = spec.get("make", [])
+    key = hashlib.sha256(f"{tree_digest(tree)} {board} {spec['cflags']} {make_args} {_compiler_version()}"
+                         .encode()).hexdigest()
+    home = _cache() / key[:24]
+    elf = home / "firmware.elf"
+    if elf.is_file():
+        return elf
+    home.mkdir(parents=True, exist_ok=True)
+    with open(home / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be building the same firmware
+        if elf.is_file():
+            return elf
+        source = home / "src"
+        if source.exists():
+            shutil.rmtree(source)
+        for top in PORT_DIRS:
+            shutil.copytree(tree / top, source / top, symlinks=True)
+        for path in source.rglob("*"):  # the shared tree is read-only; the copy must take build output
+            path.chmod(path.stat().st_mode | 0o200)
+        if log:
+            log(f"building MicroPython's QEMU port for {board} in {source} (once; cached by content)")
+        command = ["make", "-C", str(source / "ports" / "qemu"), f"BOARD={board}", "FROZEN_MANIFEST=",
+                   f"CFLAGS_EXTRA={spec['cflags']}", *make_args, f"-j{os.cpu_count() or 1}"]
+        done = subprocess.run(command, capture_output=True, text=True)
+        built = source / "ports" / "qemu" / f"build-{board}" / "firmware.elf"
+        if done.returncode or not built.is_file():
+            raise QemuError(f"the QEMU port did not build for {board}:\n{(done.stderr or done.stdout)[-3000:]}")
+        shutil.copy2(built, home / "firmware.tmp")
+        (home / "firmware.tmp").rename(elf)
+        shutil.rmtree(source)
+    return elf
+
+
+@dataclass
+class Result:
+    stdout: str
+    error: str
+
+
+class Session:
+    """One qemu-system-arm running the firmware, driven over the raw REPL; a context manager."""
+
+    def __init__(self, elf: Path, board: str, timeout: float = 120.0):
+        qemu = shutil.which("qemu-system-arm")
+        if qemu is None:
+            raise QemuError("qemu-system-arm is not installed", hint="apt-get install qemu-system-arm")
+        self.board, self.timeout = board, timeout
+        self.process = subprocess.Popen(
+            [qemu, "-machine", *BOARDS[board]["machine"], "-nographic", "-monitor", "null", "-semihosting",
+             "-serial", "stdio", "-icount", "shift=0", "-kernel", str(elf)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.buffer = b""
+        self._send(b"\r\x03\x03\x01")
+        self._until(b"raw REPL; CTRL-B to exit\r\n>")
+        self.exec(MEM_FS)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+        self.process.wait()
+        for stream in (self.process.stdin, self.process.stdout, self.process.stderr):
+            stream.close()
+
+    def _send(self, data: bytes) -> None:
+        self.process.stdin.write(data)
+        self.process.stdin.flush()
+
+    def _until(self, token: bytes, timeout: Optional[float] = None) -> bytes:
+        deadline = time.monotonic() + (timeout or self.timeout)
+        while token not in self.buffer:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise QemuError(f"QEMU {self.board}: no answer within {timeout or self.timeout:.0f} s; last output: "
+                                f"{self.buffer[-500:]!r}")
+            ready, _, _ = select.select([self.process.stdout], [], [], min(left, 1.0))
+            if ready:
+                chunk = os.read(self.process.stdout.fileno(), 65536)
+                if not chunk:
+                    raise QemuError(f"QEMU {self.board} exited: {self.process.stderr.read()[-500:]!r}")
+                self.buffer += chunk
+        head, _, self.buffer = self.buffer.partition(token)
+        return head
+
+    def exec(self, code: str, timeout: Optional[float] = None) -> str:
+        """Run `code` (MicroPython source) and return what it printed; QemuError with the traceback if it raised."""
+        self._send(code.encode() + b"\x04")
+        self._until(b"OK", timeout)
+        out = self._until(b"\x04", timeout)
+        err = self._until(b"\x04", timeout)
+        self._until(b">", timeout)
+        if err.strip():
+            raise QemuError(f"MicroPython on QEMU {self.board} raised:\n{err.decode(errors='replace')}")
+        return out.decode(errors="replace").replace("\r\n", "\n")
+
+    def send_array(self, name: str, typecode: str, data: bytes) -> None:
+        """Make the global `name` an array(typecode) holding the raw bytes `data` (sent in base64 chunks small
+        enough to compile on the device; a bytearray or array initialiser is copied byte for byte)."""
+        self.exec(f"import binascii\nfrom array import array\n{name} = array({typecode!r}, bytearray({len(data)}))\n"
+                  f"_mv = memoryview({name})")
+        size = 1 if typecode in "bB" else 2 if typecode in "hH" else 4
+        for start in range(0, len(data), CHUNK):
+            piece = data[start:start + CHUNK]
+            self.exec(f"_mv[{start // size}:{(start + len(piece)) // size}] = array({typecode!r}, "
+                      f"bytearray(binascii.a2b_base64({base64.b64encode(piece).decode()!r})))")
+        self.exec("del _mv")
+
+    def put_file(self, name: str, data: bytes) -> None:
+        """Make /mem/NAME hold `data` (importable when NAME is a module)."""
+        self.send_array("_buf", "B", data)
+        self.exec(f"_memfs.files[{name!r}] = _buf\ndel _buf")

@@ -1,0 +1,335 @@
+"""GPS gaps: where epochs are missing, the orientation the IMU is turned with there, and how uncertain it is.
+
+Outside gaps the orientation is the Slerp between solved GPS intervals (one every epoch). Across a gap there is no
+solved interval, so:
+
+- with a gyro, the orientation is the gyro's integral started at the last solved interval before the gap, and turned
+  back, in proportion to the time elapsed, by the rotation that separates the integral's end from the first solved
+  interval after the gap (a constant gyro bias is removed exactly, to first order, like a cubic Hermite bridge
+  removes a constant accelerometer bias);
+- without one, the Slerp from the orientation before to the one after: right while the device does not turn, wrong
+  by however much it turned in between.
+
+Either way an angle error grows away from the two ends. `GapModel` says how fast, from the run itself: the RMS rate
+at which the solved yaw and tilt change from one GPS interval to the next (no gyro), or the gyro noise (gyro). A yaw
+error psi turns the horizontal acceleration (mean cos psi, so the input is shrunk by E[cos psi] = exp(-sigma^2 / 2),
+the rest is noise); a tilt error theta lets g theta of gravity into the horizontal. The smoother adds that noise
+over the gap, so the reported 1-sigma grows where the accelerations are uncertain, and where they say nothing the
+bridge falls back to the smooth curve between the two ends (the cubic Hermite bridge of GPS positions and velocity).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from codegen.board.model import STANDARD_GRAVITY
+
+GAP_EPOCH_FACTOR = 1.5  # an interval this many typical epoch intervals long has at least one epoch missing
+GYRO_NOISE_DENSITY = np.radians(0.005)  # rad/s/sqrt(Hz), MPU-6050 datasheet rate noise spectral density
+GYRO_BIAS_WINDOW = 5.0  # s, stretches over which the gyro's turn is compared with the solved orientation's
+ALIGN_WINDOW = 5.0  # s before and after a gap whose solved orientations the gyro's integral is aligned to
+CORRELATION_FRACTION = 0.35  # the angle errors of a gap stay correlated over this fraction of its length
+MAX_ANGLE_SIGMA = np.pi  # rad: beyond this an angle is simply unknown
+
+
+@dataclass
+class Gap:
+    """Missing GPS epochs between two epochs that are there: t0 (the last before) and t1 (the first after)."""
+
+    index: int  # GPS epoch index of t0
+    t0: float
+    t1: float
+    missing: int  # epochs missing at the typical rate
+
+    @property
+    def length(self) -> float:
+        return self.t1 - self.t0
+
+
+def find_gaps(gps_t: np.ndarray, factor: float = GAP_EPOCH_FACTOR) -> list[Gap]:
+    """Intervals longer than `factor` typical (median) epoch intervals: at least one epoch is missing there."""
+    if len(gps_t) < 2:
+        return []
+    step = np.diff(gps_t)
+    typical = float(np.median(step))
+    return [Gap(int(k), float(gps_t[k]), float(gps_t[k + 1]), int(round(step[k] / typical)) - 1)
+            for k in np.flatnonzero(step > factor * typical)]
+
+
+def hermite_bridge(t: np.ndarray, t0: float, p0: np.ndarray, v0: np.ndarray, t1: float, p1: np.ndarray,
+                   v1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cubic through positions p0, p1 (m) with velocities v0, v1 (m/s) at t0, t1 (s): positions and velocities
+    at t. The GPS-only bridge of a gap, and the minimum-acceleration path between the two ends."""
+    h = t1 - t0
+    s = ((np.asarray(t, dtype=float) - t0) / h)[:, None]
+    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+    d00, d10, d01, d11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
+    pos = h00 * p0 + h10 * h * v0 + h01 * p1 + h11 * h * v1
+    vel = (d00 * p0 + d01 * p1) / h + d10 * v0 + d11 * v1
+    return pos, vel
+
+
+@dataclass
+class Span:
+    """Stretch between two solved intervals' midpoints (a, b) that a GPS gap lies in."""
+
+    gap: Gap
+    a: float
+    b: float
+    gyro: bool  # orientation from the gyro (else Slerp)
+    rotation: Optional[Callable[[np.ndarray], Rotation]] = None
+    end_sigma: Optional[np.ndarray] = None  # (3,) rad, roll/pitch/yaw 1-sigma at the ends (else the model's)
+
+
+@dataclass
+class GapModel:
+    """The orientation to turn the accelerations with, and its uncertainty, with GPS gaps bridged."""
+
+    slerp: Callable[[np.ndarray], Rotation]
+    spans: list[Span]
+    yaw_rate: float  # rad/sqrt(s): random-walk rate of the yaw between solved intervals (see angle_sigma)
+    tilt_rate: float  # rad/sqrt(s), of the tilt
+    end_sigma: np.ndarray  # (3,) rad, typical 1-sigma of a solved interval's roll, pitch, yaw
+    bias_sigma: float = 0.0  # m/s^2, 1-sigma per axis of the accelerometer bias left after its removal
+    gyro_bias: Optional[np.ndarray] = None  # (3,) rad/s, sensor frame, removed before integrating
+    notes: list[str] = field(default_factory=list)
+
+    def rotation(self, t: np.ndarray) -> Rotation:
+        t = np.asarray(t, dtype=float)
+        rot = self.slerp(t)
+        quat = rot.as_quat()
+        for span in self.spans:
+            if span.rotation is None:
+                continue
+            sel = (t > span.a) & (t < span.b)
+            if sel.any():
+                quat[sel] = span.rotation(t[sel]).as_quat()
+        return Rotation.from_quat(quat)
+
+    def angle_sigma(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(yaw, tilt) 1-sigma in rad at t: the solved intervals' own 1-sigma, and inside a gap's span a random-walk
+        bridge between its two ends, of the gyro's rate noise (gyro) or of the angles' own rate of change (Slerp)."""
+        t = np.asarray(t, dtype=float)
+        yaw = np.full(len(t), self.end_sigma[2])
+        tilt = np.full(len(t), float(np.hypot(self.end_sigma[0], self.end_sigma[1])))
+        for span in self.spans:
+            sel = (t > span.a) & (t < span.b)
+            if not sel.any():
+                continue
+            if span.end_sigma is not None:
+                yaw[sel] = span.end_sigma[2]
+                tilt[sel] = np.hypot(span.end_sigma[0], span.end_sigma[1])
+            d0, d1 = t[sel] - span.a, span.b - t[sel]
+            if span.gyro:
+                grow = np.sqrt(d0 * d1 / (span.b - span.a))  # Brownian bridge of the rate noise, sqrt(s)
+                yaw[sel] = np.hypot(yaw[sel], GYRO_NOISE_DENSITY * grow)
+                tilt[sel] = np.hypot(tilt[sel], GYRO_NOISE_DENSITY * grow)
+            else:
+                grow = np.sqrt(d0 * d1 / (span.b - span.a))
+                yaw[sel] = np.hypot(yaw[sel], self.yaw_rate * grow)
+                tilt[sel] = np.hypot(tilt[sel], self.tilt_rate * grow)
+        return np.minimum(yaw, MAX_ANGLE_SIGMA), np.minimum(tilt, MAX_ANGLE_SIGMA)
+
+    def inside(self, t: np.ndarray) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        out = np.zeros(len(t), dtype=bool)
+        for span in self.spans:
+            out |= (t > span.a) & (t < span.b)
+        return out
+
+    def correlation_time(self, t: np.ndarray) -> np.ndarray:
+        """s: how long an angle error at t stays the same (a fraction of the span's length; 0 outside spans)."""
+        t = np.asarray(t, dtype=float)
+        out = np.zeros(len(t))
+        for span in self.spans:
+            sel = (t > span.a) & (t < span.b)
+            out[sel] = CORRELATION_FRACTION * (span.b - span.a)
+        return out
+
+    def rotate(self, t: np.ndarray, acc: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """ENU accelerations without gravity (m/s^2), the horizontal part shrunk inside the spans by E[cos yaw error],
+        and the acceleration noise (m/s^2/sqrt(Hz), (N,3)) the angle errors and the bias leave there.
+
+        The turned part of the acceleration changes as fast as the motion does, so its variance counts over the
+        motion's own correlation time (from the accelerations outside the gaps); the gravity a tilt error lets in
+        and the bias stay the same over much of a span, so theirs counts over `CORRELATION_FRACTION` of it."""
+        a = self.rotation(t).apply(acc - bias) - np.array([0.0, 0.0, STANDARD_GRAVITY])
+        density = np.zeros_like(a)
+        inside = self.inside(t)
+        if inside.any():
+            motion_time = _correlation_time(t[~inside], a[~inside, :2])
+            yaw, tilt = self.angle_sigma(t[inside])
+            shrink = np.exp(-0.5 * yaw**2)
+            horizontal = np.hypot(a[inside, 0], a[inside, 1])
+            a[inside, :2] *= shrink[:, None]
+            # per horizontal axis: half the variance of the turned part; half of the gravity let in by the tilt;
+            # the bias left in the sensor frame, as far as the device turns it within the span (a bias that stays
+            # put in ENU is taken out by the two ends)
+            turned = np.minimum(1.0, self._turn(t)[inside] + yaw)
+            var_fast = 0.5 * horizontal**2 * (1.0 - np.exp(-yaw**2))
+            var_slow = 0.5 * (STANDARD_GRAVITY * tilt) ** 2 + (self.bias_sigma * turned) ** 2
+            q = var_fast * motion_time + var_slow * self.correlation_time(t[inside])
+            density[inside, :2] = np.sqrt(q)[:, None]
+        return a, density
+
+    def _turn(self, t: np.ndarray) -> np.ndarray:
+        """rad: how far the device's heading ranges over the span each t lies in (0 outside spans)."""
+        out = np.zeros(len(t))
+        for span in self.spans:
+            sel = (t > span.a) & (t < span.b)
+            if sel.sum() > 1:
+                heading = np.unwrap(self.rotation(t[sel]).as_euler("ZYX")[:, 0])
+                out[sel] = np.ptp(heading)
+        return out
+
+
+def _integrate(t: np.ndarray, gyro: np.ndarray, a: float, b: float) -> tuple[np.ndarray, np.ndarray, Rotation]:
+    """The gyro's rotation from a to b (identity at a): step times, the rate held over each step, the rotations."""
+    sel = np.flatnonzero((t > a) & (t < b))
+    times = np.concatenate([[a], t[sel], [b]])
+    rates = gyro[np.concatenate([[max(sel[0] - 1, 0)], sel])] if len(sel) else np.zeros((1, 3))
+    if not len(sel):
+        times = np.array([a, b])
+    steps = Rotation.from_rotvec(rates * np.diff(times)[:, None])
+    quats = np.empty((len(times), 4))
+    r = Rotation.identity()
+    quats[0] = r.as_quat()
+    for k in range(len(steps)):
+        r = r * steps[k]
+        quats[k + 1] = r.as_quat()
+    return times, rates, Rotation.from_quat(quats)
+
+
+def _align(offsets: Rotation) -> tuple[Rotation, np.ndarray]:
+    """Mean of ENU-frame offset rotations and the 1-sigma of that mean as (roll, pitch, yaw) spread / sqrt(n)."""
+    mean = offsets.mean()
+    spread = (offsets * mean.inv()).as_rotvec()
+    n = len(spread)
+    sigma = np.sqrt(np.mean(spread**2, axis=0) / max(n - 1, 1)) if n > 1 else np.full(3, np.inf)
+    return mean, sigma
+
+
+def _gyro_span(t: np.ndarray, gyro: np.ndarray, slerp: Callable[[np.ndarray], Rotation], solved_t: np.ndarray,
+               a: float, b: float) -> tuple[Callable[[np.ndarray], Rotation], np.ndarray]:
+    """Sensor->ENU rotation on [a, b] from the gyro, and the 1-sigma (roll, pitch, yaw, rad) of its alignment.
+
+    The gyro's integral G(t) is set against the solved orientations S of the intervals within `ALIGN_WINDOW` before a
+    and after b: the mean offset S G^-1 on each side (a single solved interval's angles are noisy, their mean over
+    a few seconds is not), then Slerp from the one before to the one after across the span, so the gyro's drift
+    over the span is taken out in proportion to the time elapsed."""
+    lo, hi = a - ALIGN_WINDOW, b + ALIGN_WINDOW
+    times, rates, integral = _integrate(t, gyro, lo, hi)
+
+    def gyro_at(tt: np.ndarray) -> Rotation:
+        k = np.clip(np.searchsorted(times, tt, side="right") - 1, 0, len(times) - 2)
+        return integral[k] * Rotation.from_rotvec(rates[k] * (tt - times[k])[:, None])
+
+    before = solved_t[(solved_t >= lo) & (solved_t <= a)]
+    after = solved_t[(solved_t >= b) & (solved_t <= hi)]
+    left, s_left = _align(slerp(before) * gyro_at(before).inv())
+    right, s_right = _align(slerp(after) * gyro_at(after).inv())
+    offsets = Rotation.concatenate([left, right])
+    across = Slerp([a, b], offsets)
+
+    def rotation(tt: np.ndarray) -> Rotation:
+        return across(np.clip(tt, a, b)) * gyro_at(tt)
+
+    return rotation, np.maximum(s_left, s_right)
+
+
+def estimate_gyro_bias(t: np.ndarray, gyro: np.ndarray, slerp: Callable[[np.ndarray], Rotation],
+                       covered: list[tuple[float, float]]) -> Optional[np.ndarray]:
+    """Constant gyro bias (rad/s, sensor frame): over windows of `GYRO_BIAS_WINDOW` inside stretches GPS covers, the
+    rotation the gyro integrates against the one between the solved orientations at the window's ends."""
+    misses, spans = [], []
+    for c0, c1 in covered:
+        for w0 in np.arange(c0, c1 - GYRO_BIAS_WINDOW, GYRO_BIAS_WINDOW):
+            w1 = w0 + GYRO_BIAS_WINDOW
+            sel = np.flatnonzero((t >= w0) & (t < w1))
+            if len(sel) < 10:
+                continue
+            dt = np.diff(np.append(t[sel], w1))
+            steps = Rotation.from_rotvec(gyro[sel] * dt[:, None])
+            r = Rotation.identity()
+            for k in range(len(steps)):
+                r = r * steps[k]
+            ends = slerp(np.array([t[sel[0]], w1]))
+            solved = ends[0].inv() * ends[1]
+            misses.append((solved.inv() * r).as_rotvec())  # body frame: turned too far by the bias * window
+            spans.append(w1 - t[sel[0]])
+    if len(misses) < 3:
+        return None
+    return np.median(np.array(misses) / np.array(spans)[:, None], axis=0)
+
+
+def gap_model(slerp: Callable[[np.ndarray], Rotation], solved_t: np.ndarray, solved_euler: np.ndarray,
+              solved_sigma: np.ndarray, gps_t: np.ndarray, imu_t: np.ndarray, gyro: Optional[np.ndarray],
+              bias_sigma: float = 0.0) -> GapModel:
+    """The spans of the gaps in `gps_t` between the solved intervals (midpoints `solved_t`, Euler roll/pitch/yaw)
+    around them; their orientation from the gyro where there is one; the rates their angle errors grow at."""
+    gaps = find_gaps(gps_t)
+    yaw_rate, tilt_rate = _angle_rates(solved_t, solved_euler)
+    end_sigma = np.zeros(3)
+    for i in range(3):
+        column = solved_sigma[:, i][np.isfinite(solved_sigma[:, i])]
+        end_sigma[i] = float(np.median(column)) if len(column) else 0.0
+    model = GapModel(slerp, [], yaw_rate, tilt_rate, end_sigma, bias_sigma)
+    covered, last = [], gps_t[0]
+    for gap in gaps:
+        covered.append((last, gap.t0))
+        last = gap.t1
+    covered.append((last, gps_t[-1]))
+    if gyro is not None and gaps:
+        model.gyro_bias = estimate_gyro_bias(imu_t, gyro, slerp, covered)
+        if model.gyro_bias is None:
+            model.notes.append("gyro bias: too little GPS-covered time to estimate it; the gyro is used as logged")
+    for gap in gaps:
+        before = solved_t[solved_t <= gap.t0 + 1e-9]
+        after = solved_t[solved_t >= gap.t1 - 1e-9]
+        a = float(before[-1]) if len(before) else gap.t0
+        b = float(after[0]) if len(after) else gap.t1
+        span = Span(gap, a, b, gyro=gyro is not None)
+        if gyro is not None and len(before) and len(after):
+            g = gyro - (model.gyro_bias if model.gyro_bias is not None else 0.0)
+            span.rotation, span.end_sigma = _gyro_span(imu_t, g, slerp, solved_t, a, b)
+        else:
+            span.gyro = False
+        model.spans.append(span)
+    return model
+
+
+def _correlation_time(t: np.ndarray, a: np.ndarray) -> float:
+    """s: the integral time scale of the horizontal accelerations (two-sided integral of their autocorrelation,
+    up to its first zero), at the samples' median rate; what turns a variance into a white-noise density."""
+    if len(t) < 16:
+        return 1.0
+    step = float(np.median(np.diff(t)))
+    x = a - a.mean(axis=0)
+    n = len(x)
+    spectrum = np.fft.rfft(x, 2 * n, axis=0)
+    acf = np.fft.irfft(np.abs(spectrum) ** 2, axis=0)[:n].sum(axis=1)
+    if acf[0] <= 0:
+        return step
+    rho = acf / acf[0]
+    first_zero = int(np.argmax(rho <= 0)) if (rho <= 0).any() else n
+    return float(step * (2.0 * rho[:first_zero].sum() - 1.0))
+
+
+def _angle_rates(t: np.ndarray, euler: np.ndarray) -> tuple[float, float]:
+    """Random-walk rates (rad/sqrt(s)) of the yaw and of the tilt: sqrt(mean(change^2 / dt)) between consecutive
+    solved intervals."""
+    if len(t) < 3:
+        return 0.0, 0.0
+    dt = np.diff(t)
+    typical = np.median(dt)
+    near = dt < GAP_EPOCH_FACTOR * typical  # consecutive epochs, not across a gap
+    if not near.any():
+        return 0.0, 0.0
+    d = np.diff(euler, axis=0)
+    d = (d + np.pi) % (2 * np.pi) - np.pi
+    var = d[near] ** 2 / dt[near, None]
+    return float(np.sqrt(np.mean(var[:, 2]))), float(np.sqrt(np.mean(var[:, 0] + var[:, 1])))
