@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from codegen.kernel import fused as F
-from codegen.kernel.reference import STANDARD_GRAVITY, quat_from_rotvec, quat_multiply, quat_to_matrix
 from codegen.kernel.layout import FUSED
+from codegen.kernel.reference import STANDARD_GRAVITY, quat_from_rotvec, quat_multiply, quat_to_matrix
 from fusedkit import FCFG, IMPLEMENTATIONS, KCFG, chunks, run
 
 G = STANDARD_GRAVITY
