@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from codegen.errors import UserError
+from codegen.sim import SCENARIOS
 
 
 def _board_arg(parser: argparse.ArgumentParser) -> None:
@@ -180,7 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="simulated sensors through the board's pipeline; outage metrics and plots")
     _board_arg(p)
-    p.add_argument("--scenario", default="walk", choices=("static", "push", "walk", "car", "replay-walk"))
+    p.add_argument("--scenario", default="walk", choices=SCENARIOS)
     p.add_argument("--outage", type=float, default=30.0, help="seconds without GPS (default 30)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the scenario and sensor models")
     p.add_argument("--gps", default="open-sky", choices=("open-sky", "poor", "rtk"), help="NEO-6M error profile")

@@ -72,23 +72,217 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
     }
     st->mean_f = dr_sqrt(m2) * kcfg->accel_ms2_per_lsb;
     st->var_f = 0.0f;
-    st->w2 = 0.0f;
+    st->vib_var = 0.0f;
+    st->vib_tot = 0.0f;
+    st->vib_lp[0] = st->mean_f;
+    st->vib_lp[1] = 0.0f;
+    for (i = 0; i < 3; i++) {
+        st->ws[i] = 0.0f;
+    }
     st->rest_s = 0.0f;
     st->speed = 0.0f;
     st->bax = 0.0f;
     st->bay = 0.0f;
+    st->baz = 0.0f;
     return code;
+}
+
+/* The tilt/offset filter's covariance as a full 5 x 5 matrix: the 4 x 4 block's upper triangle (st->p, row by row)
+ * and the fifth column (st->pz). */
+static void dr_fused_p_load(const dr_fused_state *st, float pm[5][5]) {
+    int i, j, n = 0;
+    for (i = 0; i < 4; i++) {
+        for (j = i; j < 4; j++) {
+            pm[i][j] = st->p[n];
+            pm[j][i] = st->p[n];
+            n++;
+        }
+    }
+    for (i = 0; i < 5; i++) {
+        pm[i][4] = st->pz[i];
+        pm[4][i] = st->pz[i];
+    }
+}
+
+static void dr_fused_p_store(dr_fused_state *st, float pm[5][5]) {
+    int i, j, n = 0;
+    for (i = 0; i < 4; i++) {
+        for (j = i; j < 4; j++) {
+            st->p[n++] = pm[i][j];
+        }
+    }
+    for (i = 0; i < 5; i++) {
+        st->pz[i] = pm[i][4];
+    }
+}
+
+/* The rows of R(q) (body -> kernel ENU): r[i][j] for i, j in 0..2. */
+static void dr_fused_rotation(const float q[4], float r[3][3]) {
+    float qw = q[0], qx = q[1], qy = q[2], qz = q[3];
+    r[0][0] = 1.0f - 2.0f * (qy * qy + qz * qz);
+    r[0][1] = 2.0f * (qx * qy - qw * qz);
+    r[0][2] = 2.0f * (qx * qz + qw * qy);
+    r[1][0] = 2.0f * (qx * qy + qw * qz);
+    r[1][1] = 1.0f - 2.0f * (qx * qx + qz * qz);
+    r[1][2] = 2.0f * (qy * qz - qw * qx);
+    r[2][0] = 2.0f * (qx * qz - qw * qy);
+    r[2][1] = 2.0f * (qy * qz + qw * qx);
+    r[2][2] = 1.0f - 2.0f * (qx * qx + qy * qy);
+}
+
+/* Starts the tilt/offset filter on its first use after calibration (codegen.fused's _kf_start): b ~ kf_bias_init_g
+ * per axis across gravity (0 along it), d = -R_h b. Returns 1 if it started now (no update this time). */
+static int dr_fused_kf_start(const dr_fused_config *cfg, dr_fused_state *st) {
+    float r[3][3], pm[5][5];
+    const float v = cfg->kf_bias_var;
+    int i, j, c;
+    if (st->p[7] > 0.0f) {
+        return 0;
+    }
+    dr_fused_rotation(st->q, r);
+    for (i = 0; i < 5; i++) {
+        for (j = i; j < 5; j++) {
+            float value;
+            if (j < 2) {
+                value = 0.0f;
+                for (c = 0; c < 3; c++) {
+                    value += r[i][c] * r[j][c];
+                }
+                value *= v;
+            } else if (i < 2) {
+                value = -v * r[i][j - 2];
+            } else { /* LLVM's Xtensa backend cannot select a constant pair (i == j ? 1.0f : 0.0f) */
+                value = -v * r[2][i - 2] * r[2][j - 2];
+                if (i == j) {
+                    value += v;
+                }
+            }
+            pm[i][j] = value;
+            pm[j][i] = value;
+        }
+    }
+    dr_fused_p_store(st, pm);
+    st->kf_t = 0.0f;
+    st->turn = 0.0f;
+    return 1;
+}
+
+/* The filter's process noise over the kf_t seconds since its last prediction (codegen.fused's _kf_predict). */
+static void dr_fused_kf_predict(const dr_fused_config *cfg, dr_fused_state *st) {
+    float qd = cfg->kf_tilt_q * st->kf_t + cfg->kf_turn_q * st->turn * st->turn;
+    float qb = cfg->kf_bias_q * st->kf_t;
+    st->p[0] += qd;
+    st->p[4] += qd;
+    st->p[7] += qb;
+    st->p[9] += qb;
+    st->pz[4] += qb;
+    st->kf_t = 0.0f;
+    st->turn = 0.0f;
+}
+
+/* The filter's update with z = d + h b + noise (variance r per axis), fed back at once (codegen.fused's _kf_update):
+ * b into bax, bay, baz, d as a small rotation of q about the kernel frame's horizontal axes. x: the correction. */
+static void dr_fused_kf_update(dr_fused_state *st, float z0, float z1, const float h[2][3], float r, float x[5]) {
+    float pm[5][5], pht[5][2], gain[5][2];
+    float s00, s01, s11, inv_det, i00, i01, i11, hx, hy;
+    int i, j, c;
+    dr_fused_p_load(st, pm);
+    for (i = 0; i < 5; i++) { /* P H^T, H = [I2 | h] */
+        for (j = 0; j < 2; j++) {
+            pht[i][j] = pm[i][j];
+            for (c = 0; c < 3; c++) {
+                pht[i][j] += pm[i][2 + c] * h[j][c];
+            }
+        }
+    }
+    s00 = pht[0][0] + r;
+    s01 = pht[0][1];
+    s11 = pht[1][1] + r;
+    for (c = 0; c < 3; c++) {
+        s00 += h[0][c] * pht[2 + c][0];
+        s01 += h[0][c] * pht[2 + c][1];
+        s11 += h[1][c] * pht[2 + c][1];
+    }
+    inv_det = dr_recip(s00 * s11 - s01 * s01);
+    i00 = s11 * inv_det;
+    i01 = -s01 * inv_det;
+    i11 = s00 * inv_det;
+    for (i = 0; i < 5; i++) { /* K = P H^T S^-1, x = K z */
+        gain[i][0] = pht[i][0] * i00 + pht[i][1] * i01;
+        gain[i][1] = pht[i][0] * i01 + pht[i][1] * i11;
+        x[i] = gain[i][0] * z0 + gain[i][1] * z1;
+    }
+    for (i = 0; i < 5; i++) {
+        for (j = i; j < 5; j++) {
+            pm[i][j] -= gain[i][0] * pht[j][0] + gain[i][1] * pht[j][1];
+        }
+    }
+    for (i = 0; i < 5; i++) { /* the upper triangle is what is stored */
+        for (j = 0; j < i; j++) {
+            pm[i][j] = pm[j][i];
+        }
+    }
+    dr_fused_p_store(st, pm);
+    st->bax += x[2];
+    st->bay += x[3];
+    st->baz += x[4];
+    /* remove the leak: q <- [1, (d_N / g, -d_E / g, 0) / 2] (x) q */
+    hx = 0.5f * x[1] * DR_INV_GRAVITY;
+    hy = -0.5f * x[0] * DR_INV_GRAVITY;
+    {
+        float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
+        float nw = qw - hx * qx - hy * qy;
+        float nx = qx + hx * qw + hy * qz;
+        float ny = qy + hy * qw - hx * qz;
+        float nz = qz + hx * qy - hy * qx;
+        float inv = dr_inv_sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
+        st->q[0] = nw * inv;
+        st->q[1] = nx * inv;
+        st->q[2] = ny * inv;
+        st->q[3] = nz * inv;
+    }
+}
+
+/* Every rest_update_s at rest (codegen.fused's rest_update): the smoothed rate is the gyro bias's error, the smoothed
+ * horizontal specific force the tilt/offset filter's; both taken in. */
+static void dr_fused_rest_update(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st) {
+    float zt = st->zt, r[3][3], h[2][3], x[5];
+    int i;
+    st->zt = 0.0f;
+    if (cfg->inv_bias_tau > 0.0f) {
+        float k = zt * cfg->inv_bias_tau;
+        k = (k < 1.0f ? k : 1.0f) * dr_recip(kcfg->gyro_rads_per_lsb);
+        for (i = 0; i < 3; i++) {
+            st->gyro_bias_lsb[i] += k * st->ws[i];
+        }
+    }
+    if (!(cfg->kf_bias_var > 0.0f) || !(cfg->kf_rest_r > 0.0f) || dr_fused_kf_start(cfg, st)) {
+        return;
+    }
+    dr_fused_kf_predict(cfg, st);
+    dr_fused_rotation(st->q, r);
+    for (i = 0; i < 3; i++) {
+        h[0][i] = r[0][i];
+        h[1][i] = r[1][i];
+    }
+    dr_fused_kf_update(st, st->ah[0], st->ah[1], (const float(*)[3])h, cfg->kf_rest_r, x);
+    /* the correction leaves the samples from now on: the smoothed value follows */
+    st->ah[0] -= x[0] + h[0][0] * x[2] + h[0][1] * x[3] + h[0][2] * x[4];
+    st->ah[1] -= x[1] + h[1][0] * x[2] + h[1][1] * x[3] + h[1][2] * x[4];
 }
 
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
                      const int32_t *dt_us, int32_t count, float out[6]) {
     const float g = DR_GRAVITY_MS2;
     const float db2 = kcfg->deadband_ms2 * kcfg->deadband_ms2;
+    const int platform = (int)cfg->platform;
     float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
     float pe0 = st->pe, pn0 = st->pn;
     float ve, vn;
     int32_t k;
     int flags = (int)st->flags;
+    int vehicle = platform == DR_FUSED_PLATFORM_VEHICLE || (flags & DR_FUSED_VEHICLE);
+    int driven = flags & DR_FUSED_SHAKEN;
     int32_t median = cfg->median > 0.0f && kcfg->block > 1 ? kcfg->block : 0;
     if (count < 1) {
         return DR_ERR_COUNT;
@@ -100,9 +294,9 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         const int16_t *s = samples + 6 * k;
         float dt = (float)dt_us[k] * DR_S_PER_US;
         float f[3], c[3], w[3];
-        float nf, alpha, d, r00, r01, r02, r10, r11, r12, r20, r21, r22, ae, an, r, da, ux, uy, inv, gain, cx, cy, cz,
-            nc2;
-        int i, rest, walking, turning = flags & DR_FUSED_TURNING;
+        float nf, alpha, beta, gamma, d, h, r00, r01, r02, r10, r11, r12, r20, r21, r22, ae, an, de, dn, r, da, ux, uy,
+            ue, un, inv, gain, cx, cy, cz, nc2;
+        int i, rest, walking, steps, shaken, broadband, turning = flags & DR_FUSED_TURNING;
         for (i = 0; i < 3; i++) {
             int32_t src = kcfg->axis_source[i];
             f[i] = kcfg->axis_sign[i] * (float)s[src] * kcfg->accel_ms2_per_lsb;
@@ -111,6 +305,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         }
         f[0] -= st->bax;
         f[1] -= st->bay;
+        f[2] -= st->baz;
         /* motion statistics */
         nf = dr_sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
         alpha = dt * cfg->inv_stat_tau;
@@ -120,7 +315,25 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         st->mean_f += alpha * (nf - st->mean_f);
         d = nf - st->mean_f;
         st->var_f += alpha * (d * d - st->var_f);
-        st->w2 += alpha * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2] - st->w2);
+        /* the shaking above the gait band: |f| through two first-order high-passes at vibration_hz */
+        beta = dt * cfg->vib_rate;
+        if (beta > 1.0f) {
+            beta = 1.0f;
+        }
+        st->vib_lp[0] += beta * (nf - st->vib_lp[0]);
+        h = nf - st->vib_lp[0];
+        st->vib_lp[1] += beta * (h - st->vib_lp[1]);
+        h -= st->vib_lp[1];
+        gamma = dt * cfg->inv_vib_tau;
+        if (gamma > 1.0f) {
+            gamma = 1.0f;
+        }
+        st->vib_var += gamma * (h * h - st->vib_var);
+        st->vib_tot += gamma * (d * d - st->vib_tot);
+        /* the body rate smoothed: an idling engine's shake averages out */
+        for (i = 0; i < 3; i++) {
+            st->ws[i] += alpha * (w[i] - st->ws[i]);
+        }
         /* rotation matrix of q */
         r00 = 1.0f - 2.0f * (qy * qy + qz * qz);
         r01 = 2.0f * (qx * qy - qw * qz);
@@ -133,14 +346,38 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         r22 = 1.0f - 2.0f * (qx * qx + qy * qy);
         ae = r00 * f[0] + r01 * f[1] + r02 * f[2];
         an = r10 * f[0] + r11 * f[1] + r12 * f[2];
-        /* rest: still, and no horizontal acceleration beyond the deadband (a smooth push is no rest) */
-        if (st->var_f < cfg->rest_var && st->w2 < cfg->rest_w2 && ae * ae + an * an < db2) {
+        /* walking: shaken, in the gait band (auto) for walk_time_s; a vehicle: shaken above it, or the platform */
+        shaken = st->var_f > cfg->walk_var;
+        broadband = st->vib_var > cfg->vib_ratio * st->vib_tot;
+        steps = platform != DR_FUSED_PLATFORM_VEHICLE && shaken &&
+                (platform == DR_FUSED_PLATFORM_PEDESTRIAN || !broadband);
+        st->walk_s = steps ? st->walk_s + dt : 0.0f;
+        walking = steps && ((flags & DR_FUSED_WALKING) || st->walk_s >= cfg->walk_time_s);
+        if (walking) {
+            vehicle = 0;
+        } else if (shaken && broadband && platform != DR_FUSED_PLATFORM_PEDESTRIAN) {
+            vehicle = 1;
+        }
+        /* rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
+         * deadband (a vehicle quiet after shaking, or below rest_speed_ms: any) */
+        st->ah[0] += alpha * (ae - st->ah[0]);
+        st->ah[1] += alpha * (an - st->ah[1]);
+        de = ae - st->ah[0];
+        dn = an - st->ah[1];
+        if (st->var_f < cfg->rest_var && st->ws[0] * st->ws[0] + st->ws[1] * st->ws[1] + st->ws[2] * st->ws[2] <
+            cfg->rest_w2 && de * de + dn * dn < db2 &&
+            (ae * ae + an * an < db2 || (vehicle && (driven || st->speed < cfg->rest_speed_ms))) &&
+            !(st->since_fix < cfg->gps_timeout_s && st->gps_ok > 0.0f)) {
             st->rest_s += dt;
         } else {
             st->rest_s = 0.0f;
         }
         rest = st->rest_s >= cfg->rest_time_s;
-        walking = st->var_f > cfg->walk_var;
+        if (rest) {
+            driven = 0;
+        } else if (shaken && vehicle) {
+            driven = DR_FUSED_SHAKEN;
+        }
         if ((flags & DR_FUSED_WALKING) && !walking) {
             st->speed = 0.0f; /* the steps stopped, and so did the walker */
         }
@@ -164,7 +401,8 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
             da += st->held;
             st->held = 0.0f;
         }
-        flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0) | turning;
+        flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0) | turning |
+                (vehicle ? DR_FUSED_VEHICLE : 0) | driven;
         /* u rotated by da, to second order */
         {
             float cd = 1.0f - 0.5f * da * da, sd = da * (1.0f - da * da * (1.0f / 6.0f));
@@ -178,14 +416,21 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         if (rest || walking) { /* the median ring restarts when the vehicle branch is entered again */
             st->med_i = 0.0f;
             st->med_n = 0.0f;
+            st->acc_lp = 0.0f;
         }
         if (rest) {
-            st->speed = 0.0f;
-            for (i = 0; i < 3; i++) {
-                st->gyro_bias_lsb[i] += dt * cfg->inv_bias_tau * (c[i] - st->gyro_bias_lsb[i]);
+            if (st->zr_t > 0.0f) {
+                /* a vehicle's zero-velocity update: the speed it still had is the error gathered since its speed
+                 * was last known; its integral along the way, and what the floor at 0 kept out, taken back */
+                float kz = st->zr_v * dr_recip(st->zr_t);
+                st->pe += st->zr_c[0] - kz * st->zr_p[0];
+                st->pn += st->zr_c[1] - kz * st->zr_p[1];
             }
+            st->speed = 0.0f;
+            st->zr_v = 0.0f;
         } else if (walking) {
             st->speed = st->walk_speed;
+            st->zr_v = st->speed;
         } else {
             float a = ae * st->ux + an * st->uy;
             if (median) { /* the seed's block median, sliding: the median of the last b along-track accelerations */
@@ -203,13 +448,32 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
                 a = dr_median(window, filled);
             }
             a -= st->bias;
-            if (dr_absf(a) < kcfg->deadband_ms2) { /* the board's deadband, on the along-track acceleration */
+            if (cfg->inv_accel_tau > 0.0f) { /* the deadband gates on the smoothed acceleration (not the road's) */
+                float b = dt * cfg->inv_accel_tau;
+                st->acc_lp += (b < 1.0f ? b : 1.0f) * (a - st->acc_lp);
+                if (dr_absf(st->acc_lp) < kcfg->deadband_ms2) {
+                    a = 0.0f;
+                }
+            } else if (dr_absf(a) < kcfg->deadband_ms2) { /* the board's deadband, on the along-track acceleration */
                 a = 0.0f;
             }
-            st->speed += (a + (st->gps_speed - st->speed) * cfg->inv_speed_tau) * dt;
+            a += (st->gps_speed - st->speed) * cfg->inv_speed_tau;
+            st->speed += a * dt;
+            st->zr_v += a * dt;
             if (st->speed < 0.0f) {
                 st->speed = 0.0f;
             }
+        }
+        if (rest || walking) {
+            st->zr_t = 0.0f;
+            st->zr_turn = 0.0f;
+            for (i = 0; i < 2; i++) {
+                st->zr_p[i] = 0.0f;
+                st->zr_c[i] = 0.0f;
+            }
+        }
+        if (rest && st->rest_s >= cfg->rest_time_s + cfg->rest_update_s) {
+            st->zt += dt; /* a rest update every rest_update_s, after the rest's first (the end of the braking) */
         }
         st->dpx += (st->dvx + 0.5f * ae * dt) * dt;
         st->dpy += (st->dvy + 0.5f * an * dt) * dt;
@@ -219,12 +483,24 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         st->m[1] += r01 * dt;
         st->m[2] += r10 * dt;
         st->m[3] += r11 * dt;
+        st->m2[0] += r02 * dt;
+        st->m2[1] += r12 * dt;
         st->since_fix += dt;
+        st->kf_t += dt;
         /* position, true ENU */
-        ve = st->speed * (st->cos_t * st->ux - st->sin_t * st->uy);
-        vn = st->speed * (st->sin_t * st->ux + st->cos_t * st->uy);
-        st->pe += ve * dt;
-        st->pn += vn * dt;
+        ue = st->cos_t * st->ux - st->sin_t * st->uy;
+        un = st->sin_t * st->ux + st->cos_t * st->uy;
+        st->pe += st->speed * ue * dt;
+        st->pn += st->speed * un * dt;
+        if (!(rest || walking)) { /* the integrals a zero-velocity update corrects the position by */
+            float lag = (st->zr_v - st->speed) * dt;
+            st->zr_turn += dr_absf(r) * dt;
+            st->zr_t += (1.0f + st->zr_turn * cfg->zupt_turn_weight) * dt;
+            st->zr_p[0] += st->zr_t * ue * dt;
+            st->zr_p[1] += st->zr_t * un * dt;
+            st->zr_c[0] += lag * ue;
+            st->zr_c[1] += lag * un;
+        }
         /* tilt correction towards gravity (minus the GPS motion acceleration while fixes arrive) */
         if (st->since_fix < cfg->gps_timeout_s) {
             gain = st->steady > 0.0f ? cfg->kp : 0.0f;
@@ -258,6 +534,19 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
             qy = ny * inv;
             qz = nz * inv;
         }
+        if (!rest) {
+            st->zt = 0.0f;
+        } else if (st->zt >= cfg->rest_update_s) {
+            st->q[0] = qw;
+            st->q[1] = qx;
+            st->q[2] = qy;
+            st->q[3] = qz;
+            dr_fused_rest_update(kcfg, cfg, st);
+            qw = st->q[0];
+            qx = st->q[1];
+            qy = st->q[2];
+            qz = st->q[3];
+        }
     }
     st->q[0] = qw;
     st->q[1] = qx;
@@ -275,50 +564,19 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
     return DR_OK;
 }
 
-/* p[] index of the covariance entry (i, j), the upper triangle stored row by row (no table: no .rodata) */
-static int dr_fused_pidx(int i, int j) {
-    int lo = i < j ? i : j, hi = i < j ? j : i;
-    return 4 * lo - ((lo * (lo - 1)) >> 1) + hi - lo;
-}
 
-/* The GPS-aided filter of the gravity leak and the horizontal accelerometer offsets (codegen.fused's
- * tilt_and_offset_update): called at each fix with its velocity, whether it has a course, and the seconds since
- * the previous fix, before those are replaced. */
+/* The GPS-aided update of the tilt/offset filter at a fix (codegen.fused's tilt_and_offset_update): called with its
+ * velocity, whether it has a course, and the seconds since the previous fix, before those are replaced. */
 static void dr_fused_filter(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, int moving, float t) {
-    float h[2][2], pht[4][2], gain[4][2], x[4];
-    float inv_t, gx, gy, z0, z1, s00, s01, s11, inv_det, i00, i01, i11, qd, qb, hx, hy, norm2;
-    int i, j;
-    if (!(cfg->kf_bias_var > 0.0f)) {
+    float h[2][3], x[5];
+    float inv_t, gx, gy, z0, z1, norm2;
+    if (dr_fused_kf_start(cfg, st)) {
         return;
     }
-    if (!(st->p[7] > 0.0f)) { /* the first fix after calibration: start with d = -R_h b */
-        const float v = cfg->kf_bias_var;
-        float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
-        float r00 = 1.0f - 2.0f * (qy * qy + qz * qz), r01 = 2.0f * (qx * qy - qw * qz);
-        float r10 = 2.0f * (qx * qy + qw * qz), r11 = 1.0f - 2.0f * (qx * qx + qz * qz);
-        st->p[0] = v * (r00 * r00 + r01 * r01);
-        st->p[1] = v * (r00 * r10 + r01 * r11);
-        st->p[2] = -v * r00;
-        st->p[3] = -v * r01;
-        st->p[4] = v * (r10 * r10 + r11 * r11);
-        st->p[5] = -v * r10;
-        st->p[6] = -v * r11;
-        st->p[7] = v;
-        st->p[8] = 0.0f;
-        st->p[9] = v;
-        return;
-    }
-    if (!(t > 0.0f)) {
-        return;
-    }
-    qd = cfg->kf_tilt_q * t + cfg->kf_turn_q * st->turn * st->turn;
-    qb = cfg->kf_bias_q * t;
-    st->p[0] += qd;
-    st->p[4] += qd;
-    st->p[7] += qb;
-    st->p[9] += qb;
+    dr_fused_kf_predict(cfg, st);
     norm2 = st->align_c * st->align_c + st->align_s * st->align_s;
-    if (!(st->gps_ok > 0.0f && moving && t < cfg->gps_timeout_s && norm2 >= cfg->kf_align_min * cfg->kf_align_min)) {
+    if (!(st->gps_ok > 0.0f && moving && t > 0.0f && t < cfg->gps_timeout_s &&
+          norm2 >= cfg->kf_align_min * cfg->kf_align_min)) {
         return;
     }
     inv_t = dr_recip(t);
@@ -328,48 +586,11 @@ static void dr_fused_filter(const dr_fused_config *cfg, dr_fused_state *st, floa
     z1 = (st->dvy - (-st->sin_t * gx + st->cos_t * gy)) * inv_t;
     h[0][0] = st->m[0] * inv_t;
     h[0][1] = st->m[1] * inv_t;
+    h[0][2] = st->m2[0] * inv_t;
     h[1][0] = st->m[2] * inv_t;
     h[1][1] = st->m[3] * inv_t;
-    for (i = 0; i < 4; i++) { /* P H^T, H = [I2 | h] */
-        float pi2 = st->p[dr_fused_pidx(i, 2)], pi3 = st->p[dr_fused_pidx(i, 3)];
-        for (j = 0; j < 2; j++) {
-            pht[i][j] = st->p[dr_fused_pidx(i, j)] + pi2 * h[j][0] + pi3 * h[j][1];
-        }
-    }
-    s00 = pht[0][0] + h[0][0] * pht[2][0] + h[0][1] * pht[3][0] + cfg->kf_vel_r * inv_t * inv_t;
-    s01 = pht[0][1] + h[0][0] * pht[2][1] + h[0][1] * pht[3][1];
-    s11 = pht[1][1] + h[1][0] * pht[2][1] + h[1][1] * pht[3][1] + cfg->kf_vel_r * inv_t * inv_t;
-    inv_det = dr_recip(s00 * s11 - s01 * s01);
-    i00 = s11 * inv_det;
-    i01 = -s01 * inv_det;
-    i11 = s00 * inv_det;
-    for (i = 0; i < 4; i++) { /* K = P H^T S^-1, x = K z */
-        gain[i][0] = pht[i][0] * i00 + pht[i][1] * i01;
-        gain[i][1] = pht[i][0] * i01 + pht[i][1] * i11;
-        x[i] = gain[i][0] * z0 + gain[i][1] * z1;
-    }
-    for (i = 0; i < 4; i++) {
-        for (j = i; j < 4; j++) {
-            st->p[dr_fused_pidx(i, j)] -= gain[i][0] * pht[j][0] + gain[i][1] * pht[j][1];
-        }
-    }
-    st->bax += x[2];
-    st->bay += x[3];
-    /* remove the leak: q <- [1, (d_N / g, -d_E / g, 0) / 2] (x) q */
-    hx = 0.5f * x[1] * DR_INV_GRAVITY;
-    hy = -0.5f * x[0] * DR_INV_GRAVITY;
-    {
-        float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
-        float nw = qw - hx * qx - hy * qy;
-        float nx = qx + hx * qw + hy * qz;
-        float ny = qy + hy * qw - hx * qz;
-        float nz = qz + hx * qy - hy * qx;
-        float inv = dr_inv_sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
-        st->q[0] = nw * inv;
-        st->q[1] = nx * inv;
-        st->q[2] = ny * inv;
-        st->q[3] = nz * inv;
-    }
+    h[1][2] = st->m2[1] * inv_t;
+    dr_fused_kf_update(st, z0, z1, (const float(*)[3])h, cfg->kf_vel_r * inv_t * inv_t, x);
 }
 
 void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn) {
@@ -428,9 +649,12 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
         st->align_c = cfg->align_forget * st->align_c + st->dvx * gx + st->dvy * gy;
         st->align_s = cfg->align_forget * st->align_s + st->dvx * gy - st->dvy * gx;
         norm = dr_inv_sqrt(st->align_c * st->align_c + st->align_s * st->align_s);
-        if (norm > 0.0f) {
+        if (norm > 0.0f) { /* the frame turns; the travel direction keeps its true bearing: u <- A'^T A u */
+            float ue = st->cos_t * st->ux - st->sin_t * st->uy, un = st->sin_t * st->ux + st->cos_t * st->uy;
             st->cos_t = st->align_c * norm;
             st->sin_t = st->align_s * norm;
+            st->ux = st->cos_t * ue + st->sin_t * un;
+            st->uy = -st->sin_t * ue + st->cos_t * un;
         }
         /* the motion acceleration over the interval, into the kernel frame */
         inv_t = dr_recip(t);
@@ -439,7 +663,9 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
         ae = st->cos_t * me + st->sin_t * mn;
         an = -st->sin_t * me + st->cos_t * mn;
     }
-    dr_fused_filter(cfg, st, ve, vn, moving, t);
+    if (cfg->kf_bias_var > 0.0f) {
+        dr_fused_filter(cfg, st, ve, vn, moving, t);
+    }
     de = ae - st->acc_e;
     dn = an - st->acc_n;
     /* flags kept as margins (> 0 means yes): LLVM's Xtensa backend cannot select a constant pair (x ? 1.0f : 0.0f) */
@@ -449,8 +675,10 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     if (moving) {
         float gx = (st->cos_t * ve + st->sin_t * vn) * inv_speed;
         float gy = (-st->sin_t * ve + st->cos_t * vn) * inv_speed;
-        float ux = st->ux + cfg->heading_gain * (gx - st->ux);
-        float uy = st->uy + cfg->heading_gain * (gy - st->uy);
+        /* before the frame's first alignment u means nothing yet: it takes the course at once */
+        float pull = st->align_c != 0.0f || st->align_s != 0.0f ? cfg->heading_gain : 1.0f;
+        float ux = st->ux + pull * (gx - st->ux);
+        float uy = st->uy + pull * (gy - st->uy);
         float norm = dr_inv_sqrt(ux * ux + uy * uy);
         if (norm > 0.0f) {
             st->ux = ux * norm;
@@ -476,6 +704,14 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     for (i = 0; i < 4; i++) {
         st->m[i] = 0.0f;
     }
+    for (i = 0; i < 2; i++) {
+        st->m2[i] = 0.0f;
+        st->zr_p[i] = 0.0f;
+        st->zr_c[i] = 0.0f;
+    }
     st->turn = 0.0f;
+    st->zr_t = 0.0f;
+    st->zr_turn = 0.0f;
+    st->zr_v = st->speed;
     st->since_fix = 0.0f;
 }

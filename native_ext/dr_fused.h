@@ -2,13 +2,16 @@
  * dr_fused.h: the fused real-time algorithm (board `algorithm: fused`). codegen/kernel/fused.py is the specification.
  *
  * Same front end as the kernel (axis remap, scales, gyro bias, quaternion body -> kernel ENU), plus per sample a
- * Mahony-type tilt correction towards gravity (minus the motion acceleration the GPS showed), rest detection
- * (zero-velocity update, gyro bias re-estimation), a travel direction turned by the gyro and a speed along it
- * (walking: the learned walking speed, 0 when the steps stop; otherwise the integrated along-track acceleration minus
- * its bias, through the kernel's deadband kcfg->deadband_ms2, which also bounds the horizontal acceleration at rest),
- * and at each GPS fix (dr_fused_gps) the heading alignment of the kernel frame to true North, the travel direction, the
- * speed, the along-track accelerometer bias and a 4-state Kalman filter of the gravity leak (tilt error) and the
- * horizontal accelerometer offsets, fed back into the orientation and the samples. docs/fused.md has the equations.
+ * Mahony-type tilt correction towards gravity (minus the motion acceleration the GPS showed), the motion's kind
+ * (a walker's steps stay below 8 Hz, a vehicle's road and engine shake |f| above it; board key fused_platform),
+ * rest detection that an idling engine's shake does not fool (the rate averaged over 0.5 s; never while fixes say
+ * the device moves) with, every second at rest, the gyro bias and a tilt/offset filter update, a travel direction
+ * turned by the gyro and a speed along it (walking: the learned walking speed, 0 when the steps stop; a vehicle:
+ * the integrated along-track acceleration minus its bias, through the kernel's deadband kcfg->deadband_ms2 on its
+ * 0.5 s average, and a zero-velocity update that takes back what the speed error gathered when it stops), and at
+ * each GPS fix (dr_fused_gps) the heading alignment of the kernel frame to true North, the travel direction, the
+ * speed, the along-track accelerometer bias and a 5-state Kalman filter of the gravity leak (tilt error) and the
+ * accelerometer's three offsets, fed back into the orientation and the samples. docs/fused.md has the equations.
  *
  * Float32 only, no division, no allocation, no global or static mutable state: the caller owns a dr_config (the
  * kernel's: remap and scales), a dr_fused_config and a dr_fused_state.

@@ -15,6 +15,7 @@
 #define DR_INV_GRAVITY (0.101971621f)        /* s^2/m, 1 / standard gravity */
 #define DR_PI (3.14159265358979f)            /* rad */
 #define DR_RAD_PER_DEG (0.0174532925199433f) /* rad per degree */
+#define DR_RAD_PER_CYCLE (6.28318530717959f) /* rad per cycle (2 pi) */
 #define DR_S_PER_US (1.0e-6f)                /* s per microsecond */
 
 /* The bits of a float and back, without breaking aliasing rules (C99 allows reading another union member). */

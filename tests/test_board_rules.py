@@ -213,6 +213,32 @@ def test_sample_rate_reachable(tmp_path):
     assert _only(report, "warning").message == "imu.sample_rate_hz: the MPU-6050 can run at 333.333 Hz, not 300 Hz"
 
 
+def test_auto_platform_needs_the_vibration_band(tmp_path):
+    """fused_platform auto sees a vehicle by its shaking above fused_vibration_hz (8 Hz): a DLPF at 10 Hz or a
+    25 Hz sample rate hides it; a fixed platform needs none of it."""
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        imu: {dlpf: 5}
+    """)
+    diagnostic = _only(report, "warning")
+    assert diagnostic.message == ("algorithm.fused_platform: auto tells a vehicle from a walker by the shaking above "
+                                  "fused_vibration_hz (8 Hz), but the IMU passes only up to 10 Hz (imu.dlpf's "
+                                  "limit): every shaken vehicle will look like a walker")
+    assert _at(diagnostic) == (2, 13)
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        imu: {sample_rate_hz: 25}
+        logging: {imu_rate_hz: 25}
+    """)
+    assert "passes only up to 12.5 Hz (imu.sample_rate_hz's limit)" in _only(report, "warning").message
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        imu: {dlpf: 5}
+        algorithm: {fused_platform: vehicle}
+    """)
+    assert not report.diagnostics
+
+
 def test_gps_rail_must_be_enabled(tmp_path):
     report = _report(tmp_path, """
         extends: ttgo-tbeam-v1.1

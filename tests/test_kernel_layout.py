@@ -51,7 +51,7 @@ def _macros(header: str) -> dict[str, int]:
 def test_the_offsets_the_app_reads_keep_their_values():
     consts = _fallback_consts(FALLBACK)
     assert (consts["Q"], consts["V"], consts["GYRO_BIAS"], consts["FIX_AE"]) == (0, 4, 7, 50)
-    assert consts["FUSED_STATE_LEN"] == 138 and consts["OUT_LEN"] == 6
+    assert consts["FUSED_STATE_LEN"] == 175 and consts["OUT_LEN"] == 6
     # documented in native_ext/API.md: speed 16, East/North 30/31, flags 32
     assert [F.IDX[n] for n in ("speed", "pe", "pn", "flags")] == [16, 30, 31, 32]
     assert L.LAYOUT.seed_header_floats == 22
@@ -197,7 +197,7 @@ def test_fallback_enforces_each_limit(tmp_path):
 
 def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
     """A declaration with one more state field (before the median ring), one more parameter and one more choice (a
-    platform, as issue 19 wants), nothing else changed: the board gets the keys (defaults, limits, the choices), the
+    receiver model), nothing else changed: the board gets the keys (defaults, limits, the choices), the
     rendered C compiles under the strict flags with the field, the parameters' board values, checks, conversions and
     the choices' names, and the fallback grows by all three, runs the fused steps and refuses each new parameter
     outside its limits; the public offsets stay."""
@@ -213,23 +213,23 @@ def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
     extra_field = L.Field("lateral", "m/s", "velocity across the travel direction")
     extra_param = L.Param("lateral_tau_s", "s", "time constant of the lateral velocity decay (0: none)",
                           L.Store("inv_lateral_tau", "1/s", "rate"), 2.0, ge=0)
-    platform = L.Param("platform", "", "what carries the device", L.Store("platform", "choice"), "auto",
-                       kind="choice", choices=("pedestrian", "vehicle", "auto"))
+    receiver = L.Param("receiver", "", "the GPS receiver's model", L.Store("receiver", "choice"), "neo6m",
+                       kind="choice", choices=("neo6m", "neo8m", "other"))
     grown = dataclasses.replace(fused, state=fused.state[:ring] + (extra_field,) + fused.state[ring:],
-                                params=fused.params + (extra_param, platform))
+                                params=fused.params + (extra_param, receiver))
     L.check(grown)
     algorithm = model.algorithm_model(grown)
     with pytest.raises(ValidationError, match="fused_lateral_tau_s"):
         algorithm(fused_lateral_tau_s=-1.0)
-    with pytest.raises(ValidationError, match="fused_platform"):
-        algorithm(fused_platform="bicycle")
-    assert algorithm(fused_platform="vehicle").fused_platform == "vehicle"
+    with pytest.raises(ValidationError, match="fused_receiver"):
+        algorithm(fused_receiver="sirf")
+    assert algorithm(fused_receiver="neo8m").fused_receiver == "neo8m"
     loaded = load_board()
     board = loaded.board.model_copy(update={"algorithm": algorithm(**loaded.board.algorithm.model_dump())})
     monkeypatch.setattr(codegen.generate, "LAYOUT", dataclasses.replace(L.LAYOUT, fused=grown))
     tree = render_tree(dataclasses.replace(loaded, board=board))
     assert "#define DR_FUSED_LATERAL_TAU_S (2.0f) /* s */" in tree["native/dr_board.h"].content.decode()
-    assert "#define DR_FUSED_PLATFORM (2.0f)" in tree["native/dr_board.h"].content.decode()
+    assert "#define DR_FUSED_RECEIVER (0.0f)" in tree["native/dr_board.h"].content.decode()
     native = tmp_path / "native"
     native.mkdir()
     for path, f in tree.items():
@@ -241,18 +241,19 @@ def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
         assert done.returncode == 0, done.stderr
     header = (native / "dr_layout.h").read_text()
     macros = _macros(header)
-    assert macros["DR_FUSED_STATE_FLOATS"] == 96 and macros["DR_FUSED_PARAMS"] == 33
-    assert (macros["DR_FUSED_PLATFORM_PEDESTRIAN"], macros["DR_FUSED_PLATFORM_VEHICLE"]) == (0, 1)
-    assert "!(p[DR_FUSED_P_PLATFORM] >= 0.0f) || !(p[DR_FUSED_P_PLATFORM] <= 2.0f)" in header
-    assert macros["DR_FUSED_STATE_LATERAL"] == 61 and macros["DR_FUSED_STATE_FIX_AE"] == 50
+    floats, params, lateral = fused.state_floats + 1, len(fused.params) + 2, fused.state_offsets["med_i"]
+    assert macros["DR_FUSED_STATE_FLOATS"] == floats and macros["DR_FUSED_PARAMS"] == params
+    assert (macros["DR_FUSED_RECEIVER_NEO6M"], macros["DR_FUSED_RECEIVER_NEO8M"]) == (0, 1)
+    assert "!(p[DR_FUSED_P_RECEIVER] >= 0.0f) || !(p[DR_FUSED_P_RECEIVER] <= 2.0f)" in header
+    assert macros["DR_FUSED_STATE_LATERAL"] == lateral and macros["DR_FUSED_STATE_FIX_AE"] == 50
     assert "float lateral; /* m/s: velocity across the travel direction */" in header
     assert "cfg->inv_lateral_tau = p[DR_FUSED_P_LATERAL_TAU_S] > 0.0f ?" in header
     app = tmp_path / "app"
     app.mkdir()
     (app / "dr_fallback.py").write_bytes(tree["app/dr_fallback.py"].content)
     consts = _fallback_consts(tree["app/dr_fallback.py"].content.decode())  # private consts exist only in the source
-    assert consts["_F_LATERAL"] == 61 and consts["_FC_INV_LATERAL_TAU"] == 96 + 31
-    assert consts["_PLATFORM_VEHICLE"] == 1 and consts["_FC_PLATFORM"] == 96 + 32
+    assert consts["_F_LATERAL"] == lateral and consts["_FC_INV_LATERAL_TAU"] == floats + params - 2
+    assert consts["_RECEIVER_NEO8M"] == 1 and consts["_FC_RECEIVER"] == floats + params - 1
     script = (
         "from array import array\nimport dr_fallback as dr\n"
         "st = array('f', [0.0] * dr.FUSED_STATE_LEN)\nout = array('f', [0.0] * dr.OUT_LEN)\n"
@@ -266,5 +267,6 @@ def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
     done = subprocess.run([micropython, "-c", script], capture_output=True, text=True,
                           env=dict(os.environ, MICROPYPATH=str(app)), timeout=120)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.splitlines() == ["141 50 0.5", "ran", "lateral_tau_s must be >= 0",
-                                        "platform must be one of 0 (pedestrian), 1 (vehicle), 2 (auto)"]
+    assert done.stdout.splitlines() == [f"{L.LAYOUT.fused_buffer_floats + 3} 50 0.5", "ran",
+                                        "lateral_tau_s must be >= 0",
+                                        "receiver must be one of 0 (neo6m), 1 (neo8m), 2 (other)"]

@@ -15,7 +15,7 @@ from codegen.board.circuitpython import find_board
 from codegen.board.circuitpython_rules import check_circuitpython
 from codegen.board.diagnostics import Diagnostic, error, warning
 from codegen.board.flashlayout import FlashLayout, check_flash_layout, version_tuple
-from codegen.board.model import FUSED, FUSED_MEDIAN_MAX, Board, PinSpec
+from codegen.board.model import DLPF_BANDWIDTH_HZ, FUSED, FUSED_MEDIAN_MAX, Board, PinSpec
 from codegen.board.yamlsource import KeyPath, SourceMap
 
 MPU6050_ADDRESSES = (0x68, 0x69)
@@ -259,6 +259,20 @@ def _check_algorithm(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
                 f"algorithm.{key}: " + why.format(value=value, limit=limit, unit=p.unit, other=FUSED.board_key(other)),
                 source.value(("algorithm", key)),
                 f"use {key} <= {FUSED.board_key(other)} (the defaults are {p.default:g} and {other.default:g})",
+            )
+    if algorithm.mode == "fused" and algorithm.fused_platform == "auto":
+        # steps or a vehicle: the vehicle's shaking above fused_vibration_hz must reach the kernel (docs/fused.md)
+        band = DLPF_BANDWIDTH_HZ.get(imu.dlpf, imu.gyro_output_rate_hz / 2)
+        seen = min(band, imu.sample_rate_hz / 2)
+        if seen < 2 * algorithm.fused_vibration_hz:
+            limit = "imu.dlpf's" if band <= imu.sample_rate_hz / 2 else "imu.sample_rate_hz's"
+            yield warning(
+                f"algorithm.fused_platform: auto tells a vehicle from a walker by the shaking above "
+                f"fused_vibration_hz ({algorithm.fused_vibration_hz:g} Hz), but the IMU passes only up to "
+                f"{seen:g} Hz ({limit} limit): every shaken vehicle will look like a walker",
+                source.value(("imu", "dlpf") if limit == "imu.dlpf's" else ("imu", "sample_rate_hz")),
+                f"keep {2 * algorithm.fused_vibration_hz:g} Hz and more (imu.dlpf <= 4 at >= "
+                f"{4 * algorithm.fused_vibration_hz:g} Hz sampling), or set fused_platform: pedestrian or vehicle",
             )
     if algorithm.deadband_g >= imu.accel_range_g:
         yield error(

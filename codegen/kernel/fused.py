@@ -1,12 +1,13 @@
-"""The fused real-time algorithm (`algorithm: fused`, issue 8): the executable specification, float64.
+"""The fused real-time algorithm (`algorithm: fused`, issues 8 and 19): the executable specification, float64.
 
-Per sample (`process`): tilt corrected towards gravity, motion statistics (rest, walking), a travel direction turned
-by the gyro (a walker's slow swings held back) and a speed along it, the position in true ENU. At each GPS fix
-(`position_update`, then `gps_update`): the fix smoothed with the Doppler and the IMU, the heading alignment of the
-kernel frame to North, the travel direction, the speed, the along-track bias, the walking speed, and a 4-state
-Kalman filter of the tilt and the accelerometer's offsets (`tilt_and_offset_update`). docs/fused.md gives the
-equations and how the defaults were tuned; native_ext/dr_fused.c and the fallback's fused_* are the same steps in
-float32.
+Per sample (`process`): tilt corrected towards gravity, motion statistics (rest, walking, a vehicle's vibration), a
+travel direction turned by the gyro (a walker's slow swings held back) and a speed along it (a walker's learned
+speed, a vehicle's integrated acceleration with its zero-velocity updates), the position in true ENU; at rest, every
+rest_update_s, the gyro bias and the tilt/offset filter (`rest_update`). At each GPS fix (`position_update`, then
+`gps_update`): the fix smoothed with the Doppler and the IMU, the heading alignment of the kernel frame to North, the
+travel direction, the speed, the along-track bias, the walking speed, and a 5-state Kalman filter of the tilt and
+the accelerometer's offsets (`tilt_and_offset_update`). docs/fused.md gives the equations and how the defaults were
+tuned; native_ext/dr_fused.c and the fallback's fused_* are the same steps in float32.
 
 The state is a flat vector of floats and the parameters a FusedConfig, both from the declaration
 (codegen/kernel/layout.py) that also lays out the C kernel's caller-owned buffer and the fallback's offsets: FusedState
@@ -28,8 +29,9 @@ from codegen.kernel.reference import (
     tilt_from_gravity,
 )
 
-AT_REST, WALKING, TURNING = (next(f.value for f in FUSED.flags if f.name == name)
-                             for name in ("AT_REST", "WALKING", "TURNING"))
+AT_REST, WALKING, TURNING, VEHICLE, SHAKEN = (next(f.value for f in FUSED.flags if f.name == name)
+                                              for name in ("AT_REST", "WALKING", "TURNING", "VEHICLE", "SHAKEN"))
+PLATFORM_PEDESTRIAN, PLATFORM_VEHICLE = (FUSED.param("platform").code(name) for name in ("pedestrian", "vehicle"))
 
 
 def _from_board(cls, board) -> "FusedConfig":
@@ -86,10 +88,13 @@ def calibrate(st: FusedState, samples, kcfg: KernelConfig) -> bool:
     st.bgx, st.bgy, st.bgz = (float(v) for v in mean[3:])
     st.mean_f = float(np.linalg.norm(mean[:3])) * kcfg.accel_ms2_per_lsb
     st.var_f = 0.0
-    st.w2 = 0.0
+    st.vib_var = st.vib_tot = 0.0
+    st.vib_lp1 = st.mean_f
+    st.vib_lp2 = 0.0
+    st.wsx = st.wsy = st.wsz = 0.0
     st.rest_s = 0.0
     st.speed = 0.0
-    st.bax = st.bay = 0.0
+    st.bax = st.bay = st.baz = 0.0
     std_g = body[:, :3].std(axis=0) / kcfg.accel_lsb_per_g
     return bool(np.any(std_g > kcfg.motion_threshold_g))
 
@@ -110,15 +115,20 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     rest_var = (fcfg.rest_accel_g * g) ** 2
     rest_w2 = math.radians(fcfg.rest_gyro_dps) ** 2
     walk_var = (fcfg.walk_accel_g * g) ** 2
+    vib_rate = fcfg.vibration_hz * 2.0 * math.pi
+    inv_vib = 1.0 / fcfg.vibration_tau_s
+    platform = int(fcfg.platform)
     inv_stat = 1.0 / fcfg.stat_tau_s
-    inv_bias = 1.0 / fcfg.bias_tau_s
     inv_speed = 1.0 / fcfg.speed_tau_s if fcfg.speed_tau_s > 0.0 else 0.0
+    inv_acc = 1.0 / fcfg.accel_tau_s if fcfg.accel_tau_s > 0.0 else 0.0
     median = kcfg.block if fcfg.median > 0.0 and kcfg.block > 1 else 0
     if median > FUSED_MEDIAN_MAX:
         raise ValueError(f"the median option takes algorithm.block <= {FUSED_MEDIAN_MAX}, not {median}")
     ring = [getattr(st, f"med{k}") for k in range(FUSED_MEDIAN_MAX)]
     flags = np.zeros(len(dts), dtype=np.int8)
     was_walking = bool(int(st.flags) & WALKING)
+    vehicle = platform == PLATFORM_VEHICLE or bool(int(st.flags) & VEHICLE)
+    driven = bool(int(st.flags) & SHAKEN)
     turning = bool(int(st.flags) & TURNING)
     hold_rate = 1.0 / fcfg.turn_hold_tau_s if fcfg.turn_hold_tau_s > 0.0 else 0.0
     turn_start = math.radians(fcfg.turn_start_dps)
@@ -129,6 +139,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         fx, fy, fz = acc[k]
         fx -= st.bax
         fy -= st.bay
+        fz -= st.baz
         cx, cy, cz = gyr[k]
         wx = (cx - st.bgx) * gscale
         wy = (cy - st.bgy) * gscale
@@ -141,7 +152,24 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         st.mean_f += alpha * (nf - st.mean_f)
         d = nf - st.mean_f
         st.var_f += alpha * (d * d - st.var_f)
-        st.w2 += alpha * (wx * wx + wy * wy + wz * wz - st.w2)
+        # the shaking above the gait band: |f| through two first-order high-passes at vibration_hz (a walker's
+        # steps stay below it, a vehicle's road, wheels and engine reach far above)
+        beta = dt * vib_rate
+        if beta > 1.0:
+            beta = 1.0
+        st.vib_lp1 += beta * (nf - st.vib_lp1)
+        h = nf - st.vib_lp1
+        st.vib_lp2 += beta * (h - st.vib_lp2)
+        h -= st.vib_lp2
+        gamma = dt * inv_vib
+        if gamma > 1.0:
+            gamma = 1.0
+        st.vib_var += gamma * (h * h - st.vib_var)
+        st.vib_tot += gamma * (d * d - st.vib_tot)
+        # the body rate smoothed: an idling engine's shake averages out, a turn or a hand's motion does not
+        st.wsx += alpha * (wx - st.wsx)
+        st.wsy += alpha * (wy - st.wsy)
+        st.wsz += alpha * (wz - st.wsz)
         # rotation matrix rows of q (body -> kernel ENU)
         r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
         r01 = 2.0 * (qx * qy - qw * qz)
@@ -154,13 +182,40 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
         ae = r00 * fx + r01 * fy + r02 * fz
         an = r10 * fx + r11 * fy + r12 * fz
-        # rest: still (variance, rate) and no horizontal acceleration beyond the deadband (a smooth push is no rest)
-        if st.var_f < rest_var and st.w2 < rest_w2 and ae * ae + an * an < deadband * deadband:
+        # walking: shaken (the steps), by a pedestrian; on auto, only while the shaking stays in the gait band. A
+        # vehicle: shaken far above it (its road, wheels and engine), or the platform says so; until the steps.
+        shaken = st.var_f > walk_var
+        broadband = st.vib_var > fcfg.vibration_ratio * st.vib_tot
+        steps = platform != PLATFORM_VEHICLE and shaken and (platform == PLATFORM_PEDESTRIAN or not broadband)
+        st.walk_s = st.walk_s + dt if steps else 0.0
+        walking = steps and (was_walking or st.walk_s >= fcfg.walk_time_s)
+        if walking:
+            vehicle = False
+        elif shaken and broadband and platform != PLATFORM_PEDESTRIAN:
+            vehicle = True
+        # rest: still (variance, smoothed rate: an idling engine's shake averages out), the horizontal acceleration
+        # steady within the deadband (a push, a start or a stop is no rest), not while fixes arrive that say the
+        # device moves (a smooth cruise is no rest), and the horizontal acceleration itself within the deadband;
+        # but a vehicle stopped in an outage may have a larger tilt error: any, if it shook (drove) since its last
+        # rest and went quiet, or while its speed is below rest_speed_ms (a quiet, steady start from a rest has
+        # neither: it gathers speed)
+        st.ah_e += alpha * (ae - st.ah_e)
+        st.ah_n += alpha * (an - st.ah_n)
+        de, dn = ae - st.ah_e, an - st.ah_n
+        ah2 = ae * ae + an * an
+        gps_moving = st.since_fix < fcfg.gps_timeout_s and st.gps_ok > 0.0
+        if (st.var_f < rest_var and st.wsx * st.wsx + st.wsy * st.wsy + st.wsz * st.wsz < rest_w2
+                and de * de + dn * dn < deadband * deadband
+                and (ah2 < deadband * deadband or vehicle and (driven or st.speed < fcfg.rest_speed_ms))
+                and not gps_moving):
             st.rest_s += dt
         else:
             st.rest_s = 0.0
         rest = st.rest_s >= fcfg.rest_time_s
-        walking = st.var_f > walk_var
+        if rest:
+            driven = False
+        elif shaken and vehicle:
+            driven = True
         if was_walking and not walking:
             st.speed = 0.0  # the steps stopped, and so did the walker (a vehicle he boards starts from 0 too)
         was_walking = walking
@@ -183,7 +238,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
             turning = False
             da += st.held
             st.held = 0.0
-        flags[k] = (AT_REST if rest else 0) | (WALKING if walking else 0) | (TURNING if turning else 0)
+        flags[k] = ((AT_REST if rest else 0) | (WALKING if walking else 0) | (TURNING if turning else 0)
+                    | (VEHICLE if vehicle else 0) | (SHAKEN if driven else 0))
         # u rotated by da (to second order: a turn's held part can be tens of degrees)
         cd = 1.0 - 0.5 * da * da
         sd = da * (1.0 - da * da * (1.0 / 6.0))
@@ -195,23 +251,41 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         # speed along u
         if rest or walking:
             st.med_i = st.med_n = 0.0  # the median ring restarts when the vehicle branch is entered again
+            st.acc_lp = 0.0
         if rest:
+            if st.zr_t > 0.0:
+                # a vehicle's zero-velocity update: the speed it still had (not floored at 0) is the error its
+                # along-track integration gathered since the last speed it knew (a fix or a rest), at a rate taken
+                # as constant; the position moved by that error's integral along the way it went, and by what the
+                # floor kept out: both taken back
+                k = st.zr_v / st.zr_t
+                st.pe += st.zr_ce - k * st.zr_pe
+                st.pn += st.zr_cn - k * st.zr_pn
             st.speed = 0.0
-            st.bgx += dt * inv_bias * (cx - st.bgx)
-            st.bgy += dt * inv_bias * (cy - st.bgy)
-            st.bgz += dt * inv_bias * (cz - st.bgz)
+            st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_v = st.zr_turn = 0.0
         elif walking:
             st.speed = st.walk_speed
+            st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_turn = 0.0
+            st.zr_v = st.speed
         else:
             a = ae * st.ux + an * st.uy
             if median:  # the seed's block median, sliding: the median of the last b along-track accelerations
                 a = _ring_median(st, ring, a, median)
             a -= st.bias
-            if abs(a) < deadband:  # the board's deadband (algorithm.deadband_g), on the along-track acceleration
+            if inv_acc > 0.0:  # the deadband gates on the smoothed acceleration: the vehicle's, not the road's shaking
+                beta = dt * inv_acc
+                st.acc_lp += (beta if beta < 1.0 else 1.0) * (a - st.acc_lp)
+                if abs(st.acc_lp) < deadband:
+                    a = 0.0
+            elif abs(a) < deadband:  # the board's deadband (algorithm.deadband_g), on the along-track acceleration
                 a = 0.0
-            st.speed += (a + (st.gps_speed - st.speed) * inv_speed) * dt
+            a += (st.gps_speed - st.speed) * inv_speed
+            st.speed += a * dt
+            st.zr_v += a * dt
             if st.speed < 0.0:
                 st.speed = 0.0
+        if rest and st.rest_s >= fcfg.rest_time_s + fcfg.rest_update_s:
+            st.zt += dt  # a rest update every rest_update_s, after the rest's first (the end of the braking)
         st.dpx += (st.dvx + 0.5 * ae * dt) * dt
         st.dpy += (st.dvy + 0.5 * an * dt) * dt
         st.dvx += ae * dt
@@ -220,12 +294,22 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         st.m01 += r01 * dt
         st.m10 += r10 * dt
         st.m11 += r11 * dt
+        st.m02 += r02 * dt
+        st.m12 += r12 * dt
         st.since_fix += dt
+        st.kf_t += dt
         # position, true ENU
-        ve = st.speed * (st.cos_t * st.ux - st.sin_t * st.uy)
-        vn = st.speed * (st.sin_t * st.ux + st.cos_t * st.uy)
-        st.pe += ve * dt
-        st.pn += vn * dt
+        ue = st.cos_t * st.ux - st.sin_t * st.uy
+        un = st.sin_t * st.ux + st.cos_t * st.uy
+        st.pe += st.speed * ue * dt
+        st.pn += st.speed * un * dt
+        if not (rest or walking):  # the integrals a zero-velocity update corrects the position by
+            st.zr_turn += abs(r) * dt
+            st.zr_t += (1.0 + st.zr_turn * fcfg.zupt_turn_weight) * dt
+            st.zr_pe += st.zr_t * ue * dt
+            st.zr_pn += st.zr_t * un * dt
+            st.zr_ce += (st.zr_v - st.speed) * ue * dt
+            st.zr_cn += (st.zr_v - st.speed) * un * dt
         # tilt correction towards gravity: e = f/|f| x up_body
         # (while fixes arrive, minus the motion acceleration they show: f_c = f - R^T [acc_e, acc_n, 0])
         if st.since_fix < fcfg.gps_timeout_s:
@@ -255,6 +339,12 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         nz = qz + qw * hz + qx * hy - qy * hx
         inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
         qw, qx, qy, qz = nw * inv, nx * inv, ny * inv, nz * inv
+        if not rest:
+            st.zt = 0.0
+        elif st.zt >= fcfg.rest_update_s:
+            st.qw, st.qx, st.qy, st.qz = qw, qx, qy, qz
+            rest_update(st, gscale, fcfg)
+            qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
     st.qw, st.qx, st.qy, st.qz = qw, qx, qy, qz
     for k in range(FUSED_MEDIAN_MAX):
         setattr(st, f"med{k}", ring[k])
@@ -343,14 +433,21 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
         st.align_s = lam * st.align_s + st.dvx * gy - st.dvy * gx
         norm = math.sqrt(st.align_c * st.align_c + st.align_s * st.align_s)
         if norm > 0.0:
+            # the new alignment turns the kernel frame; the travel direction keeps its true bearing: u <- A'^T A u
+            ue = st.cos_t * st.ux - st.sin_t * st.uy
+            un = st.sin_t * st.ux + st.cos_t * st.uy
             st.cos_t = st.align_c / norm
             st.sin_t = st.align_s / norm
+            st.ux = st.cos_t * ue + st.sin_t * un
+            st.uy = -st.sin_t * ue + st.cos_t * un
     if moving:
         # GPS course in the kernel frame: A^T g / |g|
         gx = (st.cos_t * ve + st.sin_t * vn) / speed
         gy = (-st.sin_t * ve + st.cos_t * vn) / speed
-        ux = st.ux + fcfg.heading_gain * (gx - st.ux)
-        uy = st.uy + fcfg.heading_gain * (gy - st.uy)
+        # before the frame's first alignment u means nothing yet: it takes the course at once
+        pull = fcfg.heading_gain if st.align_c != 0.0 or st.align_s != 0.0 else 1.0
+        ux = st.ux + pull * (gx - st.ux)
+        uy = st.uy + pull * (gy - st.uy)
         norm = math.sqrt(ux * ux + uy * uy)
         if norm > 0.0:
             st.ux, st.uy = ux / norm, uy / norm
@@ -368,7 +465,8 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
         an = -st.sin_t * me + st.cos_t * mn
     else:
         ae = an = 0.0
-    tilt_and_offset_update(st, ve, vn, moving, t, fcfg)
+    if fcfg.kf_bias_init_g > 0.0:
+        tilt_and_offset_update(st, ve, vn, moving, t, fcfg)
     de = ae - st.acc_e
     dn = an - st.acc_n
     st.steady = fcfg.steady_accel_ms2 * fcfg.steady_accel_ms2 - (de * de + dn * dn)
@@ -377,77 +475,130 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
     st.gps_speed = speed
     st.gps_ok = speed - fcfg.min_speed_ms
     st.dvx = st.dvy = st.dpx = st.dpy = 0.0
-    st.m00 = st.m01 = st.m10 = st.m11 = st.turn = 0.0
+    st.m00 = st.m01 = st.m10 = st.m11 = st.m02 = st.m12 = st.turn = 0.0
+    st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_turn = 0.0
+    st.zr_v = st.speed
     st.since_fix = 0.0
 
 
-# the covariance's upper triangle in STATE_FIELDS order: (row, column) -> field
-COVARIANCE_FIELDS = FUSED.field("p").element_names()
-_PIJ = {(i, j): COVARIANCE_FIELDS[n] for n, (i, j) in enumerate((i, j) for i in range(4) for j in range(i, 4))}
+# the covariance's upper triangle: (row, column) -> field; the 4 x 4 block row by row, then the fifth column
+COVARIANCE_FIELDS = FUSED.field("p").element_names() + FUSED.field("pz").element_names()
+_PIJ = {(i, j): name for (i, j), name in zip([(i, j) for i in range(4) for j in range(i, 4)]
+                                             + [(i, 4) for i in range(5)], COVARIANCE_FIELDS)}
+KF_STATES = 5
 
 
 def tilt_and_offset_update(st: FusedState, ve: float, vn: float, moving: bool, t: float, fcfg: FusedConfig) -> None:
-    """The GPS-aided filter of the gravity leak and the horizontal accelerometer offsets (4 states).
+    """The GPS-aided filter of the gravity leak and the accelerometer offsets (5 states), at a fix.
 
     Over the interval T since the previous fix the IMU's kernel-frame horizontal velocity change dv_imu (from the
     samples minus the estimated offsets) and the GPS's dv_gps (rotated into the kernel frame) differ by
-        z = (dv_imu - dv_gps) / T = d + (M / T) b + noise,   M = integral of the horizontal rows of R(q) dt,
+        z = (dv_imu - dv_gps) / T = d + (M / T) b + noise,   M = integral of the horizontal rows of R(q) dt (2 x 3),
     d the gravity leak (g times the tilt error; fixed in the earth frame while the gyro is perfect) and b the
-    remaining offsets of the accelerometer's x, y axes (fixed in the body). Calibration folds b into the tilt
-    (d = -R_h b at that moment), so the filter starts with that correlation; a turn tells them apart. Process noise
-    per interval: kf_tilt_noise^2 T + (kf_turn_noise turn)^2 on d, kf_bias_noise^2 T on b; measurement noise
-    2 kf_vel_sigma_ms^2 / T^2 per axis. The estimate is fed back at once (b into bax, bay; d as a small rotation
-    of q about the kernel frame's horizontal axes) and the error state returns to zero."""
-    if fcfg.kf_bias_init_g <= 0.0:
+    remaining offsets of the accelerometer's x, y, z axes (fixed in the body; the device may be mounted any way up,
+    so each axis can lie horizontal). Calibration folds b into the tilt (d = -R_h b at that moment), so the filter
+    starts with that correlation; a turn tells them apart (the offset along gravity stays unseen, and harmless).
+    Measurement noise 2 kf_vel_sigma_ms^2 / T^2 per axis. At rest the same filter takes dv_gps = 0
+    (rest_update)."""
+    if _kf_start(st, fcfg):
         return
-    if st.p22 <= 0.0:  # the first fix after calibration: start the filter
-        var = (fcfg.kf_bias_init_g * STANDARD_GRAVITY) ** 2
-        qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
-        r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
-        r01 = 2.0 * (qx * qy - qw * qz)
-        r10 = 2.0 * (qx * qy + qw * qz)
-        r11 = 1.0 - 2.0 * (qx * qx + qz * qz)
-        st.p00 = var * (r00 * r00 + r01 * r01)
-        st.p01 = var * (r00 * r10 + r01 * r11)
-        st.p11 = var * (r10 * r10 + r11 * r11)
-        st.p02, st.p03, st.p12, st.p13 = -var * r00, -var * r01, -var * r10, -var * r11
-        st.p22 = st.p33 = var
-        st.p23 = 0.0
-        return
-    if t <= 0.0:
-        return
-    qd = fcfg.kf_tilt_noise * fcfg.kf_tilt_noise * t + (fcfg.kf_turn_noise * st.turn) ** 2
-    qb = fcfg.kf_bias_noise * fcfg.kf_bias_noise * t
-    st.p00 += qd
-    st.p11 += qd
-    st.p22 += qb
-    st.p33 += qb
+    _kf_predict(st, fcfg)
     norm = math.sqrt(st.align_c * st.align_c + st.align_s * st.align_s)
-    if not (st.gps_ok > 0.0 and moving and t < fcfg.gps_timeout_s and norm >= fcfg.kf_align_min):
+    if not (st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s and norm >= fcfg.kf_align_min):
         return
     inv_t = 1.0 / t
     gx = ve - st.gps_ve
     gy = vn - st.gps_vn
     z0 = (st.dvx - (st.cos_t * gx + st.sin_t * gy)) * inv_t
     z1 = (st.dvy - (-st.sin_t * gx + st.cos_t * gy)) * inv_t
-    h = ((st.m00 * inv_t, st.m01 * inv_t), (st.m10 * inv_t, st.m11 * inv_t))
-    p = [[getattr(st, _PIJ[(min(i, j), max(i, j))]) for j in range(4)] for i in range(4)]
-    # PH^T (4 x 2): H = [I2 | h]
-    pht = [[p[i][a] + p[i][2] * h[a][0] + p[i][3] * h[a][1] for a in range(2)] for i in range(4)]
-    r = 2.0 * fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms * inv_t * inv_t
-    s00 = pht[0][0] + h[0][0] * pht[2][0] + h[0][1] * pht[3][0] + r
-    s01 = pht[0][1] + h[0][0] * pht[2][1] + h[0][1] * pht[3][1]
-    s11 = pht[1][1] + h[1][0] * pht[2][1] + h[1][1] * pht[3][1] + r
+    h = ((st.m00 * inv_t, st.m01 * inv_t, st.m02 * inv_t), (st.m10 * inv_t, st.m11 * inv_t, st.m12 * inv_t))
+    _kf_update(st, z0, z1, h, 2.0 * fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms * inv_t * inv_t)
+
+
+def rest_update(st: FusedState, gscale: float, fcfg: FusedConfig) -> None:
+    """Every rest_update_s at rest (zt seconds since the last): the true rate and acceleration are 0, so the
+    smoothed rate ws is the gyro bias's error (the bias pulled towards it with time constant bias_tau_s, in steps of
+    zt), and the smoothed horizontal specific force (ah_e, ah_n) is the tilt/offset filter's error alone,
+        z = ah = d + R_h b + noise,   noise kf_rest_sigma_ms2 per axis,
+    with or without GPS: a vehicle stopped at lights in an outage gets its tilt levelled and its offsets learned
+    as at a fix. Restarts zt."""
+    zt = st.zt
+    st.zt = 0.0
+    if fcfg.bias_tau_s > 0.0:
+        k = min(zt / fcfg.bias_tau_s, 1.0) / gscale
+        st.bgx += k * st.wsx
+        st.bgy += k * st.wsy
+        st.bgz += k * st.wsz
+    if fcfg.kf_bias_init_g <= 0.0 or fcfg.kf_rest_sigma_ms2 <= 0.0 or _kf_start(st, fcfg):
+        return
+    _kf_predict(st, fcfg)
+    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
+    h = ((1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)),
+         (2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)))
+    x = _kf_update(st, st.ah_e, st.ah_n, h, fcfg.kf_rest_sigma_ms2 * fcfg.kf_rest_sigma_ms2)
+    # the correction leaves the samples from now on: the smoothed value follows
+    st.ah_e -= x[0] + h[0][0] * x[2] + h[0][1] * x[3] + h[0][2] * x[4]
+    st.ah_n -= x[1] + h[1][0] * x[2] + h[1][1] * x[3] + h[1][2] * x[4]
+
+
+def _kf_start(st: FusedState, fcfg: FusedConfig) -> bool:
+    """The filter's start on its first use after calibration: b ~ kf_bias_init_g per axis across gravity, d = -R_h b
+    (calibration folded b into the tilt). The offset along gravity is left out (variance 0): calibration cannot
+    see it, it leaks nothing while the device keeps its tilt, and the slight pitch of a stop on a hill would
+    otherwise "observe" it from noise. Returns True if it started now (no update this time)."""
+    if st.p22 > 0.0:
+        return False
+    var = (fcfg.kf_bias_init_g * STANDARD_GRAVITY) ** 2
+    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
+    rows = ((1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)),
+            (2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)),
+            (2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)))
+    for (i, j), name in _PIJ.items():
+        if j < 2:
+            value = var * sum(a * b for a, b in zip(rows[i], rows[j]))
+        elif i < 2:
+            value = -var * rows[i][j - 2]
+        else:
+            value = var * ((1.0 if i == j else 0.0) - rows[2][i - 2] * rows[2][j - 2])
+        setattr(st, name, value)
+    st.kf_t = st.turn = 0.0
+    return True
+
+
+def _kf_predict(st: FusedState, fcfg: FusedConfig) -> None:
+    """The filter's process noise over the kf_t seconds since its last prediction: kf_tilt_noise^2 T +
+    (kf_turn_noise turn)^2 on d, kf_bias_noise^2 T on b."""
+    t = st.kf_t
+    qd = fcfg.kf_tilt_noise * fcfg.kf_tilt_noise * t + (fcfg.kf_turn_noise * st.turn) ** 2
+    qb = fcfg.kf_bias_noise * fcfg.kf_bias_noise * t
+    st.p00 += qd
+    st.p11 += qd
+    st.p22 += qb
+    st.p33 += qb
+    st.p44 += qb
+    st.kf_t = st.turn = 0.0
+
+
+def _kf_update(st: FusedState, z0: float, z1: float, h, r: float) -> list:
+    """The filter's update with z = d + h b + noise (variance r per axis), h 2 x 3, fed back at once: b into bax,
+    bay, baz, d as a small rotation of q about the kernel frame's horizontal axes; the error state returns to 0.
+    Returns the correction x (d East, North, b x, y, z)."""
+    n = KF_STATES
+    p = [[getattr(st, _PIJ[(min(i, j), max(i, j))]) for j in range(n)] for i in range(n)]
+    # PH^T (5 x 2): H = [I2 | h]
+    pht = [[p[i][a] + sum(p[i][2 + c] * h[a][c] for c in range(3)) for a in range(2)] for i in range(n)]
+    s00 = pht[0][0] + sum(h[0][c] * pht[2 + c][0] for c in range(3)) + r
+    s01 = pht[0][1] + sum(h[0][c] * pht[2 + c][1] for c in range(3))
+    s11 = pht[1][1] + sum(h[1][c] * pht[2 + c][1] for c in range(3)) + r
     inv_det = 1.0 / (s00 * s11 - s01 * s01)
     i00, i01, i11 = s11 * inv_det, -s01 * inv_det, s00 * inv_det
     gain = [(row[0] * i00 + row[1] * i01, row[0] * i01 + row[1] * i11) for row in pht]  # K = PH^T S^-1
     x = [kr[0] * z0 + kr[1] * z1 for kr in gain]
-    for i in range(4):
-        for j in range(i, 4):
-            name = _PIJ[(i, j)]
-            setattr(st, name, getattr(st, name) - (gain[i][0] * pht[j][0] + gain[i][1] * pht[j][1]))
+    for (i, j), name in _PIJ.items():
+        setattr(st, name, getattr(st, name) - (gain[i][0] * pht[j][0] + gain[i][1] * pht[j][1]))
     st.bax += x[2]
     st.bay += x[3]
+    st.baz += x[4]
     # remove the leak: q <- [1, (d_N / g, -d_E / g, 0) / 2] (x) q, a rotation about the kernel frame's E, N axes
     hx = 0.5 * x[1] / STANDARD_GRAVITY
     hy = -0.5 * x[0] / STANDARD_GRAVITY
@@ -458,6 +609,7 @@ def tilt_and_offset_update(st: FusedState, ve: float, vn: float, moving: bool, t
     nz = qz + hx * qy - hy * qx
     inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
     st.qw, st.qx, st.qy, st.qz = nw * inv, nx * inv, ny * inv, nz * inv
+    return x
 
 
 # --------------------------------------------------------------------------------------------- the benchmark method

@@ -27,7 +27,7 @@ Number = Union[float, int, bool]
 
 # Named constants a conversion may multiply by, with their values: DR_<NAME> in C (dr_math.h), _<NAME> in the
 # fallback (dr_fallback.py).
-CONSTANTS = {"GRAVITY_MS2": 9.80665, "RAD_PER_DEG": 0.017453292519943295}
+CONSTANTS = {"GRAVITY_MS2": 9.80665, "RAD_PER_DEG": 0.017453292519943295, "RAD_PER_CYCLE": 6.283185307179586}
 
 
 @dataclass(frozen=True)
@@ -273,7 +273,7 @@ FUSED = Kernel(
         Field("gyro_bias_lsb", "counts", "gyro bias (body frame)", 3, ("bgx", "bgy", "bgz")),
         Field("mean_f", "m/s^2", "mean |f| (motion statistics)"),
         Field("var_f", "(m/s^2)^2", "variance of |f|"),
-        Field("w2", "(rad/s)^2", "mean |omega|^2"),
+        Field("vib_var", "(m/s^2)^2", "variance of |f| above the gait band (vibration_hz) over vibration_tau_s"),
         Field("acc_e", "m/s^2", "GPS motion acceleration East, kernel frame (the tilt reference subtracts it)"),
         Field("acc_n", "m/s^2", "GPS motion acceleration North, kernel frame"),
         Field("steady", "(m/s^2)^2", "> 0 while that acceleration is steady: steady_accel_ms2^2 - its change^2"),
@@ -316,6 +316,29 @@ FUSED = Kernel(
         Field("dpy", "m", "integral of dvy since the last fix"),
         Field("rate_up", "rad/s", "the rate about Up smoothed over stat_tau_s"),
         Field("held", "rad", "rotation about Up a walker's travel direction has not taken yet"),
+        Field("baz", "m/s^2", "accelerometer offset of the body z axis (any mounting: no axis need be vertical)"),
+        Field("m2", "s", "integral of R(q)'s horizontal rows' z column, r02 and r12, since the last fix", 2,
+              ("m02", "m12")),
+        Field("pz", "", "the tilt/offset filter's covariance, fifth column (the z offset): rows 0-4", 5,
+              ("p04", "p14", "p24", "p34", "p44")),
+        Field("walk_s", "s", "how long the shaking has looked like steps"),
+        Field("vib_tot", "(m/s^2)^2", "variance of |f| over vibration_tau_s (the vibration's share is of this)"),
+        Field("vib_lp", "m/s^2", "|f| low-passed at vibration_hz, and its high-passed part low-passed again", 2,
+              ("vib_lp1", "vib_lp2")),
+        Field("ws", "rad/s", "the body rate smoothed over stat_tau_s (an engine's shake averages out)", 3,
+              ("wsx", "wsy", "wsz")),
+        Field("acc_lp", "m/s^2", "a vehicle's along-track acceleration smoothed over accel_tau_s"),
+        Field("ah", "m/s^2", "the kernel-frame horizontal acceleration smoothed over stat_tau_s (rest: steady)", 2,
+              ("ah_e", "ah_n")),
+        Field("zr_t", "s", "a vehicle: time since its speed was last known (a fix, a rest)"),
+        Field("zr_p", "m s", "the integral of (time since then) x travel direction (true ENU) since then", 2,
+              ("zr_pe", "zr_pn")),
+        Field("zr_turn", "rad", "a vehicle: the integral of |rate about Up| since its speed was last known"),
+        Field("zr_v", "m/s", "a vehicle's speed integrated as speed is, without its floor at 0"),
+        Field("zr_c", "m", "the integral of (zr_v - speed) x travel direction (true ENU) since then", 2,
+              ("zr_ce", "zr_cn")),
+        Field("kf_t", "s", "time since the tilt/offset filter's last prediction"),
+        Field("zt", "s", "at rest: time since the last rest update"),
         Field("med_i", "", "the median option's ring: next slot (a whole number)"),
         Field("med_n", "", "the median option's ring: slots filled (a whole number)"),
         Field("med", "m/s^2", "the median option's ring: the last along-track accelerations", FUSED_MEDIAN_MAX),
@@ -387,11 +410,38 @@ FUSED = Kernel(
         Param("turn_end_dps", "degree/s", "and ends when it falls below this (at most fused_turn_start_dps)",
               Store("turn_end", "rad/s", "scale", "RAD_PER_DEG"), 7.0, ge=0, at_most="turn_start_dps",
               at_most_why="a turn that ends at {value:g} {unit} cannot start at the lower {limit:g} {unit}"),
+        Param("platform", "", "what carries the device: a pedestrian (any shaking is steps), a vehicle (never steps) "
+              "or auto (steps only while the shaking stays below vibration_hz)", Store("platform", "choice"), "auto",
+              kind="choice", choices=("pedestrian", "vehicle", "auto")),
+        Param("vibration_hz", "Hz", "the gait band's upper edge: |f| varying faster is a vehicle's road or engine",
+              Store("vib_rate", "rad/s", "scale", "RAD_PER_CYCLE"), 8.0, gt=0),
+        Param("vibration_ratio", "", "auto: shaking with more than this share of its variance above vibration_hz is a "
+              "vehicle's, not steps", Store("vib_ratio", ""), 0.04, ge=0, le=1),
+        Param("vibration_tau_s", "s", "time constant of the two variances that share is of",
+              Store("inv_vib_tau", "1/s", "recip"), 2.0, gt=0),
+        Param("walk_time_s", "s", "steps this long start a walk (a vehicle's odd second of calm shaking does not)",
+              Store("walk_time_s", "s"), 1.0, ge=0),
+        Param("rest_speed_ms", "m/s", "a quiet vehicle comes to rest with any steady horizontal specific force (its "
+              "tilt error in an outage) while its speed is below this, or after it shook",
+              Store("rest_speed_ms", "m/s"), 1.0, ge=0),
+        Param("rest_update_s", "s", "at rest, every this long (after the first), the gyro bias and the tilt/offset "
+              "filter take the smoothed rate and horizontal specific force as their errors",
+              Store("rest_update_s", "s"), 1.0, gt=0),
+        Param("kf_rest_sigma_ms2", "m/s^2", "error of that smoothed horizontal specific force (0: no filter update at "
+              "rest)", Store("kf_rest_r", "(m/s^2)^2", "square"), 0.03, ge=0),
+        Param("zupt_turn_weight", "1/rad", "a vehicle's zero-velocity update takes its speed error as grown at a rate "
+              "1 + this x the turn since its speed was last known (turns make the tilt errors)",
+              Store("zupt_turn_weight", "1/rad"), 3.0, ge=0),
+        Param("accel_tau_s", "s", "a vehicle's along-track acceleration passes the deadband while its average over "
+              "this does (the road's shaking averages out; 0: each sample on its own)",
+              Store("inv_accel_tau", "1/s", "rate"), 0.5, ge=0),
     ),
     flags=(
         Flag("AT_REST", 1, "the last sample was at rest"),
         Flag("WALKING", 2, "the last sample looked like a walker's"),
         Flag("TURNING", 4, "the walker was turning"),
+        Flag("VEHICLE", 8, "the last shaking was a vehicle's (above vibration_hz), or the platform is a vehicle"),
+        Flag("SHAKEN", 16, "a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped"),
     ),
 )
 

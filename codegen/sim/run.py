@@ -19,11 +19,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from codegen.sim import SCENARIOS as ALL_SCENARIOS
 from codegen.sim import mpu6050, neo6m, trajectory
 from codegen.sim.methods import registered_methods
 
-SCENARIOS = trajectory.SCENARIOS + ("replay-walk",)
+SCENARIOS = ALL_SCENARIOS
 DEFAULT_HORIZONS = (10.0, 30.0, 60.0)
+# Seeds: algorithms are tuned on TUNING_SEEDS and judged on REPORT_SEEDS, never the other way round. The replayed
+# real walk is one recording (its degradation seeds only vary the sensor errors): it was used for tuning, so its
+# figures are in-sample and labelled so.
+TUNING_SEEDS = range(100, 200)
+REPORT_SEEDS = range(0, 30)
+IN_SAMPLE = {"replay-walk"}
 
 
 @dataclass
@@ -87,12 +94,18 @@ class Result:
     push_e: dict[str, np.ndarray] = field(default_factory=dict)  # method -> (P,) seed error E per push
     starts: np.ndarray | None = None
     seeds: int = 1
+    seed_of_row: np.ndarray | None = None  # (S,) the run (seed) each outage row came from: the bootstrap's clusters
 
     def merge(self, other: "Result") -> "Result":
         errors = {m: np.vstack([self.errors[m], other.errors[m]]) for m in self.errors}
         drift = {m: np.vstack([self.drift[m], other.drift[m]]) for m in self.drift}
         push_e = {m: np.concatenate([self.push_e.get(m, []), other.push_e.get(m, [])]) for m in self.errors}
-        return Result(self.scenario, self.horizons, errors, drift, push_e, None, self.seeds + other.seeds)
+        rows = np.concatenate([self.row_seeds(), other.row_seeds()])
+        return Result(self.scenario, self.horizons, errors, drift, push_e, None, self.seeds + other.seeds, rows)
+
+    def row_seeds(self) -> np.ndarray:
+        rows = len(next(iter(self.errors.values())))
+        return np.zeros(rows, dtype=int) if self.seed_of_row is None else self.seed_of_row
 
 
 def evaluate(run: RunData, horizons=DEFAULT_HORIZONS, methods=None, step: float = 5.0) -> Result:
@@ -112,7 +125,8 @@ def evaluate(run: RunData, horizons=DEFAULT_HORIZONS, methods=None, step: float 
         errors[name] = np.where(ok, err, np.nan)
         moved = np.linalg.norm((est - est[:, :1]) - (truth - truth[:, :1]), axis=-1)
         drift[name] = np.where(ok & ok[:, :1], moved, np.nan)
-    result = Result(run.scenario, horizons, errors, drift, starts=starts)
+    result = Result(run.scenario, horizons, errors, drift, starts=starts,
+                    seed_of_row=np.full(len(starts), run.seed, dtype=int))
     pushes = run.events.get("pushes")
     if pushes:
         p_start = np.array([p[0] for p in pushes]) - 0.5
@@ -148,6 +162,53 @@ def format_table(results: list[Result], file=None, drift: bool = False) -> str:
             if e is not None and len(e):
                 row += f"  {np.median(e):10.2f} {np.mean(e < 0.1):6.0%}"
             lines.append(row)
+    text = "\n".join(lines)
+    if file is not None:
+        print(text, file=file)
+    return text
+
+
+def bootstrap_interval(err: np.ndarray, rows: np.ndarray, q: float, resamples: int = 1000, level: float = 0.95,
+                       seed: int = 0) -> tuple[float, float, float]:
+    """(estimate, low, high): the q-th percentile of `err` (NaN ignored) and its bootstrap interval, resampling
+    whole runs (the values of one seed are correlated: one road, one device, one fix error), not single outages."""
+    keep = ~np.isnan(err)
+    err, rows = err[keep], rows[keep]
+    estimate = float(np.percentile(err, q))
+    clusters = np.unique(rows)
+    if len(clusters) < 2:
+        return estimate, np.nan, np.nan
+    groups = [err[rows == c] for c in clusters]
+    rng = np.random.default_rng(seed)
+    picks = rng.integers(len(groups), size=(resamples, len(groups)))
+    stats = np.array([np.percentile(np.concatenate([groups[i] for i in pick]), q) for pick in picks])
+    tail = 100 * (1 - level) / 2
+    low, high = np.percentile(stats, [tail, 100 - tail])
+    return estimate, float(low), float(high)
+
+
+def format_table_ci(results: list[Result], resamples: int = 1000, file=None) -> str:
+    """The metrics table with 95 % bootstrap intervals (runs resampled): per method a median row and a 90th
+    percentile row, in metres, each value with its [low-high] interval. In-sample scenarios (tuned on) are marked."""
+    horizons = results[0].horizons
+    cell = 20
+    head = f"{'scenario':16s} {'method':15s} {'runs':>4s} {'outages':>7s} {'':>6s}"
+    head += "".join(f" {f'{h:g} s [95%]':>{cell}s}" for h in horizons)
+    lines = [head, "-" * len(head)]
+    for res in results:
+        rows = res.row_seeds()
+        label = res.scenario + (" *" if res.scenario in IN_SAMPLE else "")
+        for name, err in res.errors.items():
+            n = int(np.sum(~np.isnan(err[:, -1])))
+            for q, stat in ((50, "median"), (90, "p90")):
+                row = (f"{label:16s} {name:15s} {len(np.unique(rows)):4d} {n:7d} {stat:>6s}" if q == 50
+                       else f"{'':16s} {'':15s} {'':4s} {'':7s} {stat:>6s}")
+                for j in range(1, len(horizons) + 1):
+                    est, low, high = bootstrap_interval(err[:, j], rows, q, resamples)
+                    row += f" {f'{est:.1f} [{low:.1f}-{high:.1f}]':>{cell}s}"
+                lines.append(row)
+    if any(res.scenario in IN_SAMPLE for res in results):
+        lines.append("* in-sample: the recording was used to tune the algorithm")
     text = "\n".join(lines)
     if file is not None:
         print(text, file=file)

@@ -1,9 +1,11 @@
 """Trajectories with exact truth: position, velocity, acceleration and orientation on a fine time grid.
 
 A trajectory is sampled at `rate_hz` (1 kHz by default) in the earth frame ENU (x East, y North, z Up) and the
-board frame (the MPU-6050 axes after the board's axis remap). Orientation is given as Euler angles with
-R_board->ENU = Rz(yaw) · Ry(pitch) · Rx(roll); the board's angular rate follows from the Euler rates by the
-standard kinematic relation, so integrating `gyro` from `rotation(0)` reproduces `rotation(k)`.
+board frame (the MPU-6050 axes after the board's axis remap). Orientation is the carrier's (the vehicle's, the
+walker's hand or thigh) as Euler angles, R_carrier->ENU = Rz(yaw) · Ry(pitch) · Rx(roll), times a constant
+mounting of the board on the carrier: R_board->ENU = R_carrier->ENU · mount. The board's angular rate follows
+from the Euler rates by the standard kinematic relation, so integrating `gyro` from `rotation(0)` reproduces
+`rotation(k)`.
 
 Every scenario starts with the device at rest (calibration needs `rest_s` seconds of it) and is built from a
 short script of commanded longitudinal acceleration / yaw rate / grade segments, smoothed so that jerk stays finite,
@@ -21,9 +23,11 @@ import numpy as np
 from scipy.signal import oaconvolve
 
 from codegen.board.model import STANDARD_GRAVITY
+from codegen.sim import SIMULATED
 
 TRUTH_RATE_HZ = 1000.0
-SCENARIOS = ("static", "push", "walk", "car")
+GRADE_GRID_M = 0.012  # m of road per sample of the car's grade profile (its 20 s smoothing at 12 m/s: ~240 m)
+SCENARIOS = SIMULATED
 
 
 @dataclass(frozen=True)
@@ -39,6 +43,7 @@ class Trajectory:
     gyro: np.ndarray  # (N, 3) rad/s, board frame
     rest_s: float  # s at rest at the start (for calibration)
     events: dict = field(default_factory=dict)  # scenario-specific marks, e.g. push start/end times
+    mount: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3, 3) R board->carrier, constant
 
     @property
     def rate_hz(self) -> float:
@@ -50,7 +55,7 @@ class Trajectory:
 
     def rotation(self, index=slice(None)) -> np.ndarray:
         """R board->ENU, (..., 3, 3)."""
-        return euler_to_matrix(self.euler[index])
+        return euler_to_matrix(self.euler[index]) @ self.mount
 
     def specific_force(self) -> np.ndarray:
         """What an ideal accelerometer measures, in the board frame: R^T (a + g·Up), m/s^2."""
@@ -137,16 +142,19 @@ def _assemble(
     extra_vel: np.ndarray,
     attitude: np.ndarray,
     events: dict | None = None,
+    mount: np.ndarray | None = None,
 ) -> Trajectory:
-    """Velocity from speed along course (rad from North, clockwise) + climb + extra ENU velocity; then integrate."""
+    """Velocity from speed along course (rad from North, clockwise) + climb + extra ENU velocity; then integrate.
+    `attitude` is the carrier's (Euler angles); `mount` (3, 3) turns the board into the carrier's frame."""
     n = len(speed)
     dt = 1.0 / rate
     t = np.arange(n) * dt
     vel = np.stack([speed * np.sin(course), speed * np.cos(course), climb], axis=-1) + extra_vel
     acc = np.gradient(vel, dt, axis=0, edge_order=2)
     pos = _cumtrapz(vel, dt)
-    gyro = body_rates(attitude, dt)
-    return Trajectory(name, t, pos, vel, acc, attitude, gyro, rest_s, events or {})
+    mount = np.eye(3) if mount is None else np.asarray(mount, dtype=float)
+    gyro = body_rates(attitude, dt) @ mount  # board frame: mount^T omega, row by row
+    return Trajectory(name, t, pos, vel, acc, attitude, gyro, rest_s, events or {}, mount)
 
 
 def static(duration: float = 120.0, seed: int = 0, rate: float = TRUTH_RATE_HZ) -> Trajectory:
@@ -195,12 +203,29 @@ def push(count: int = 12, rest_s: float = 12.0, seed: int = 0, rate: float = TRU
     return _assemble("push", rate, rest_s, speed, course, zero, np.zeros((n, 3)), attitude, {"pushes": pushes})
 
 
-def walk(duration: float = 300.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ) -> Trajectory:
-    """A pedestrian holding the device in front of them, screen up and tilted towards the face.
+CARRIES = ("hand", "pocket", "backpack")
 
-    ~1.4 m/s with steps at ~1.9 Hz (vertical bob, forward surge, sideways sway), turns of 30..120 degrees,
-    stops at crossings; the hand tilts and turns the device slowly and jiggles it with every step.
+
+def walk(duration: float = 300.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ,
+         carry: str = "hand") -> Trajectory:
+    """A pedestrian: ~1.4 m/s with steps at ~1.9 Hz (vertical bob, forward surge, sideways sway), turns of
+    30..120 degrees, stops at crossings. Where the device is (`carry`):
+
+    - "hand": held in front, screen up and tilted ~25 degrees towards the face, wandering slowly; the hand turns
+      it about the course and jiggles it with every step;
+    - "pocket": in a front trouser pocket, riding the thigh: the thigh swings about the hip by ~+-22 degrees at
+      the stride rate (half the step rate; hip flexion-extension in normal gait spans ~40-45 degrees), the pocket
+      ~25 cm below the hip joint, the device upright or upside down, screen in or out, a little askew;
+    - "backpack": in a bag on the back, in any orientation: the trunk leans forward ~8 degrees, twists about the
+      vertical and rolls at the stride rate, bobs and pitches with each step, ~15 cm behind and 45 cm above the
+      hips.
+
+    events: "carry", "mount" (the rotation board -> carrier).
     """
+    from scipy.spatial.transform import Rotation
+
+    if carry not in CARRIES:
+        raise ValueError(f"unknown carry {carry!r}; choose from {', '.join(CARRIES)}")
     rng = np.random.default_rng(seed)
     n = int(round(duration * rate)) + 1
     t = np.arange(n) / rate
@@ -231,23 +256,143 @@ def walk(duration: float = 300.0, rest_s: float = 12.0, seed: int = 0, rate: flo
     climb = 0.025 * 2 * np.pi * step_hz * moving * np.cos(phase)  # ~2.5 cm vertical bob
     sway = 0.08 * moving * np.sin(phase / 2)  # sideways, half the step rate
     extra = np.stack([sway * np.cos(course), -sway * np.sin(course), np.zeros(n)], axis=-1)
-    # the hand: tilted ~25 degrees towards the face, wandering slowly; yaw follows the course with an offset
-    wander = gaussian_filter1d(rng.standard_normal((n, 3)), 2.0 * rate, axis=0, mode="nearest") * 80
-    settle = np.clip((t - rest_s + 2.0) / 2.0, 0.0, 1.0)
-    settle = settle * settle * (3.0 - 2.0 * settle)  # picked up from the table over 2 s before walking
-    roll = settle * (np.radians(3) * wander[:, 0] + np.radians(1.5) * moving * np.sin(phase + 0.7))
-    pitch = settle * (np.radians(-25) + np.radians(5) * wander[:, 1] + np.radians(2) * moving * np.sin(phase))
-    yaw = np.pi / 2 - course + np.radians(10) * settle * wander[:, 2]
-    attitude = np.stack([roll, pitch, yaw], axis=-1)
-    return _assemble("walk", rate, rest_s, speed, course, climb, extra, attitude)
+    heading = np.pi / 2 - course
+    events = {"carry": carry}
+    if carry == "hand":
+        # tilted ~25 degrees towards the face, wandering slowly; yaw follows the course with an offset
+        wander = gaussian_filter1d(rng.standard_normal((n, 3)), 2.0 * rate, axis=0, mode="nearest") * 80
+        settle = np.clip((t - rest_s + 2.0) / 2.0, 0.0, 1.0)
+        settle = settle * settle * (3.0 - 2.0 * settle)  # picked up from the table over 2 s before walking
+        roll = settle * (np.radians(3) * wander[:, 0] + np.radians(1.5) * moving * np.sin(phase + 0.7))
+        pitch = settle * (np.radians(-25) + np.radians(5) * wander[:, 1] + np.radians(2) * moving * np.sin(phase))
+        yaw = heading + np.radians(10) * settle * wander[:, 2]
+        attitude = np.stack([roll, pitch, yaw], axis=-1)
+        return _assemble("walk", rate, rest_s, speed, course, climb, extra, attitude, events)
+    stride = phase / 2 + rng.uniform(0, 2 * np.pi)  # one leg, or the trunk's left-right cycle
+    if carry == "pocket":
+        thigh = np.radians(5.0) + np.radians(rng.uniform(20.0, 24.0)) * moving * np.sin(stride)
+        attitude = np.stack([np.zeros(n), thigh, heading], axis=-1)
+        lever = np.array([0.06, 0.0, -0.25])  # the pocket on the front of the thigh, below the hip joint
+        screen = rng.choice([-1.0, 1.0])  # screen facing forwards or towards the thigh
+        top = rng.choice([-1.0, 1.0])  # the device's top up or down the thigh
+        y_dev = np.array([0.0, 0.0, top])
+        z_dev = np.array([screen, 0.0, 0.0])
+        base = np.stack([np.cross(y_dev, z_dev), y_dev, z_dev], axis=-1)  # columns: device axes in the thigh frame
+        mount = base @ Rotation.from_rotvec(rng.normal(0.0, np.radians(6.0), 3)).as_matrix()
+    else:  # backpack
+        lean = np.radians(rng.uniform(5.0, 11.0))
+        roll = np.radians(2.0) * moving * np.sin(stride)
+        pitch = lean * np.clip((t - rest_s + 2.0) / 2.0, 0.0, 1.0) + np.radians(1.5) * moving * np.sin(phase)
+        yaw = heading + np.radians(4.0) * moving * np.sin(stride + 0.5)
+        attitude = np.stack([roll, pitch, yaw], axis=-1)
+        lever = np.array([-0.15, 0.0, 0.45])
+        mount = Rotation.random(random_state=rng).as_matrix()
+    arm = euler_to_matrix(attitude) @ lever
+    extra += np.gradient(arm - arm[0], 1.0 / rate, axis=0, edge_order=2)
+    events["mount"] = mount
+    return _assemble(f"walk-{carry}", rate, rest_s, speed, course, climb, extra, attitude, events, mount=mount)
 
 
-def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ) -> Trajectory:
-    """A car with the device mounted on the dashboard: starts, stops, turns at junctions, hills.
+def bike(duration: float = 360.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ) -> Trajectory:
+    """A cyclist with the device on the handlebar stem, screen up and tilted back ~20 degrees.
 
-    Longitudinal acceleration up to ~2.5 m/s^2, cruise 8..17 m/s, turns of 60..100 degrees at ~6 m/s, stops at
-    lights; the road rises and falls by up to 6 %; the body rolls in turns and pitches with acceleration and grade.
+    Cruise 4..7 m/s, accelerating at 0.4..1 m/s^2 and braking at 1..2 m/s^2, turns of 60..100 degrees at ~3.5 m/s
+    leaning into them (tan(lean) = lateral acceleration / g), stops of 5..30 s at lights with the bike leaning on
+    the rider's foot by ~8 degrees; pedalling at 1.2..1.5 Hz while speeding up or cruising rocks the bike by
+    ~1.5 degrees and surges it; the frame has no suspension: the road (ISO 8608 class A, a smooth cycle path or
+    asphalt) reaches it through the tyres only (a 12 kg frame share on 100 kN/m tyres: ~15 Hz, lightly damped).
     """
+    from codegen.sim import vibration as vib
+
+    rng = np.random.default_rng(seed)
+    n = int(round(duration * rate)) + 1
+    t = np.arange(n) / rate
+    start = int(rest_s * rate)
+    script_a, script_w, script_p = [], [], []
+    v = 0.0
+    elapsed = rest_s
+    while elapsed < duration:
+        target = rng.uniform(4.0, 7.0)
+        accel = rng.uniform(0.4, 1.0)
+        ramp = (target - v) / accel
+        cruise = rng.uniform(15.0, 45.0)
+        slow_to = 0.0 if rng.uniform() < 0.4 else 3.5
+        brake = rng.uniform(1.0, 2.0)
+        brake_s = (target - slow_to) / brake
+        script_a += [(ramp, accel), (cruise, 0.0), (brake_s, -brake)]
+        script_w += [(ramp + cruise + brake_s, 0.0)]
+        script_p += [(ramp + cruise, 1.0), (brake_s, 0.0)]
+        elapsed += ramp + cruise + brake_s
+        if slow_to == 0.0:
+            wait = rng.uniform(5.0, 30.0)
+            script_a.append((wait, 0.0))
+            script_w.append((wait, 0.0))
+            script_p.append((wait, 0.0))
+            elapsed += wait
+        else:
+            turn = np.radians(rng.uniform(60, 100)) * rng.choice([-1, 1])
+            turn_s = rng.uniform(3.0, 5.0)
+            script_a.append((turn_s, 0.0))
+            script_w.append((turn_s, turn / turn_s))
+            script_p.append((turn_s, 0.0))
+            elapsed += turn_s
+        v = slow_to
+    a_cmd = gaussian_filter1d(_segments(n, rate, script_a, start), 0.4 * rate, mode="nearest")
+    w_cmd = gaussian_filter1d(_segments(n, rate, script_w, start), 0.5 * rate, mode="nearest")
+    pedal = gaussian_filter1d(_segments(n, rate, script_p, start), 0.5 * rate, mode="nearest")
+    cadence = rng.uniform(1.2, 1.5)
+    crank = 2 * np.pi * cadence * (t - rest_s)
+    speed = np.maximum(np.cumsum(a_cmd) / rate + 0.08 * pedal * np.sin(2 * crank), 0.0)
+    course = rng.uniform(0, 2 * np.pi) + np.cumsum(w_cmd) / rate
+    a_lat = speed * np.gradient(course, 1.0 / rate)
+    stopped = gaussian_filter1d((speed < 0.3).astype(float), 0.7 * rate, mode="nearest")
+    mount_up = np.clip((t - rest_s + 2.0) / 1.5, 0.0, 1.0)  # upright on its stand while the device calibrates,
+    stopped *= mount_up * mount_up * (3.0 - 2.0 * mount_up)  # then the rider gets on and leans it on a foot
+    foot = rng.choice([-1.0, 1.0]) * np.radians(8.0)
+    roll = np.arctan(a_lat / STANDARD_GRAVITY) + foot * stopped + np.radians(1.5) * pedal * np.sin(crank)
+    # the tyres filter the road: a 12 kg frame share on 100 kN/m tyres with a little damping
+    road = vib.Road(gd_n0=float(np.exp(rng.uniform(np.log(4e-6), np.log(16e-6)))), potholes_per_km=1.0,
+                    pothole_depth_m=(0.01, 0.03))
+    distance = np.cumsum(speed) / rate
+    x, heights = vib.road_profile(float(distance[-1]) + 2.0, road, rng, tracks=1)
+    # the frame is the "unsprung" mass here: on the tyres, under the rider's arms and saddle
+    corner = vib.QuarterCar(sprung_kg=40.0, unsprung_kg=12.0, spring_n_m=20_000.0, damper_ns_m=300.0,
+                            tyre_n_m=100_000.0)
+    wheelbase = 1.0
+    frame = corner.wheel_height(np.stack([np.interp(distance + wheelbase, x, heights[:, 0]),
+                                          np.interp(distance, x, heights[:, 0])], axis=-1), rate)
+    heave = frame[:, 0]  # the stem sits over the front wheel
+    pitch = (frame[:, 1] - frame[:, 0]) / wheelbase
+    yaw = np.pi / 2 - course + np.radians(1.0) * pedal * np.sin(crank + 1.0)  # the bars steer with each stroke
+    attitude = np.stack([roll, pitch, yaw], axis=-1)
+    extra = np.zeros((n, 3))
+    extra[:, 2] = np.gradient(heave - heave[0], 1.0 / rate, edge_order=2)
+    lever = np.array([0.55, 0.0, 0.95])  # the stem: forward of and above the contact line's midpoint
+    arm = euler_to_matrix(attitude) @ lever
+    extra += np.gradient(arm - arm[0], 1.0 / rate, axis=0, edge_order=2)
+    mount = euler_to_matrix(np.array([0.0, np.radians(-20.0), 0.0]))  # screen up, tilted back towards the rider
+    climb = np.zeros(n)
+    return _assemble("bike", rate, rest_s, speed, course, climb, extra, attitude, {"mount": mount}, mount=mount)
+
+
+def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ,
+        mount: str = "any", vibration: bool = True) -> Trajectory:
+    """A car on ordinary roads: starts, stops at lights with the engine idling, turns at junctions, hills.
+
+    Longitudinal acceleration up to ~2.5 m/s^2, cruise 8..17 m/s, turns of 60..100 degrees at ~6 m/s, stops of
+    3..30 s; the road rises and falls by up to 6 %; the body rolls in turns and pitches with acceleration and grade.
+    With `vibration` the body shakes as codegen.sim.vibration models it: road roughness (ISO 8608, class B to C,
+    drawn per seed) through the suspension, potholes, and the engine, which runs from the start or is started a
+    few seconds before the car moves (drawn per seed).
+
+    mount="any": the device sits anywhere in the cabin in any orientation (a uniformly random rotation, as a
+    device dropped in a door pocket, a cup holder or a bag); "dashboard": flat on the dashboard, facing forward.
+    events: "engine_on_s" (when the engine starts), "mount" (the rotation board -> car), "lever_m".
+    """
+    from scipy.spatial.transform import Rotation
+
+    from codegen.sim import vibration as vib
+
     rng = np.random.default_rng(seed)
     n = int(round(duration * rate)) + 1
     t = np.arange(n) / rate
@@ -260,14 +405,14 @@ def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: floa
         accel = rng.uniform(1.2, 2.5)
         ramp = (target - v) / accel
         cruise = rng.uniform(10.0, 30.0)
-        slow_to = rng.uniform(0.0, 1.0) < 0.3 and 0.0 or 6.0
+        slow_to = 0.0 if rng.uniform(0.0, 1.0) < 0.45 else 6.0  # a stop at lights, or a turn at a junction
         brake = rng.uniform(1.5, 3.0)
         brake_s = (target - slow_to) / brake
         script_a += [(ramp, accel), (cruise, 0.0), (brake_s, -brake)]
         script_w += [(ramp + cruise + brake_s, 0.0)]
         elapsed += ramp + cruise + brake_s
         if slow_to == 0.0:
-            wait = rng.uniform(3.0, 10.0)
+            wait = rng.uniform(3.0, 30.0)
             script_a.append((wait, 0.0))
             script_w.append((wait, 0.0))
             elapsed += wait
@@ -282,20 +427,45 @@ def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: floa
     w_cmd = gaussian_filter1d(_segments(n, rate, script_w, start), 0.5 * rate, mode="nearest")
     speed = np.maximum(np.cumsum(a_cmd) / rate, 0.0)
     course = rng.uniform(0, 2 * np.pi) + np.cumsum(w_cmd) / rate
-    grade = 0.06 * np.tanh(gaussian_filter1d(rng.standard_normal(n), 20.0 * rate, mode="nearest") * 150)
-    grade *= np.clip((t - rest_s) / 5.0, 0.0, 1.0)
+    # the road's grade is a property of the road: a function of the distance driven (a car stopped on a hill keeps
+    # its pitch), varying over ~240 m (a smooth profile drawn on a grid of GRADE_GRID_M along the road), flat for the
+    # first 50 m (the parking spot where the device calibrates)
+    profile = 0.06 * np.tanh(gaussian_filter1d(rng.standard_normal(n), 20.0 * rate, mode="nearest") * 150)
+    distance = np.cumsum(speed) / rate
+    grade = np.interp(distance, np.arange(n) * GRADE_GRID_M, profile) * np.clip(distance / 50.0, 0.0, 1.0)
     climb = speed * grade
     a_long = np.gradient(speed, 1.0 / rate)
     a_lat = speed * np.gradient(course, 1.0 / rate)
-    vibration = 0.001 * gaussian_filter1d(rng.standard_normal((n, 3)), 0.01 * rate, axis=0) * np.sqrt(0.01 * rate)
-    vibration *= np.clip(speed / 5.0, 0.0, 1.0)[:, None]
-    mount_yaw = rng.uniform(-0.2, 0.2)
-    roll = np.radians(0.5) * a_lat + np.radians(2.0) + vibration[:, 0]
-    pitch = -np.arctan(grade) - np.radians(0.4) * a_long + np.radians(-3.0) + vibration[:, 1]
-    yaw = np.pi / 2 - course + mount_yaw + vibration[:, 2]
-    attitude = np.stack([roll, pitch, yaw], axis=-1)
-    zero3 = np.zeros((n, 3))
-    return _assemble("car", rate, rest_s, speed, course, climb, zero3, attitude)
+    roll = np.radians(0.5) * a_lat
+    pitch = -np.arctan(grade) - np.radians(0.4) * a_long
+    yaw = np.pi / 2 - course
+    extra = np.zeros((n, 3))
+    angles = np.zeros((n, 3))
+    engine_on = 0.0 if rng.random() < 0.5 else rest_s - rng.uniform(2.0, 4.0)
+    if vibration:
+        road = vib.Road(gd_n0=float(np.exp(rng.uniform(np.log(64e-6), np.log(256e-6)))))
+        heave, pitch_v, roll_v = vib.road_shake(distance, rate, vib.VehicleBody(), road, rng)
+        engine = vib.Engine()
+        angles, _, _, engine_vel = vib.engine_shake(t, engine.rpm(speed), t >= engine_on, engine, rng)
+        roll = roll + roll_v
+        pitch = pitch + pitch_v
+        extra[:, 2] += np.gradient(heave - heave[0], 1.0 / rate, edge_order=2)
+        extra += engine_vel
+    if mount == "any":
+        rotation = Rotation.random(random_state=rng).as_matrix()
+        lever = np.array([rng.uniform(-1.0, 1.5), rng.uniform(-0.7, 0.7), rng.uniform(0.0, 0.8)])
+    elif mount == "dashboard":
+        rotation = euler_to_matrix(np.array([np.radians(2.0), np.radians(-3.0), rng.uniform(-0.2, 0.2)]))
+        lever = np.array([1.2, 0.3, 0.4])
+    else:
+        raise ValueError(f"unknown car mount {mount!r}; choose any or dashboard")
+    body = np.stack([roll, pitch, yaw], axis=-1)
+    arm = euler_to_matrix(body) @ lever  # the body's pitch and roll move the device on its lever arm
+    extra += np.gradient(arm - arm[0], 1.0 / rate, axis=0, edge_order=2)
+    # the engine's shake is the mounting's own: local flexing (cm from its centre), no lever arm
+    attitude = body + angles
+    events = {"engine_on_s": engine_on, "mount": rotation, "lever_m": lever}
+    return _assemble("car", rate, rest_s, speed, course, climb, extra, attitude, events, mount=rotation)
 
 
 def make_scenario(name: str, seed: int = 0, duration: float | None = None) -> Trajectory:
@@ -303,7 +473,9 @@ def make_scenario(name: str, seed: int = 0, duration: float | None = None) -> Tr
     kwargs = {"seed": seed}
     if duration is not None and name != "push":
         kwargs["duration"] = duration
-    builders = {"static": static, "push": push, "walk": walk, "car": car}
+    builders = {"static": static, "push": push, "walk": walk, "car": car, "bike": bike,
+                "walk-pocket": lambda **kw: walk(carry="pocket", **kw),
+                "walk-backpack": lambda **kw: walk(carry="backpack", **kw)}
     if name not in builders:
         raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")
     return builders[name](**kwargs)

@@ -54,6 +54,7 @@ STATE_LEN = const(22 + 3 * 16)
 
 _GRAVITY_MS2 = 9.80665
 _RAD_PER_DEG = 0.017453292519943295
+_RAD_PER_CYCLE = 6.283185307179586
 _S_PER_US = 1e-6  # s per microsecond
 _WGS84_A = 6378137.0  # m
 _WGS84_E2 = 0.0066943799901413165  # first eccentricity squared
@@ -375,13 +376,13 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(138)
-_F_KCFG = const(126)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(175)
+_F_KCFG = const(163)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
 _F_VAR_F = const(8)  # (m/s^2)^2: variance of |f|
-_F_W2 = const(9)  # (rad/s)^2: mean |omega|^2
+_F_VIB_VAR = const(9)  # (m/s^2)^2: variance of |f| above the gait band (vibration_hz) over vibration_tau_s
 _F_ACC_E = const(10)  # m/s^2: GPS motion acceleration East, kernel frame (the tilt reference subtracts it)
 _F_ACC_N = const(11)  # m/s^2: GPS motion acceleration North, kernel frame
 _F_STEADY = const(12)  # (m/s^2)^2: > 0 while that acceleration is steady: steady_accel_ms2^2 - its change^2
@@ -422,43 +423,74 @@ _F_DPX = const(57)  # m: integral of dvx since the last fix
 _F_DPY = const(58)  # m: integral of dvy since the last fix
 _F_RATE_UP = const(59)  # rad/s: the rate about Up smoothed over stat_tau_s
 _F_HELD = const(60)  # rad: rotation about Up a walker's travel direction has not taken yet
-_F_MED_I = const(61)  # the median option's ring: next slot (a whole number)
-_F_MED_N = const(62)  # the median option's ring: slots filled (a whole number)
-_F_MED = const(63)  # m/s^2: the median option's ring: the last along-track accelerations
-_FC_KP = const(95)  # 1/s, from tilt_tau_s (s)
-_FC_REJECT_MS2 = const(96)  # m/s^2, from accel_reject_g (g)
-_FC_KP_DARK = const(97)  # 1/s, from tilt_tau_dark_s (s)
-_FC_STEADY_MS2 = const(98)  # m/s^2, from steady_accel_ms2 (m/s^2)
-_FC_INV_SPEED_TAU = const(99)  # 1/s, from speed_tau_s (s)
-_FC_GPS_TIMEOUT_S = const(100)  # s, from gps_timeout_s (s)
-_FC_INV_STAT_TAU = const(101)  # 1/s, from stat_tau_s (s)
-_FC_REST_VAR = const(102)  # (m/s^2)^2, from rest_accel_g (g)
-_FC_REST_W2 = const(103)  # (rad/s)^2, from rest_gyro_dps (degree/s)
-_FC_REST_TIME_S = const(104)  # s, from rest_time_s (s)
-_FC_INV_BIAS_TAU = const(105)  # 1/s, from bias_tau_s (s)
-_FC_WALK_VAR = const(106)  # (m/s^2)^2, from walk_accel_g (g)
-_FC_MIN_SPEED_MS = const(107)  # m/s, from min_speed_ms (m/s)
-_FC_HEADING_GAIN = const(108)  # per fix, from heading_gain (per fix)
-_FC_ALIGN_FORGET = const(109)  # per fix, from align_forget (per fix)
-_FC_SPEED_GAIN = const(110)  # per fix, from speed_gain (per fix)
-_FC_BIAS_GAIN = const(111)  # per fix, from bias_gain (per fix)
-_FC_WALK_SPEED_GAIN = const(112)  # per fix, from walk_speed_gain (per fix)
-_FC_KF_BIAS_VAR = const(113)  # (m/s^2)^2, from kf_bias_init_g (g)
-_FC_KF_BIAS_Q = const(114)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
-_FC_KF_TILT_Q = const(115)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
-_FC_KF_TURN_Q = const(116)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
-_FC_KF_VEL_R = const(117)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
-_FC_KF_ALIGN_MIN = const(118)  # (m/s)^2, from kf_align_min ((m/s)^2)
-_FC_MEDIAN = const(119)  # 1: on, from median
-_FC_POS_VAR = const(120)  # m^2, from pos_sigma_m (m)
-_FC_INV_POS_TAU = const(121)  # 1/s, from pos_tau_s (s)
-_FC_POS_STEP_Q = const(122)  # (m/s)^2, from pos_step_sigma_ms (m/s)
-_FC_HOLD_RATE = const(123)  # 1/s, from turn_hold_tau_s (s)
-_FC_TURN_START = const(124)  # rad/s, from turn_start_dps (degree/s)
-_FC_TURN_END = const(125)  # rad/s, from turn_end_dps (degree/s)
+_F_BAZ = const(61)  # m/s^2: accelerometer offset of the body z axis (any mounting: no axis need be vertical)
+_F_M2 = const(62)  # s: integral of R(q)'s horizontal rows' z column, r02 and r12, since the last fix
+_F_PZ = const(64)  # the tilt/offset filter's covariance, fifth column (the z offset): rows 0-4
+_F_WALK_S = const(69)  # s: how long the shaking has looked like steps
+_F_VIB_TOT = const(70)  # (m/s^2)^2: variance of |f| over vibration_tau_s (the vibration's share is of this)
+_F_VIB_LP = const(71)  # m/s^2: |f| low-passed at vibration_hz, and its high-passed part low-passed again
+_F_WS = const(73)  # rad/s: the body rate smoothed over stat_tau_s (an engine's shake averages out)
+_F_ACC_LP = const(76)  # m/s^2: a vehicle's along-track acceleration smoothed over accel_tau_s
+_F_AH = const(77)  # m/s^2: the kernel-frame horizontal acceleration smoothed over stat_tau_s (rest: steady)
+_F_ZR_T = const(79)  # s: a vehicle: time since its speed was last known (a fix, a rest)
+_F_ZR_P = const(80)  # m s: the integral of (time since then) x travel direction (true ENU) since then
+_F_ZR_TURN = const(82)  # rad: a vehicle: the integral of |rate about Up| since its speed was last known
+_F_ZR_V = const(83)  # m/s: a vehicle's speed integrated as speed is, without its floor at 0
+_F_ZR_C = const(84)  # m: the integral of (zr_v - speed) x travel direction (true ENU) since then
+_F_KF_T = const(86)  # s: time since the tilt/offset filter's last prediction
+_F_ZT = const(87)  # s: at rest: time since the last rest update
+_F_MED_I = const(88)  # the median option's ring: next slot (a whole number)
+_F_MED_N = const(89)  # the median option's ring: slots filled (a whole number)
+_F_MED = const(90)  # m/s^2: the median option's ring: the last along-track accelerations
+_FC_KP = const(122)  # 1/s, from tilt_tau_s (s)
+_FC_REJECT_MS2 = const(123)  # m/s^2, from accel_reject_g (g)
+_FC_KP_DARK = const(124)  # 1/s, from tilt_tau_dark_s (s)
+_FC_STEADY_MS2 = const(125)  # m/s^2, from steady_accel_ms2 (m/s^2)
+_FC_INV_SPEED_TAU = const(126)  # 1/s, from speed_tau_s (s)
+_FC_GPS_TIMEOUT_S = const(127)  # s, from gps_timeout_s (s)
+_FC_INV_STAT_TAU = const(128)  # 1/s, from stat_tau_s (s)
+_FC_REST_VAR = const(129)  # (m/s^2)^2, from rest_accel_g (g)
+_FC_REST_W2 = const(130)  # (rad/s)^2, from rest_gyro_dps (degree/s)
+_FC_REST_TIME_S = const(131)  # s, from rest_time_s (s)
+_FC_INV_BIAS_TAU = const(132)  # 1/s, from bias_tau_s (s)
+_FC_WALK_VAR = const(133)  # (m/s^2)^2, from walk_accel_g (g)
+_FC_MIN_SPEED_MS = const(134)  # m/s, from min_speed_ms (m/s)
+_FC_HEADING_GAIN = const(135)  # per fix, from heading_gain (per fix)
+_FC_ALIGN_FORGET = const(136)  # per fix, from align_forget (per fix)
+_FC_SPEED_GAIN = const(137)  # per fix, from speed_gain (per fix)
+_FC_BIAS_GAIN = const(138)  # per fix, from bias_gain (per fix)
+_FC_WALK_SPEED_GAIN = const(139)  # per fix, from walk_speed_gain (per fix)
+_FC_KF_BIAS_VAR = const(140)  # (m/s^2)^2, from kf_bias_init_g (g)
+_FC_KF_BIAS_Q = const(141)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
+_FC_KF_TILT_Q = const(142)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
+_FC_KF_TURN_Q = const(143)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
+_FC_KF_VEL_R = const(144)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
+_FC_KF_ALIGN_MIN = const(145)  # (m/s)^2, from kf_align_min ((m/s)^2)
+_FC_MEDIAN = const(146)  # 1: on, from median
+_FC_POS_VAR = const(147)  # m^2, from pos_sigma_m (m)
+_FC_INV_POS_TAU = const(148)  # 1/s, from pos_tau_s (s)
+_FC_POS_STEP_Q = const(149)  # (m/s)^2, from pos_step_sigma_ms (m/s)
+_FC_HOLD_RATE = const(150)  # 1/s, from turn_hold_tau_s (s)
+_FC_TURN_START = const(151)  # rad/s, from turn_start_dps (degree/s)
+_FC_TURN_END = const(152)  # rad/s, from turn_end_dps (degree/s)
+_FC_PLATFORM = const(153)  # choice, from platform
+_FC_VIB_RATE = const(154)  # rad/s, from vibration_hz (Hz)
+_FC_VIB_RATIO = const(155)  # , from vibration_ratio
+_FC_INV_VIB_TAU = const(156)  # 1/s, from vibration_tau_s (s)
+_FC_WALK_TIME_S = const(157)  # s, from walk_time_s (s)
+_FC_REST_SPEED_MS = const(158)  # m/s, from rest_speed_ms (m/s)
+_FC_REST_UPDATE_S = const(159)  # s, from rest_update_s (s)
+_FC_KF_REST_R = const(160)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
+_FC_ZUPT_TURN_WEIGHT = const(161)  # 1/rad, from zupt_turn_weight (1/rad)
+_FC_INV_ACCEL_TAU = const(162)  # 1/s, from accel_tau_s (s)
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
+_VEHICLE = const(8)  # flags bit: the last shaking was a vehicle's (above vibration_hz), or the platform is a vehicle
+_SHAKEN = const(16)  # flags bit: a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped
+_PLATFORM_PEDESTRIAN = const(0)  # platform: pedestrian
+_PLATFORM_VEHICLE = const(1)  # platform: vehicle
+_PLATFORM_AUTO = const(2)  # platform: auto
 _MEDIAN_MAX = const(32)
 _MEDIAN_WINDOW = array("f", bytes(4 * _MEDIAN_MAX))  # the median option's scratch, allocated once
 # the board's fused parameters (board algorithm.fused_*), in the declared order
@@ -494,11 +526,21 @@ _FUSED_PARAMS = (
     10.0,  # turn_hold_tau_s, s
     12.0,  # turn_start_dps, degree/s
     7.0,  # turn_end_dps, degree/s
+    2.0,  # platform
+    8.0,  # vibration_hz, Hz
+    0.04,  # vibration_ratio
+    2.0,  # vibration_tau_s, s
+    1.0,  # walk_time_s, s
+    1.0,  # rest_speed_ms, m/s
+    1.0,  # rest_update_s, s
+    0.03,  # kf_rest_sigma_ms2, m/s^2
+    3.0,  # zupt_turn_weight, 1/rad
+    0.5,  # accel_tau_s, s
 )
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 31 values in the
+    """Reset the fused state and store the configuration: the board's, or 41 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -563,6 +605,26 @@ def fused_init(fstate, params=_FUSED_PARAMS):
         raise ValueError("turn_start_dps must be > 0")
     if not (p[30] >= 0 and p[30] <= p[29]):
         raise ValueError("turn_end_dps must be >= 0 and <= turn_start_dps")
+    if not (0 <= p[31] <= 2):
+        raise ValueError("platform must be one of 0 (pedestrian), 1 (vehicle), 2 (auto)")
+    if not (p[32] > 0):
+        raise ValueError("vibration_hz must be > 0")
+    if not (p[33] >= 0 and p[33] <= 1):
+        raise ValueError("vibration_ratio must be >= 0 and <= 1")
+    if not (p[34] > 0):
+        raise ValueError("vibration_tau_s must be > 0")
+    if not (p[35] >= 0):
+        raise ValueError("walk_time_s must be >= 0")
+    if not (p[36] >= 0):
+        raise ValueError("rest_speed_ms must be >= 0")
+    if not (p[37] > 0):
+        raise ValueError("rest_update_s must be > 0")
+    if not (p[38] >= 0):
+        raise ValueError("kf_rest_sigma_ms2 must be >= 0")
+    if not (p[39] >= 0):
+        raise ValueError("zupt_turn_weight must be >= 0")
+    if not (p[40] >= 0):
+        raise ValueError("accel_tau_s must be >= 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
     fstate[_F_Q + 0] = 1.0
@@ -599,6 +661,16 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_HOLD_RATE] = 1.0 / p[28] if p[28] > 0 else 0.0
     fstate[_FC_TURN_START] = p[29] * _RAD_PER_DEG
     fstate[_FC_TURN_END] = p[30] * _RAD_PER_DEG
+    fstate[_FC_PLATFORM] = p[31]
+    fstate[_FC_VIB_RATE] = p[32] * _RAD_PER_CYCLE
+    fstate[_FC_VIB_RATIO] = p[33]
+    fstate[_FC_INV_VIB_TAU] = 1.0 / p[34]
+    fstate[_FC_WALK_TIME_S] = p[35]
+    fstate[_FC_REST_SPEED_MS] = p[36]
+    fstate[_FC_REST_UPDATE_S] = p[37]
+    fstate[_FC_KF_REST_R] = p[38] * p[38]
+    fstate[_FC_ZUPT_TURN_WEIGHT] = p[39]
+    fstate[_FC_INV_ACCEL_TAU] = 1.0 / p[40] if p[40] > 0 else 0.0
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -613,13 +685,19 @@ def fused_calibrate(fstate, samples):
         s0 += samples[k]
         s1 += samples[k + 1]
         s2 += samples[k + 2]
-    st[_F_MEAN_F] = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2) / count * st[_F_KCFG + _K_ACCEL_MS2_PER_LSB]
+    mean_f = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2) / count * st[_F_KCFG + _K_ACCEL_MS2_PER_LSB]
+    st[_F_MEAN_F] = mean_f
     st[_F_VAR_F] = 0.0
-    st[_F_W2] = 0.0
+    st[_F_VIB_VAR] = 0.0
+    st[_F_VIB_TOT] = 0.0
+    st[_F_VIB_LP] = mean_f
+    st[_F_VIB_LP + 1] = 0.0
+    st[_F_WS] = st[_F_WS + 1] = st[_F_WS + 2] = 0.0
     st[_F_REST_S] = 0.0
     st[_F_SPEED] = 0.0
     st[_F_BAX] = 0.0
     st[_F_BAY] = 0.0
+    st[_F_BAZ] = 0.0
     return moved
 
 
@@ -642,13 +720,22 @@ def fused_process(fstate, samples, dt_us, out):
     reject = st[_FC_REJECT_MS2]
     nreject = -reject
     inv_speed = st[_FC_INV_SPEED_TAU]
+    inv_acc = st[_FC_INV_ACCEL_TAU]
     timeout = st[_FC_GPS_TIMEOUT_S]
     inv_stat = st[_FC_INV_STAT_TAU]
     rest_var = st[_FC_REST_VAR]
     rest_w2 = st[_FC_REST_W2]
     rest_time = st[_FC_REST_TIME_S]
-    inv_bias = st[_FC_INV_BIAS_TAU]
+    rest_speed = st[_FC_REST_SPEED_MS]
+    update_s = st[_FC_REST_UPDATE_S]
+    gather_s = rest_time + update_s
     walk_var = st[_FC_WALK_VAR]
+    walk_time = st[_FC_WALK_TIME_S]
+    vib_rate = st[_FC_VIB_RATE]
+    vib_ratio = st[_FC_VIB_RATIO]
+    inv_vib = st[_FC_INV_VIB_TAU]
+    turn_weight = st[_FC_ZUPT_TURN_WEIGHT]
+    platform = int(st[_FC_PLATFORM])
     hold_rate = st[_FC_HOLD_RATE]
     turn_start = st[_FC_TURN_START]
     nturn_start = -turn_start
@@ -679,13 +766,23 @@ def fused_process(fstate, samples, dt_us, out):
     bgz = st[_F_GYRO_BIAS_LSB + 2]
     mean_f = st[_F_MEAN_F]
     var_f = st[_F_VAR_F]
-    w2 = st[_F_W2]
+    vib_var = st[_F_VIB_VAR]
+    vib_tot = st[_F_VIB_TOT]
+    vib_lp1 = st[_F_VIB_LP]
+    vib_lp2 = st[_F_VIB_LP + 1]
+    wsx = st[_F_WS]
+    wsy = st[_F_WS + 1]
+    wsz = st[_F_WS + 2]
+    ah_e = st[_F_AH]
+    ah_n = st[_F_AH + 1]
     rest_s = st[_F_REST_S]
+    walk_s = st[_F_WALK_S]
     ux = st[_F_UX]
     uy = st[_F_UY]
     speed = st[_F_SPEED]
     bias = st[_F_BIAS]
     walk_speed = st[_F_WALK_SPEED]
+    acc_lp = st[_F_ACC_LP]
     cos_t = st[_F_COS_T]
     sin_t = st[_F_SIN_T]
     acc_e = st[_F_ACC_E]
@@ -693,17 +790,30 @@ def fused_process(fstate, samples, dt_us, out):
     moving_ref = acc_e != 0.0 or acc_n != 0.0  # the tilt reference subtracts a GPS motion acceleration
     steady = st[_F_STEADY] > 0.0
     gps_speed = st[_F_GPS_SPEED]
+    gps_ok = st[_F_GPS_OK] > 0.0
     dvx = st[_F_DVX]
     dvy = st[_F_DVY]
     dpx = st[_F_DPX]
     dpy = st[_F_DPY]
     bax = st[_F_BAX]
     bay = st[_F_BAY]
+    baz = st[_F_BAZ]
     m00 = st[_F_M]
     m01 = st[_F_M + 1]
     m10 = st[_F_M + 2]
     m11 = st[_F_M + 3]
+    m02 = st[_F_M2]
+    m12 = st[_F_M2 + 1]
     turn = st[_F_TURN]
+    kf_t = st[_F_KF_T]
+    zt = st[_F_ZT]
+    zr_t = st[_F_ZR_T]
+    zr_turn = st[_F_ZR_TURN]
+    zr_pe = st[_F_ZR_P]
+    zr_pn = st[_F_ZR_P + 1]
+    zr_v = st[_F_ZR_V]
+    zr_ce = st[_F_ZR_C]
+    zr_cn = st[_F_ZR_C + 1]
     rate_up = st[_F_RATE_UP]
     held = st[_F_HELD]
     since = st[_F_SINCE_FIX]
@@ -711,19 +821,19 @@ def fused_process(fstate, samples, dt_us, out):
     pn0 = pn = st[_F_PN]
     flags = int(st[_F_FLAGS])
     turning = flags & _TURNING
+    walking = flags & _WALKING
+    vehicle = platform == _PLATFORM_VEHICLE or flags & _VEHICLE
+    driven = flags & _SHAKEN
     for k in range(count):
         i = 6 * k
         dt = dt_us[k] * _S_PER_US
         hdt = 0.5 * dt
         fx = samples[i + sx] * ax - bax
         fy = samples[i + sy] * ay - bay
-        fz = samples[i + sz] * az
-        cx = kx * samples[i + 3 + sx]  # gyro counts stay integers
-        cy = ky * samples[i + 3 + sy]
-        cz = kz * samples[i + 3 + sz]
-        wx = (cx - bgx) * gscale
-        wy = (cy - bgy) * gscale
-        wz = (cz - bgz) * gscale
+        fz = samples[i + sz] * az - baz
+        wx = (kx * samples[i + 3 + sx] - bgx) * gscale  # gyro counts stay integers until the bias
+        wy = (ky * samples[i + 3 + sy] - bgy) * gscale
+        wz = (kz * samples[i + 3 + sz] - bgz) * gscale
         # motion statistics
         nf = sqrt(fx * fx + fy * fy + fz * fz)
         alpha = dt * inv_stat
@@ -731,8 +841,25 @@ def fused_process(fstate, samples, dt_us, out):
             alpha = 1.0
         mean_f += alpha * (nf - mean_f)
         d = nf - mean_f
-        var_f += alpha * (d * d - var_f)
-        w2 += alpha * (wx * wx + wy * wy + wz * wz - w2)
+        d2 = d * d
+        var_f += alpha * (d2 - var_f)
+        # the shaking above the gait band: |f| through two first-order high-passes at vibration_hz
+        beta = dt * vib_rate
+        if beta > 1.0:
+            beta = 1.0
+        vib_lp1 += beta * (nf - vib_lp1)
+        h = nf - vib_lp1
+        vib_lp2 += beta * (h - vib_lp2)
+        h -= vib_lp2
+        gamma = dt * inv_vib
+        if gamma > 1.0:
+            gamma = 1.0
+        vib_var += gamma * (h * h - vib_var)
+        vib_tot += gamma * (d2 - vib_tot)
+        # the body rate smoothed: an idling engine's shake averages out
+        wsx += alpha * (wx - wsx)
+        wsy += alpha * (wy - wsy)
+        wsz += alpha * (wz - wsz)
         # rotation matrix of q, from the doubled components
         x2 = qx + qx
         y2 = qy + qy
@@ -757,19 +884,44 @@ def fused_process(fstate, samples, dt_us, out):
         r22 = 1.0 - xx - yy
         ae = r00 * fx + r01 * fy + r02 * fz
         an = r10 * fx + r11 * fy + r12 * fz
-        # rest: still, and no horizontal acceleration beyond the deadband (a smooth push is no rest)
-        if var_f < rest_var and w2 < rest_w2 and ae * ae + an * an < db2:
+        # walking: shaken, in the gait band (auto) for walk_time_s; a vehicle: shaken above it, or the platform
+        shaken = var_f > walk_var
+        broadband = vib_var > vib_ratio * vib_tot
+        if shaken and platform != _PLATFORM_VEHICLE and (platform == _PLATFORM_PEDESTRIAN or not broadband):
+            walk_s += dt
+            now_walking = walking or walk_s >= walk_time
+        else:
+            walk_s = 0.0
+            now_walking = False
+        if now_walking:
+            vehicle = False
+        elif shaken and broadband and platform != _PLATFORM_PEDESTRIAN:
+            vehicle = True
+        # rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
+        # deadband (a vehicle quiet after shaking, or below rest_speed_ms: any)
+        ah_e += alpha * (ae - ah_e)
+        ah_n += alpha * (an - ah_n)
+        de = ae - ah_e
+        dn = an - ah_n
+        if (var_f < rest_var and wsx * wsx + wsy * wsy + wsz * wsz < rest_w2 and de * de + dn * dn < db2
+                and (ae * ae + an * an < db2 or vehicle and (driven or speed < rest_speed))
+                and not (since < timeout and gps_ok)):
             rest_s += dt
         else:
             rest_s = 0.0
         rest = rest_s >= rest_time
-        walking = var_f > walk_var
-        if flags & _WALKING and not walking:
+        if rest:
+            driven = 0
+        elif shaken and vehicle:
+            driven = _SHAKEN
+        if walking and not now_walking:
             speed = 0.0  # the steps stopped, and so did the walker
+        walking = now_walking
         # travel direction turned by the rate about Up; a walker's slow rotations (the hand) held back
         r = r20 * wx + r21 * wy + r22 * wz
         da = r * dt
-        turn += da if da > 0.0 else -da
+        ada = da if da > 0.0 else -da
+        turn += ada
         rate_up += alpha * (r - rate_up)
         if walking and hold_rate > 0.0:
             if rate_up > turn_start or rate_up < nturn_start:
@@ -788,7 +940,8 @@ def fused_process(fstate, samples, dt_us, out):
             if held != 0.0:
                 da += held
                 held = 0.0
-        flags = (_AT_REST if rest else 0) | (_WALKING if walking else 0) | turning
+        flags = ((_AT_REST if rest else 0) | (_WALKING if walking else 0) | turning | (_VEHICLE if vehicle else 0)
+                 | driven)
         # u rotated by da, to second order
         da2 = da * da
         cd = 1.0 - 0.5 * da2
@@ -798,19 +951,28 @@ def fused_process(fstate, samples, dt_us, out):
         inv = 1.0 / sqrt(nx * nx + ny * ny)
         ux = nx * inv
         uy = ny * inv
+        ue = cos_t * ux - sin_t * uy
+        un = sin_t * ux + cos_t * uy
         # speed along u
         if rest or walking:
             if median:  # the median ring restarts when the vehicle branch is entered again
                 st[_F_MED_I] = st[_F_MED_N] = 0.0
+            acc_lp = 0.0
             if rest:
+                if zr_t > 0.0:
+                    # a vehicle's zero-velocity update: the speed it still had is the error gathered since its speed
+                    # was last known; its integral along the way, and what the floor at 0 kept out, taken back
+                    kzr = zr_v / zr_t
+                    pe += zr_ce - kzr * zr_pe
+                    pn += zr_cn - kzr * zr_pn
                 speed = 0.0
-                if inv_bias > 0.0:
-                    kb = dt * inv_bias
-                    bgx += kb * (cx - bgx)
-                    bgy += kb * (cy - bgy)
-                    bgz += kb * (cz - bgz)
+                zr_v = 0.0
+                if rest_s >= gather_s:
+                    zt += dt  # a rest update every rest_update_s, after the rest's first (the end of the braking)
             else:
                 speed = walk_speed
+                zr_v = speed
+            zr_t = zr_turn = zr_pe = zr_pn = zr_ce = zr_cn = 0.0
         else:
             a = ae * ux + an * uy
             if median:  # the seed's block median, sliding: the median of the last b along-track accelerations
@@ -825,14 +987,29 @@ def fused_process(fstate, samples, dt_us, out):
                     window[m] = st[_F_MED + m]
                 a = _median(window, 0, filled)
             a -= bias
-            if ndeadband < a < deadband:  # the board's deadband, on the along-track acceleration
+            if inv_acc > 0.0:  # the deadband gates on the smoothed acceleration (not the road's shaking)
+                ka = dt * inv_acc
+                acc_lp += (ka if ka < 1.0 else 1.0) * (a - acc_lp)
+                if ndeadband < acc_lp < deadband:
+                    a = 0.0
+            elif ndeadband < a < deadband:  # the board's deadband, on the along-track acceleration
                 a = 0.0
             if inv_speed > 0.0:
                 a += (gps_speed - speed) * inv_speed
             if a != 0.0:
                 speed += a * dt
+                zr_v += a * dt
             if speed < 0.0:
                 speed = 0.0
+            # the integrals a zero-velocity update corrects the position by
+            zr_turn += ada
+            zr_t += (1.0 + zr_turn * turn_weight) * dt
+            zr_pe += zr_t * ue * dt
+            zr_pn += zr_t * un * dt
+            lag = (zr_v - speed) * dt
+            if lag != 0.0:
+                zr_ce += lag * ue
+                zr_cn += lag * un
         aedt = ae * dt
         andt = an * dt
         dpx += (dvx + 0.5 * aedt) * dt
@@ -843,11 +1020,14 @@ def fused_process(fstate, samples, dt_us, out):
         m01 += r01 * dt
         m10 += r10 * dt
         m11 += r11 * dt
+        m02 += r02 * dt
+        m12 += r12 * dt
         since += dt
+        kf_t += dt
         if speed != 0.0:  # position, true ENU
             sdt = speed * dt
-            pe += sdt * (cos_t * ux - sin_t * uy)
-            pn += sdt * (sin_t * ux + cos_t * uy)
+            pe += sdt * ue
+            pn += sdt * un
         # tilt correction towards gravity (minus the GPS motion acceleration while fixes arrive)
         if since < timeout:
             gain = kp if steady else 0.0
@@ -882,6 +1062,43 @@ def fused_process(fstate, samples, dt_us, out):
         qx = nx * inv
         qy = ny * inv
         qz = nz * inv
+        if not rest:
+            zt = 0.0
+        elif zt >= update_s:  # the rest update works on the buffer: the locals it changes go there and back
+            st[_F_Q] = qw
+            st[_F_Q + 1] = qx
+            st[_F_Q + 2] = qy
+            st[_F_Q + 3] = qz
+            st[_F_GYRO_BIAS_LSB] = bgx
+            st[_F_GYRO_BIAS_LSB + 1] = bgy
+            st[_F_GYRO_BIAS_LSB + 2] = bgz
+            st[_F_BAX] = bax
+            st[_F_BAY] = bay
+            st[_F_BAZ] = baz
+            st[_F_WS] = wsx
+            st[_F_WS + 1] = wsy
+            st[_F_WS + 2] = wsz
+            st[_F_AH] = ah_e
+            st[_F_AH + 1] = ah_n
+            st[_F_KF_T] = kf_t
+            st[_F_TURN] = turn
+            st[_F_ZT] = zt
+            _rest_update(st)
+            qw = st[_F_Q]
+            qx = st[_F_Q + 1]
+            qy = st[_F_Q + 2]
+            qz = st[_F_Q + 3]
+            bgx = st[_F_GYRO_BIAS_LSB]
+            bgy = st[_F_GYRO_BIAS_LSB + 1]
+            bgz = st[_F_GYRO_BIAS_LSB + 2]
+            bax = st[_F_BAX]
+            bay = st[_F_BAY]
+            baz = st[_F_BAZ]
+            ah_e = st[_F_AH]
+            ah_n = st[_F_AH + 1]
+            kf_t = st[_F_KF_T]
+            turn = st[_F_TURN]
+            zt = 0.0
     st[_F_Q] = qw
     st[_F_Q + 1] = qx
     st[_F_Q + 2] = qy
@@ -891,11 +1108,24 @@ def fused_process(fstate, samples, dt_us, out):
     st[_F_GYRO_BIAS_LSB + 2] = bgz
     st[_F_MEAN_F] = mean_f
     st[_F_VAR_F] = var_f
-    st[_F_W2] = w2
+    st[_F_VIB_VAR] = vib_var
+    st[_F_VIB_TOT] = vib_tot
+    st[_F_VIB_LP] = vib_lp1
+    st[_F_VIB_LP + 1] = vib_lp2
+    st[_F_WS] = wsx
+    st[_F_WS + 1] = wsy
+    st[_F_WS + 2] = wsz
+    st[_F_AH] = ah_e
+    st[_F_AH + 1] = ah_n
     st[_F_REST_S] = rest_s
+    st[_F_WALK_S] = walk_s
     st[_F_UX] = ux
     st[_F_UY] = uy
     st[_F_SPEED] = speed
+    st[_F_ACC_LP] = acc_lp
+    st[_F_BAX] = bax
+    st[_F_BAY] = bay
+    st[_F_BAZ] = baz
     st[_F_DVX] = dvx
     st[_F_DVY] = dvy
     st[_F_DPX] = dpx
@@ -904,7 +1134,18 @@ def fused_process(fstate, samples, dt_us, out):
     st[_F_M + 1] = m01
     st[_F_M + 2] = m10
     st[_F_M + 3] = m11
+    st[_F_M2] = m02
+    st[_F_M2 + 1] = m12
     st[_F_TURN] = turn
+    st[_F_KF_T] = kf_t
+    st[_F_ZT] = zt
+    st[_F_ZR_T] = zr_t
+    st[_F_ZR_TURN] = zr_turn
+    st[_F_ZR_P] = zr_pe
+    st[_F_ZR_P + 1] = zr_pn
+    st[_F_ZR_V] = zr_v
+    st[_F_ZR_C] = zr_ce
+    st[_F_ZR_C + 1] = zr_cn
     st[_F_RATE_UP] = rate_up
     st[_F_HELD] = held
     st[_F_SINCE_FIX] = since
@@ -919,85 +1160,94 @@ def fused_process(fstate, samples, dt_us, out):
     out[5] = 0.0
 
 
+def _rotation_rows(st, rows):
+    # R(q)'s rows (body -> kernel ENU) into rows[0..8]
+    qw = st[_F_Q]
+    qx = st[_F_Q + 1]
+    qy = st[_F_Q + 2]
+    qz = st[_F_Q + 3]
+    rows[0] = 1.0 - 2.0 * (qy * qy + qz * qz)
+    rows[1] = 2.0 * (qx * qy - qw * qz)
+    rows[2] = 2.0 * (qx * qz + qw * qy)
+    rows[3] = 2.0 * (qx * qy + qw * qz)
+    rows[4] = 1.0 - 2.0 * (qx * qx + qz * qz)
+    rows[5] = 2.0 * (qy * qz - qw * qx)
+    rows[6] = 2.0 * (qx * qz - qw * qy)
+    rows[7] = 2.0 * (qy * qz + qw * qx)
+    rows[8] = 1.0 - 2.0 * (qx * qx + qy * qy)
+
+
 def _pidx(i, j):
-    # the covariance entry (i, j) in the upper triangle stored row by row
+    # the covariance entry (i, j): the 4 x 4 block's upper triangle row by row, then the fifth column
     if i > j:
         i, j = j, i
+    if j == 4:
+        return _F_PZ + i
     return _F_P + 4 * i - (i * (i - 1)) // 2 + j - i
 
 
-def _fused_filter(st, ve, vn, moving, t):
-    # the GPS-aided filter of the gravity leak and the accelerometer offsets (codegen.kernel.fused's
-    # tilt_and_offset_update), once per fix
+def _kf_start(st):
+    # the tilt/offset filter's start on its first use after calibration (codegen.kernel.fused's _kf_start): b across
+    # gravity, d = -R_h b. True if it started now.
+    if st[_F_P + 7] > 0.0:
+        return False
     var = st[_FC_KF_BIAS_VAR]
-    if not var > 0.0:
-        return
-    p = _F_P
-    if not st[p + 7] > 0.0:  # the first fix after calibration: start with d = -R_h b
-        qw = st[_F_Q]
-        qx = st[_F_Q + 1]
-        qy = st[_F_Q + 2]
-        qz = st[_F_Q + 3]
-        r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
-        r01 = 2.0 * (qx * qy - qw * qz)
-        r10 = 2.0 * (qx * qy + qw * qz)
-        r11 = 1.0 - 2.0 * (qx * qx + qz * qz)
-        st[p] = var * (r00 * r00 + r01 * r01)
-        st[p + 1] = var * (r00 * r10 + r01 * r11)
-        st[p + 2] = -var * r00
-        st[p + 3] = -var * r01
-        st[p + 4] = var * (r10 * r10 + r11 * r11)
-        st[p + 5] = -var * r10
-        st[p + 6] = -var * r11
-        st[p + 7] = var
-        st[p + 8] = 0.0
-        st[p + 9] = var
-        return
-    if not t > 0.0:
-        return
+    r = [0.0] * 9
+    _rotation_rows(st, r)
+    for i in range(5):
+        for j in range(i, 5):
+            if j < 2:
+                value = var * (r[3 * i] * r[3 * j] + r[3 * i + 1] * r[3 * j + 1] + r[3 * i + 2] * r[3 * j + 2])
+            elif i < 2:
+                value = -var * r[3 * i + j - 2]
+            else:
+                value = var * ((1.0 if i == j else 0.0) - r[4 + i] * r[4 + j])
+            st[_pidx(i, j)] = value
+    st[_F_KF_T] = 0.0
+    st[_F_TURN] = 0.0
+    return True
+
+
+def _kf_predict(st):
+    # the filter's process noise over the kf_t seconds since its last prediction
+    t = st[_F_KF_T]
     turn = st[_F_TURN]
     qd = st[_FC_KF_TILT_Q] * t + st[_FC_KF_TURN_Q] * turn * turn
     qb = st[_FC_KF_BIAS_Q] * t
-    st[p] += qd
-    st[p + 4] += qd
-    st[p + 7] += qb
-    st[p + 9] += qb
-    ac = st[_F_ALIGN_C]
-    als = st[_F_ALIGN_S]
-    need = st[_FC_KF_ALIGN_MIN]
-    if not (st[_F_GPS_OK] > 0.0 and moving and t < st[_FC_GPS_TIMEOUT_S] and ac * ac + als * als >= need * need):
-        return
-    inv_t = 1.0 / t
-    gx = ve - st[_F_GPS_VE]
-    gy = vn - st[_F_GPS_VN]
-    cos_t = st[_F_COS_T]
-    sin_t = st[_F_SIN_T]
-    z0 = (st[_F_DVX] - (cos_t * gx + sin_t * gy)) * inv_t
-    z1 = (st[_F_DVY] - (-sin_t * gx + cos_t * gy)) * inv_t
-    h00 = st[_F_M] * inv_t
-    h01 = st[_F_M + 1] * inv_t
-    h10 = st[_F_M + 2] * inv_t
-    h11 = st[_F_M + 3] * inv_t
+    st[_F_P] += qd
+    st[_F_P + 4] += qd
+    st[_F_P + 7] += qb
+    st[_F_P + 9] += qb
+    st[_F_PZ + 4] += qb
+    st[_F_KF_T] = 0.0
+    st[_F_TURN] = 0.0
+
+
+def _kf_update(st, z0, z1, h, r):
+    # the filter's update with z = d + h b + noise (variance r per axis; h: 6 values, 2 rows), fed back at once;
+    # returns the correction x (d East, North, b x, y, z)
     pht = []  # P H^T, H = [I2 | h]
-    for i in range(4):
-        pi2 = st[_pidx(i, 2)]
-        pi3 = st[_pidx(i, 3)]
-        pht.append((st[_pidx(i, 0)] + pi2 * h00 + pi3 * h01, st[_pidx(i, 1)] + pi2 * h10 + pi3 * h11))
-    r = st[_FC_KF_VEL_R] * inv_t * inv_t
-    s00 = pht[0][0] + h00 * pht[2][0] + h01 * pht[3][0] + r
-    s01 = pht[0][1] + h00 * pht[2][1] + h01 * pht[3][1]
-    s11 = pht[1][1] + h10 * pht[2][1] + h11 * pht[3][1] + r
+    for i in range(5):
+        p2 = st[_pidx(i, 2)]
+        p3 = st[_pidx(i, 3)]
+        p4 = st[_pidx(i, 4)]
+        pht.append((st[_pidx(i, 0)] + p2 * h[0] + p3 * h[1] + p4 * h[2],
+                    st[_pidx(i, 1)] + p2 * h[3] + p3 * h[4] + p4 * h[5]))
+    s00 = pht[0][0] + h[0] * pht[2][0] + h[1] * pht[3][0] + h[2] * pht[4][0] + r
+    s01 = pht[0][1] + h[0] * pht[2][1] + h[1] * pht[3][1] + h[2] * pht[4][1]
+    s11 = pht[1][1] + h[3] * pht[2][1] + h[4] * pht[3][1] + h[5] * pht[4][1] + r
     inv_det = 1.0 / (s00 * s11 - s01 * s01)
     i00 = s11 * inv_det
     i01 = -s01 * inv_det
     i11 = s00 * inv_det
     gain = [(a * i00 + b * i01, a * i01 + b * i11) for a, b in pht]  # K = P H^T S^-1
     x = [k0 * z0 + k1 * z1 for k0, k1 in gain]
-    for i in range(4):
-        for j in range(i, 4):
+    for i in range(5):
+        for j in range(i, 5):
             st[_pidx(i, j)] -= gain[i][0] * pht[j][0] + gain[i][1] * pht[j][1]
     st[_F_BAX] += x[2]
     st[_F_BAY] += x[3]
+    st[_F_BAZ] += x[4]
     # remove the leak: q <- [1, (d_N / g, -d_E / g, 0) / 2] (x) q
     hx = 0.5 * x[1] / _GRAVITY_MS2
     hy = -0.5 * x[0] / _GRAVITY_MS2
@@ -1014,6 +1264,52 @@ def _fused_filter(st, ve, vn, moving, t):
     st[_F_Q + 1] = nx * inv
     st[_F_Q + 2] = ny * inv
     st[_F_Q + 3] = nz * inv
+    return x
+
+
+def _rest_update(st):
+    # every rest_update_s at rest (codegen.kernel.fused's rest_update): the smoothed rate is the gyro bias's error,
+    # the smoothed horizontal specific force the tilt/offset filter's
+    zt = st[_F_ZT]
+    st[_F_ZT] = 0.0
+    inv_bias = st[_FC_INV_BIAS_TAU]
+    if inv_bias > 0.0:
+        k = zt * inv_bias
+        k = (k if k < 1.0 else 1.0) / st[_F_KCFG + _K_GYRO_RADS_PER_LSB]
+        st[_F_GYRO_BIAS_LSB] += k * st[_F_WS]
+        st[_F_GYRO_BIAS_LSB + 1] += k * st[_F_WS + 1]
+        st[_F_GYRO_BIAS_LSB + 2] += k * st[_F_WS + 2]
+    if not (st[_FC_KF_BIAS_VAR] > 0.0 and st[_FC_KF_REST_R] > 0.0) or _kf_start(st):
+        return
+    _kf_predict(st)
+    h = [0.0] * 9
+    _rotation_rows(st, h)
+    x = _kf_update(st, st[_F_AH], st[_F_AH + 1], h, st[_FC_KF_REST_R])
+    # the correction leaves the samples from now on: the smoothed value follows
+    st[_F_AH] -= x[0] + h[0] * x[2] + h[1] * x[3] + h[2] * x[4]
+    st[_F_AH + 1] -= x[1] + h[3] * x[2] + h[4] * x[3] + h[5] * x[4]
+
+
+def _fused_filter(st, ve, vn, moving, t):
+    # the GPS-aided update of the tilt/offset filter at a fix (codegen.kernel.fused's tilt_and_offset_update)
+    if _kf_start(st):
+        return
+    _kf_predict(st)
+    ac = st[_F_ALIGN_C]
+    als = st[_F_ALIGN_S]
+    need = st[_FC_KF_ALIGN_MIN]
+    if not (st[_F_GPS_OK] > 0.0 and moving and 0.0 < t < st[_FC_GPS_TIMEOUT_S] and ac * ac + als * als >= need * need):
+        return
+    inv_t = 1.0 / t
+    gx = ve - st[_F_GPS_VE]
+    gy = vn - st[_F_GPS_VN]
+    cos_t = st[_F_COS_T]
+    sin_t = st[_F_SIN_T]
+    z0 = (st[_F_DVX] - (cos_t * gx + sin_t * gy)) * inv_t
+    z1 = (st[_F_DVY] - (-sin_t * gx + cos_t * gy)) * inv_t
+    h = (st[_F_M] * inv_t, st[_F_M + 1] * inv_t, st[_F_M2] * inv_t,
+         st[_F_M + 2] * inv_t, st[_F_M + 3] * inv_t, st[_F_M2 + 1] * inv_t)
+    _kf_update(st, z0, z1, h, st[_FC_KF_VEL_R] * inv_t * inv_t)
 
 
 def fused_position(fstate, ve, vn, de, dn):
@@ -1076,14 +1372,23 @@ def fused_gps(fstate, ve, vn):
         st[_F_ALIGN_C] = ac
         st[_F_ALIGN_S] = als
         norm = math.sqrt(ac * ac + als * als)
-        if norm > 0.0:
-            st[_F_COS_T] = ac / norm
-            st[_F_SIN_T] = als / norm
+        if norm > 0.0:  # the frame turns; the travel direction keeps its true bearing: u <- A'^T A u
+            cos_t = st[_F_COS_T]
+            sin_t = st[_F_SIN_T]
+            ue = cos_t * st[_F_UX] - sin_t * st[_F_UY]
+            un = sin_t * st[_F_UX] + cos_t * st[_F_UY]
+            cos_t = ac / norm
+            sin_t = als / norm
+            st[_F_COS_T] = cos_t
+            st[_F_SIN_T] = sin_t
+            st[_F_UX] = cos_t * ue + sin_t * un
+            st[_F_UY] = -sin_t * ue + cos_t * un
         me = gx / t
         mn = gy / t
         ae = st[_F_COS_T] * me + st[_F_SIN_T] * mn
         an = -st[_F_SIN_T] * me + st[_F_COS_T] * mn
-    _fused_filter(st, ve, vn, moving, t)
+    if st[_FC_KF_BIAS_VAR] > 0.0:
+        _fused_filter(st, ve, vn, moving, t)
     de = ae - st[_F_ACC_E]
     dn = an - st[_F_ACC_N]
     steady = st[_FC_STEADY_MS2]
@@ -1095,7 +1400,8 @@ def fused_gps(fstate, ve, vn):
         sin_t = st[_F_SIN_T]
         gx = (cos_t * ve + sin_t * vn) / speed
         gy = (-sin_t * ve + cos_t * vn) / speed
-        h = st[_FC_HEADING_GAIN]
+        # before the frame's first alignment u means nothing yet: it takes the course at once
+        h = st[_FC_HEADING_GAIN] if st[_F_ALIGN_C] != 0.0 or st[_F_ALIGN_S] != 0.0 else 1.0
         ux = st[_F_UX] + h * (gx - st[_F_UX])
         uy = st[_F_UY] + h * (gy - st[_F_UY])
         norm = math.sqrt(ux * ux + uy * uy)
@@ -1118,5 +1424,8 @@ def fused_gps(fstate, ve, vn):
     st[_F_DPY] = 0.0
     for i in range(4):
         st[_F_M + i] = 0.0
+    st[_F_M2] = st[_F_M2 + 1] = 0.0
     st[_F_TURN] = 0.0
+    st[_F_ZR_T] = st[_F_ZR_TURN] = st[_F_ZR_P] = st[_F_ZR_P + 1] = st[_F_ZR_C] = st[_F_ZR_C + 1] = 0.0
+    st[_F_ZR_V] = st[_F_SPEED]
     st[_F_SINCE_FIX] = 0.0

@@ -60,5 +60,15 @@
 #define DR_FUSED_TURN_HOLD_TAU_S (10.0f) /* s */
 #define DR_FUSED_TURN_START_DPS (12.0f) /* degree/s */
 #define DR_FUSED_TURN_END_DPS (7.0f) /* degree/s */
+#define DR_FUSED_PLATFORM (2.0f) /* 1: on, 0: off */
+#define DR_FUSED_VIBRATION_HZ (8.0f) /* Hz */
+#define DR_FUSED_VIBRATION_RATIO (0.04f) /* 1: on, 0: off */
+#define DR_FUSED_VIBRATION_TAU_S (2.0f) /* s */
+#define DR_FUSED_WALK_TIME_S (1.0f) /* s */
+#define DR_FUSED_REST_SPEED_MS (1.0f) /* m/s */
+#define DR_FUSED_REST_UPDATE_S (1.0f) /* s */
+#define DR_FUSED_KF_REST_SIGMA_MS2 (0.03f) /* m/s^2 */
+#define DR_FUSED_ZUPT_TURN_WEIGHT (3.0f) /* 1/rad */
+#define DR_FUSED_ACCEL_TAU_S (0.5f) /* s */
 
 #endif /* DR_BOARD_H */

@@ -120,6 +120,8 @@ static inline void dr_state_start(dr_state *st) {
 #define DR_FUSED_AT_REST (1) /* dr_fused_state.flags bit: the last sample was at rest */
 #define DR_FUSED_WALKING (2) /* dr_fused_state.flags bit: the last sample looked like a walker's */
 #define DR_FUSED_TURNING (4) /* dr_fused_state.flags bit: the walker was turning */
+#define DR_FUSED_VEHICLE (8) /* dr_fused_state.flags bit: the last shaking was a vehicle's (above vibration_hz), or the platform is a vehicle */
+#define DR_FUSED_SHAKEN (16) /* dr_fused_state.flags bit: a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped */
 
 /* The configuration the loop reads, each parameter in the form it is used in. */
 typedef struct {
@@ -154,6 +156,16 @@ typedef struct {
     float hold_rate; /* 1/s, from turn_hold_tau_s (s) */
     float turn_start; /* rad/s, from turn_start_dps (degree/s) */
     float turn_end; /* rad/s, from turn_end_dps (degree/s) */
+    float platform; /* choice, from platform */
+    float vib_rate; /* rad/s, from vibration_hz (Hz) */
+    float vib_ratio; /* from vibration_ratio */
+    float inv_vib_tau; /* 1/s, from vibration_tau_s (s) */
+    float walk_time_s; /* s, from walk_time_s (s) */
+    float rest_speed_ms; /* m/s, from rest_speed_ms (m/s) */
+    float rest_update_s; /* s, from rest_update_s (s) */
+    float kf_rest_r; /* (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2) */
+    float zupt_turn_weight; /* 1/rad, from zupt_turn_weight (1/rad) */
+    float inv_accel_tau; /* 1/s, from accel_tau_s (s) */
 } dr_fused_config;
 
 /* The state. */
@@ -162,7 +174,7 @@ typedef struct {
     float gyro_bias_lsb[3]; /* counts: gyro bias (body frame) */
     float mean_f; /* m/s^2: mean |f| (motion statistics) */
     float var_f; /* (m/s^2)^2: variance of |f| */
-    float w2; /* (rad/s)^2: mean |omega|^2 */
+    float vib_var; /* (m/s^2)^2: variance of |f| above the gait band (vibration_hz) over vibration_tau_s */
     float acc_e; /* m/s^2: GPS motion acceleration East, kernel frame (the tilt reference subtracts it) */
     float acc_n; /* m/s^2: GPS motion acceleration North, kernel frame */
     float steady; /* (m/s^2)^2: > 0 while that acceleration is steady: steady_accel_ms2^2 - its change^2 */
@@ -202,20 +214,36 @@ typedef struct {
     float dpy; /* m: integral of dvy since the last fix */
     float rate_up; /* rad/s: the rate about Up smoothed over stat_tau_s */
     float held; /* rad: rotation about Up a walker's travel direction has not taken yet */
+    float baz; /* m/s^2: accelerometer offset of the body z axis (any mounting: no axis need be vertical) */
+    float m2[2]; /* s: integral of R(q)'s horizontal rows' z column, r02 and r12, since the last fix */
+    float pz[5]; /* the tilt/offset filter's covariance, fifth column (the z offset): rows 0-4 */
+    float walk_s; /* s: how long the shaking has looked like steps */
+    float vib_tot; /* (m/s^2)^2: variance of |f| over vibration_tau_s (the vibration's share is of this) */
+    float vib_lp[2]; /* m/s^2: |f| low-passed at vibration_hz, and its high-passed part low-passed again */
+    float ws[3]; /* rad/s: the body rate smoothed over stat_tau_s (an engine's shake averages out) */
+    float acc_lp; /* m/s^2: a vehicle's along-track acceleration smoothed over accel_tau_s */
+    float ah[2]; /* m/s^2: the kernel-frame horizontal acceleration smoothed over stat_tau_s (rest: steady) */
+    float zr_t; /* s: a vehicle: time since its speed was last known (a fix, a rest) */
+    float zr_p[2]; /* m s: the integral of (time since then) x travel direction (true ENU) since then */
+    float zr_turn; /* rad: a vehicle: the integral of |rate about Up| since its speed was last known */
+    float zr_v; /* m/s: a vehicle's speed integrated as speed is, without its floor at 0 */
+    float zr_c[2]; /* m: the integral of (zr_v - speed) x travel direction (true ENU) since then */
+    float kf_t; /* s: time since the tilt/offset filter's last prediction */
+    float zt; /* s: at rest: time since the last rest update */
     float med_i; /* the median option's ring: next slot (a whole number) */
     float med_n; /* the median option's ring: slots filled (a whole number) */
     float med[32]; /* m/s^2: the median option's ring: the last along-track accelerations */
 } dr_fused_state;
 
-#define DR_FUSED_STATE_FLOATS (95) /* floats in dr_fused_state */
-#define DR_FUSED_CONFIG_FLOATS (31) /* floats in dr_fused_config */
-#define DR_FUSED_PARAMS (31) /* parameters dr_fused_config_set takes */
+#define DR_FUSED_STATE_FLOATS (122) /* floats in dr_fused_state */
+#define DR_FUSED_CONFIG_FLOATS (41) /* floats in dr_fused_config */
+#define DR_FUSED_PARAMS (41) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
 #define DR_FUSED_STATE_Q (0)
 #define DR_FUSED_STATE_GYRO_BIAS_LSB (4)
 #define DR_FUSED_STATE_MEAN_F (7)
 #define DR_FUSED_STATE_VAR_F (8)
-#define DR_FUSED_STATE_W2 (9)
+#define DR_FUSED_STATE_VIB_VAR (9)
 #define DR_FUSED_STATE_ACC_E (10)
 #define DR_FUSED_STATE_ACC_N (11)
 #define DR_FUSED_STATE_STEADY (12)
@@ -255,16 +283,36 @@ typedef struct {
 #define DR_FUSED_STATE_DPY (58)
 #define DR_FUSED_STATE_RATE_UP (59)
 #define DR_FUSED_STATE_HELD (60)
-#define DR_FUSED_STATE_MED_I (61)
-#define DR_FUSED_STATE_MED_N (62)
-#define DR_FUSED_STATE_MED (63)
-typedef char dr_fused_state_is_95_floats[
-    sizeof(dr_fused_state) == 95 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_31_floats[
-    sizeof(dr_fused_config) == 31 * sizeof(float) ? 1 : -1];
+#define DR_FUSED_STATE_BAZ (61)
+#define DR_FUSED_STATE_M2 (62)
+#define DR_FUSED_STATE_PZ (64)
+#define DR_FUSED_STATE_WALK_S (69)
+#define DR_FUSED_STATE_VIB_TOT (70)
+#define DR_FUSED_STATE_VIB_LP (71)
+#define DR_FUSED_STATE_WS (73)
+#define DR_FUSED_STATE_ACC_LP (76)
+#define DR_FUSED_STATE_AH (77)
+#define DR_FUSED_STATE_ZR_T (79)
+#define DR_FUSED_STATE_ZR_P (80)
+#define DR_FUSED_STATE_ZR_TURN (82)
+#define DR_FUSED_STATE_ZR_V (83)
+#define DR_FUSED_STATE_ZR_C (84)
+#define DR_FUSED_STATE_KF_T (86)
+#define DR_FUSED_STATE_ZT (87)
+#define DR_FUSED_STATE_MED_I (88)
+#define DR_FUSED_STATE_MED_N (89)
+#define DR_FUSED_STATE_MED (90)
+typedef char dr_fused_state_is_122_floats[
+    sizeof(dr_fused_state) == 122 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_41_floats[
+    sizeof(dr_fused_config) == 41 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
     ? 1 : -1];
+/* platform's choices */
+#define DR_FUSED_PLATFORM_PEDESTRIAN (0)
+#define DR_FUSED_PLATFORM_VEHICLE (1)
+#define DR_FUSED_PLATFORM_AUTO (2)
 /* the parameters' order in the array dr_fused_config_set takes */
 #define DR_FUSED_P_TILT_TAU_S (0) /* s: tilt correction time constant while GPS fixes arrive */
 #define DR_FUSED_P_ACCEL_REJECT_G (1) /* g: no tilt correction while ||f| - g| exceeds this */
@@ -308,6 +356,30 @@ typedef char dr_fused_fix_ae_at_50[
 /* degree/s: a walker's turn starts when the smoothed rate about Up exceeds this */
 #define DR_FUSED_P_TURN_START_DPS (29)
 #define DR_FUSED_P_TURN_END_DPS (30) /* degree/s: and ends when it falls below this (at most fused_turn_start_dps) */
+/* what carries the device: a pedestrian (any shaking is steps), a vehicle (never steps) or auto (steps only while
+ * the shaking stays below vibration_hz) */
+#define DR_FUSED_P_PLATFORM (31)
+/* Hz: the gait band's upper edge: |f| varying faster is a vehicle's road or engine */
+#define DR_FUSED_P_VIBRATION_HZ (32)
+/* auto: shaking with more than this share of its variance above vibration_hz is a vehicle's, not steps */
+#define DR_FUSED_P_VIBRATION_RATIO (33)
+#define DR_FUSED_P_VIBRATION_TAU_S (34) /* s: time constant of the two variances that share is of */
+/* s: steps this long start a walk (a vehicle's odd second of calm shaking does not) */
+#define DR_FUSED_P_WALK_TIME_S (35)
+/* m/s: a quiet vehicle comes to rest with any steady horizontal specific force (its tilt error in an outage) while
+ * its speed is below this, or after it shook */
+#define DR_FUSED_P_REST_SPEED_MS (36)
+/* s: at rest, every this long (after the first), the gyro bias and the tilt/offset filter take the smoothed rate and
+ * horizontal specific force as their errors */
+#define DR_FUSED_P_REST_UPDATE_S (37)
+/* m/s^2: error of that smoothed horizontal specific force (0: no filter update at rest) */
+#define DR_FUSED_P_KF_REST_SIGMA_MS2 (38)
+/* 1/rad: a vehicle's zero-velocity update takes its speed error as grown at a rate 1 + this x the turn since its
+ * speed was last known (turns make the tilt errors) */
+#define DR_FUSED_P_ZUPT_TURN_WEIGHT (39)
+/* s: a vehicle's along-track acceleration passes the deadband while its average over this does (the road's shaking
+ * averages out; 0: each sample on its own) */
+#define DR_FUSED_P_ACCEL_TAU_S (40)
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
@@ -407,6 +479,38 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     if (!(p[DR_FUSED_P_TURN_END_DPS] >= 0.0f) || !(p[DR_FUSED_P_TURN_END_DPS] <= p[DR_FUSED_P_TURN_START_DPS])) {
         return DR_ERR_RANGE;
     }
+    /* platform must be one of 0 (pedestrian), 1 (vehicle), 2 (auto) */
+    if (!(p[DR_FUSED_P_PLATFORM] >= 0.0f) || !(p[DR_FUSED_P_PLATFORM] <= 2.0f)) {
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_VIBRATION_HZ] > 0.0f)) { /* vibration_hz must be > 0 */
+        return DR_ERR_RANGE;
+    }
+    /* vibration_ratio must be >= 0 and <= 1 */
+    if (!(p[DR_FUSED_P_VIBRATION_RATIO] >= 0.0f) || !(p[DR_FUSED_P_VIBRATION_RATIO] <= 1.0f)) {
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_VIBRATION_TAU_S] > 0.0f)) { /* vibration_tau_s must be > 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_WALK_TIME_S] >= 0.0f)) { /* walk_time_s must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_REST_SPEED_MS] >= 0.0f)) { /* rest_speed_ms must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_REST_UPDATE_S] > 0.0f)) { /* rest_update_s must be > 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_KF_REST_SIGMA_MS2] >= 0.0f)) { /* kf_rest_sigma_ms2 must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_ZUPT_TURN_WEIGHT] >= 0.0f)) { /* zupt_turn_weight must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_ACCEL_TAU_S] >= 0.0f)) { /* accel_tau_s must be >= 0 */
+        return DR_ERR_RANGE;
+    }
     return DR_OK;
 }
 
@@ -443,6 +547,16 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->hold_rate = p[DR_FUSED_P_TURN_HOLD_TAU_S] > 0.0f ? dr_recip(p[DR_FUSED_P_TURN_HOLD_TAU_S]) : 0.0f;
     cfg->turn_start = p[DR_FUSED_P_TURN_START_DPS] * DR_RAD_PER_DEG;
     cfg->turn_end = p[DR_FUSED_P_TURN_END_DPS] * DR_RAD_PER_DEG;
+    cfg->platform = p[DR_FUSED_P_PLATFORM];
+    cfg->vib_rate = p[DR_FUSED_P_VIBRATION_HZ] * DR_RAD_PER_CYCLE;
+    cfg->vib_ratio = p[DR_FUSED_P_VIBRATION_RATIO];
+    cfg->inv_vib_tau = dr_recip(p[DR_FUSED_P_VIBRATION_TAU_S]);
+    cfg->walk_time_s = p[DR_FUSED_P_WALK_TIME_S];
+    cfg->rest_speed_ms = p[DR_FUSED_P_REST_SPEED_MS];
+    cfg->rest_update_s = p[DR_FUSED_P_REST_UPDATE_S];
+    cfg->kf_rest_r = p[DR_FUSED_P_KF_REST_SIGMA_MS2] * p[DR_FUSED_P_KF_REST_SIGMA_MS2];
+    cfg->zupt_turn_weight = p[DR_FUSED_P_ZUPT_TURN_WEIGHT];
+    cfg->inv_accel_tau = p[DR_FUSED_P_ACCEL_TAU_S] > 0.0f ? dr_recip(p[DR_FUSED_P_ACCEL_TAU_S]) : 0.0f;
 }
 
 /* p <- the board's parameters (dr_board.h), in the order of DR_FUSED_P_*. */
@@ -478,6 +592,16 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_TURN_HOLD_TAU_S] = DR_FUSED_TURN_HOLD_TAU_S;
     p[DR_FUSED_P_TURN_START_DPS] = DR_FUSED_TURN_START_DPS;
     p[DR_FUSED_P_TURN_END_DPS] = DR_FUSED_TURN_END_DPS;
+    p[DR_FUSED_P_PLATFORM] = DR_FUSED_PLATFORM;
+    p[DR_FUSED_P_VIBRATION_HZ] = DR_FUSED_VIBRATION_HZ;
+    p[DR_FUSED_P_VIBRATION_RATIO] = DR_FUSED_VIBRATION_RATIO;
+    p[DR_FUSED_P_VIBRATION_TAU_S] = DR_FUSED_VIBRATION_TAU_S;
+    p[DR_FUSED_P_WALK_TIME_S] = DR_FUSED_WALK_TIME_S;
+    p[DR_FUSED_P_REST_SPEED_MS] = DR_FUSED_REST_SPEED_MS;
+    p[DR_FUSED_P_REST_UPDATE_S] = DR_FUSED_REST_UPDATE_S;
+    p[DR_FUSED_P_KF_REST_SIGMA_MS2] = DR_FUSED_KF_REST_SIGMA_MS2;
+    p[DR_FUSED_P_ZUPT_TURN_WEIGHT] = DR_FUSED_ZUPT_TURN_WEIGHT;
+    p[DR_FUSED_P_ACCEL_TAU_S] = DR_FUSED_ACCEL_TAU_S;
 }
 
 /* st <- every field 0, then the declared starting values. */
@@ -495,8 +619,8 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
 /* The buffers dr_native hands the app, in floats: the seed's dr_state | dr_config | scratch (3 * block), the fused
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
-#define DR_FUSED_CONFIG_AT (95)
-#define DR_FUSED_KERNEL_CONFIG_AT (126)
-#define DR_FUSED_BUFFER_FLOATS (138)
+#define DR_FUSED_CONFIG_AT (122)
+#define DR_FUSED_KERNEL_CONFIG_AT (163)
+#define DR_FUSED_BUFFER_FLOATS (175)
 
 #endif /* DR_LAYOUT_H */
