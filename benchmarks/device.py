@@ -64,10 +64,11 @@ def natmod(files, arch: str, folder: Path) -> tuple[bytes | None, str]:
 def fallback_variants(source: str, algorithm: str) -> dict:
     """label -> the fallback's source with that emitter on its hot functions."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from kernel import variant
+    from mpbench import variant
 
     if algorithm == "seed":
-        return {"plain": source, "@native": variant(source, "native"), "@viper sort/median": variant(source, "viper")}
+        return {"plain": source, "@native": variant(source, "native", ("process",)),
+                "@viper sort/median": variant(source, "viper", ("process",))}
     native = "import micropython\n" + re.sub(r"^def ", "@micropython.native\ndef ", source, flags=re.M)
     return {"plain": source, "@native": native}
 
