@@ -293,6 +293,43 @@ def walk(duration: float = 300.0, rest_s: float = 12.0, seed: int = 0, rate: flo
     return _assemble(f"walk-{carry}", rate, rest_s, speed, course, climb, extra, attitude, events, mount=mount)
 
 
+def _stops_and_turns(rng, rest_s: float, duration: float, *, cruise_ms, accel_ms2, cruise_s, stop_share: float,
+                     turn_ms: float, brake_ms2, wait_s, turn_s):
+    """A ride as segment scripts (seconds, value): speed up to a cruise, cruise, brake, then either stop for a while
+    (a share `stop_share` of the time) or turn by 60..100 degrees at `turn_ms`; repeated until `duration`. Returns
+    the along-track acceleration, the turn rate and the pedalling (1 while speeding up or cruising) scripts."""
+    script_a, script_w, script_p = [], [], []
+    v = 0.0
+    elapsed = rest_s
+    while elapsed < duration:
+        target = rng.uniform(*cruise_ms)
+        accel = rng.uniform(*accel_ms2)
+        ramp = (target - v) / accel
+        cruise = rng.uniform(*cruise_s)
+        slow_to = 0.0 if rng.uniform() < stop_share else turn_ms
+        brake = rng.uniform(*brake_ms2)
+        brake_s = (target - slow_to) / brake
+        script_a += [(ramp, accel), (cruise, 0.0), (brake_s, -brake)]
+        script_w += [(ramp + cruise + brake_s, 0.0)]
+        script_p += [(ramp + cruise, 1.0), (brake_s, 0.0)]
+        elapsed += ramp + cruise + brake_s
+        if slow_to == 0.0:
+            wait = rng.uniform(*wait_s)
+            script_a.append((wait, 0.0))
+            script_w.append((wait, 0.0))
+            script_p.append((wait, 0.0))
+            elapsed += wait
+        else:
+            turn = np.radians(rng.uniform(60, 100)) * rng.choice([-1, 1])
+            seconds = rng.uniform(*turn_s)
+            script_a.append((seconds, 0.0))
+            script_w.append((seconds, turn / seconds))
+            script_p.append((seconds, 0.0))
+            elapsed += seconds
+        v = slow_to
+    return script_a, script_w, script_p
+
+
 def bike(duration: float = 360.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ) -> Trajectory:
     """A cyclist with the device on the handlebar stem, screen up and tilted back ~20 degrees.
 
@@ -308,35 +345,9 @@ def bike(duration: float = 360.0, rest_s: float = 12.0, seed: int = 0, rate: flo
     n = int(round(duration * rate)) + 1
     t = np.arange(n) / rate
     start = int(rest_s * rate)
-    script_a, script_w, script_p = [], [], []
-    v = 0.0
-    elapsed = rest_s
-    while elapsed < duration:
-        target = rng.uniform(4.0, 7.0)
-        accel = rng.uniform(0.4, 1.0)
-        ramp = (target - v) / accel
-        cruise = rng.uniform(15.0, 45.0)
-        slow_to = 0.0 if rng.uniform() < 0.4 else 3.5
-        brake = rng.uniform(1.0, 2.0)
-        brake_s = (target - slow_to) / brake
-        script_a += [(ramp, accel), (cruise, 0.0), (brake_s, -brake)]
-        script_w += [(ramp + cruise + brake_s, 0.0)]
-        script_p += [(ramp + cruise, 1.0), (brake_s, 0.0)]
-        elapsed += ramp + cruise + brake_s
-        if slow_to == 0.0:
-            wait = rng.uniform(5.0, 30.0)
-            script_a.append((wait, 0.0))
-            script_w.append((wait, 0.0))
-            script_p.append((wait, 0.0))
-            elapsed += wait
-        else:
-            turn = np.radians(rng.uniform(60, 100)) * rng.choice([-1, 1])
-            turn_s = rng.uniform(3.0, 5.0)
-            script_a.append((turn_s, 0.0))
-            script_w.append((turn_s, turn / turn_s))
-            script_p.append((turn_s, 0.0))
-            elapsed += turn_s
-        v = slow_to
+    script_a, script_w, script_p = _stops_and_turns(
+        rng, rest_s, duration, cruise_ms=(4.0, 7.0), accel_ms2=(0.4, 1.0), cruise_s=(15.0, 45.0), stop_share=0.4,
+        turn_ms=3.5, brake_ms2=(1.0, 2.0), wait_s=(5.0, 30.0), turn_s=(3.0, 5.0))
     a_cmd = gaussian_filter1d(_segments(n, rate, script_a, start), 0.4 * rate, mode="nearest")
     w_cmd = gaussian_filter1d(_segments(n, rate, script_w, start), 0.5 * rate, mode="nearest")
     pedal = gaussian_filter1d(_segments(n, rate, script_p, start), 0.5 * rate, mode="nearest")
@@ -397,32 +408,10 @@ def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: floa
     n = int(round(duration * rate)) + 1
     t = np.arange(n) / rate
     start = int(rest_s * rate)
-    script_a, script_w = [], []
-    v = 0.0
-    elapsed = rest_s
-    while elapsed < duration:
-        target = rng.uniform(8.0, 17.0)
-        accel = rng.uniform(1.2, 2.5)
-        ramp = (target - v) / accel
-        cruise = rng.uniform(10.0, 30.0)
-        slow_to = 0.0 if rng.uniform(0.0, 1.0) < 0.45 else 6.0  # a stop at lights, or a turn at a junction
-        brake = rng.uniform(1.5, 3.0)
-        brake_s = (target - slow_to) / brake
-        script_a += [(ramp, accel), (cruise, 0.0), (brake_s, -brake)]
-        script_w += [(ramp + cruise + brake_s, 0.0)]
-        elapsed += ramp + cruise + brake_s
-        if slow_to == 0.0:
-            wait = rng.uniform(3.0, 30.0)
-            script_a.append((wait, 0.0))
-            script_w.append((wait, 0.0))
-            elapsed += wait
-        else:
-            turn = np.radians(rng.uniform(60, 100)) * rng.choice([-1, 1])
-            turn_s = rng.uniform(4.0, 6.0)
-            script_a.append((turn_s, 0.0))
-            script_w.append((turn_s, turn / turn_s))
-            elapsed += turn_s
-        v = slow_to
+    # a stop at lights, or a turn at a junction
+    script_a, script_w, _ = _stops_and_turns(
+        rng, rest_s, duration, cruise_ms=(8.0, 17.0), accel_ms2=(1.2, 2.5), cruise_s=(10.0, 30.0), stop_share=0.45,
+        turn_ms=6.0, brake_ms2=(1.5, 3.0), wait_s=(3.0, 30.0), turn_s=(4.0, 6.0))
     a_cmd = gaussian_filter1d(_segments(n, rate, script_a, start), 0.3 * rate, mode="nearest")
     w_cmd = gaussian_filter1d(_segments(n, rate, script_w, start), 0.5 * rate, mode="nearest")
     speed = np.maximum(np.cumsum(a_cmd) / rate, 0.0)
