@@ -2,8 +2,9 @@
 
 Per sample (`process`): tilt corrected towards gravity, motion statistics (rest, walking, a vehicle's vibration), a
 travel direction turned by the gyro (a walker's slow swings held back) and a speed along it (a walker's learned
-speed, a vehicle's integrated acceleration with its zero-velocity updates), the position in true ENU; at rest, every
-rest_update_s, the gyro bias and the tilt/offset filter (`rest_update`). At each GPS fix (`position_update`, then
+speed, a vehicle's integrated acceleration with its zero-velocity updates and, in an outage, its lateral update:
+no sideways sliding, so a turn's centripetal acceleration shows the speed error), the position in true ENU; at rest,
+every rest_update_s, the gyro bias and the tilt/offset filter (`rest_update`). At each GPS fix (`position_update`, then
 `gps_update`): the fix smoothed with the Doppler and the IMU, the heading alignment of the kernel frame to North, the
 travel direction, the speed, the along-track bias, the walking speed, and a 5-state Kalman filter of the tilt and
 the accelerometer's offsets (`tilt_and_offset_update`). docs/fused.md gives the equations and how the defaults were
