@@ -530,7 +530,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
                 st->nh_t += dt;
                 st->nh_z += (an * st->ux - ae * st->uy - st->speed * r) * dt;
                 st->nh_r += r * dt;
-                if (st->nh_t >= cfg->nhc_period_s) {
+                if (st->nh_t + 0.5f * dt >= cfg->nhc_period_s) { /* half a sample's margin: sums agree */
                     dr_fused_nhc_update(cfg, st);
                 }
             }

@@ -296,7 +296,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
                 st.nh_t += dt
                 st.nh_z += (an * st.ux - ae * st.uy - st.speed * r) * dt
                 st.nh_r += r * dt
-                if st.nh_t >= fcfg.nhc_period_s:
+                if st.nh_t + 0.5 * dt >= fcfg.nhc_period_s:  # half a sample's margin: float32 sums agree
                     _nhc_update(st, nhc_r, fcfg)
         if rest and st.rest_s >= fcfg.rest_time_s + fcfg.rest_update_s:
             st.zt += dt  # a rest update every rest_update_s, after the rest's first (the end of the braking)

@@ -1064,7 +1064,7 @@ def fused_process(fstate, samples, dt_us, out):
                 nh_t += dt
                 nh_z += (an * ux - ae * uy - speed * r) * dt
                 nh_r += r * dt
-                if nh_t >= nhc_period:
+                if nh_t + 0.5 * dt >= nhc_period:  # half a sample's margin: float32 sums agree
                     e = _nhc_update(st, nh_t, nh_z, nh_r)
                     speed -= e
                     zr_v -= e
