@@ -271,6 +271,56 @@ static void dr_fused_rest_update(const dr_config *kcfg, const dr_fused_config *c
     st->ah[1] -= x[1] + h[1][0] * x[2] + h[1][1] * x[3] + h[1][2] * x[4];
 }
 
+/* The lateral filter's start (codegen.fused's _nhc_restart): at a fix, at rest, walking: the speed known, the lateral
+ * leak 0 +- nhc_leak_sigma_ms2. */
+static void dr_fused_nhc_restart(const dr_fused_config *cfg, dr_fused_state *st) {
+    st->nh_t = 0.0f;
+    st->nh_z = 0.0f;
+    st->nh_r = 0.0f;
+    st->nh_b = 0.0f;
+    st->nh_p[0] = 0.0f;
+    st->nh_p[1] = 0.0f;
+    st->nh_p[2] = cfg->nhc_leak_var;
+}
+
+/* A vehicle's lateral update in an outage, every nhc_period_s (codegen.fused's _nhc_update): a 2-state Kalman filter
+ * of the speed error e (fed back into the speed) and the lateral leak l, z = l - rbar e + noise, rbar the mean rate
+ * about Up (0 below nhc_min_rate), the noise's variance nhc_var / T. */
+static void dr_fused_nhc_update(const dr_fused_config *cfg, dr_fused_state *st) {
+    const float t = st->nh_t, inv_t = dr_recip(st->nh_t);
+    float rbar = st->nh_r * inv_t, z = st->nh_z * inv_t, turn = cfg->nhc_leak_turn * st->nh_r;
+    float pss = st->nh_p[0] + cfg->nhc_speed_q * t, psb = st->nh_p[1], pbb = st->nh_p[2] + turn * turn;
+    float hs, hb, inv_s, ks, kb, y, e;
+    if (dr_absf(rbar) < cfg->nhc_min_rate) {
+        rbar = 0.0f; /* no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle */
+    }
+    hs = -rbar * pss + psb; /* P h^T, h = (-rbar, 1) */
+    hb = -rbar * psb + pbb;
+    inv_s = dr_recip(-rbar * hs + hb + cfg->nhc_var * inv_t);
+    ks = hs * inv_s;
+    kb = hb * inv_s;
+    y = z - st->nh_b;
+    e = ks * y;
+    st->speed -= e;
+    st->zr_v -= e;
+    if (cfg->nhc_position > 0.0f && st->zr_t > 0.0f) {
+        /* the speed error found, taken as grown as the zero-velocity update takes it: its integral taken back */
+        float k = cfg->nhc_position * e * dr_recip(st->zr_t);
+        st->pe -= k * st->zr_p[0];
+        st->pn -= k * st->zr_p[1];
+    }
+    if (st->speed < 0.0f) {
+        st->speed = 0.0f;
+    }
+    st->nh_b += kb * y;
+    st->nh_p[0] = pss - ks * hs;
+    st->nh_p[1] = psb - ks * hb;
+    st->nh_p[2] = pbb - kb * hb;
+    st->nh_t = 0.0f;
+    st->nh_z = 0.0f;
+    st->nh_r = 0.0f;
+}
+
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
                      const int32_t *dt_us, int32_t count, float out[6]) {
     const float g = DR_GRAVITY_MS2;
@@ -470,6 +520,19 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
             for (i = 0; i < 2; i++) {
                 st->zr_p[i] = 0.0f;
                 st->zr_c[i] = 0.0f;
+            }
+        }
+        if (cfg->nhc_var > 0.0f) {
+            if (rest || walking || !vehicle || st->since_fix < cfg->gps_timeout_s) {
+                dr_fused_nhc_restart(cfg, st);
+            } else {
+                /* no sideways sliding: a_lat - s r = leak - (s - s_true) r sees the lateral leak and the speed error */
+                st->nh_t += dt;
+                st->nh_z += (an * st->ux - ae * st->uy - st->speed * r) * dt;
+                st->nh_r += r * dt;
+                if (st->nh_t + 0.5f * dt >= cfg->nhc_period_s) { /* half a sample's margin: sums agree */
+                    dr_fused_nhc_update(cfg, st);
+                }
             }
         }
         if (rest && st->rest_s >= cfg->rest_time_s + cfg->rest_update_s) {
@@ -714,4 +777,5 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     st->zr_turn = 0.0f;
     st->zr_v = st->speed;
     st->since_fix = 0.0f;
+    dr_fused_nhc_restart(cfg, st);
 }

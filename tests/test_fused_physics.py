@@ -242,6 +242,33 @@ def test_zero_velocity_update_takes_back_a_steady_drift(impl, tmp_path):
     assert drift.at(-1, "pe") > 60.0
 
 
+def test_a_turn_in_an_outage_finds_a_vehicles_speed_error(impl, tmp_path):
+    """A vehicle in an outage at 6 m/s, which its integration believes is 8 m/s (the speed error an along-track
+    leak builds), drives 4 s straight and then turns at 0.3 rad/s for 8 s, its road shaking it (0.05 g of vertical
+    noise, so it never looks at rest). It does not slide sideways: across the travel direction its acceleration is
+    the centripetal s r = 1.8 m/s^2, so the lateral residual a_lat - s r = -(s - s_true) r = -0.6 m/s^2 in the turn
+    (0 on the straight, which tells the filter there is no lateral leak). The lateral update takes the speed to
+    within 0.4 m/s of 6 m/s (the filter lets the leak take some of the residual: a turn may change it); without it
+    the speed stays at 8 m/s, as nothing along the track tells it otherwise."""
+    n = 2400
+    t = np.arange(n) * 0.005
+    rate_counts = np.where(t < 4.0, 0.0, np.round(math.degrees(0.3) * KCFG.gyro_lsb_per_dps))
+    rate = np.radians(rate_counts / KCFG.gyro_lsb_per_dps)
+    lateral = np.round(6.0 * rate / G * ONE_G)  # the centripetal specific force, counts along the body's left (y)
+    road = 0.05 * np.random.default_rng(1).standard_normal(n)
+    zero = np.zeros(n)
+    samples = np.stack([zero, lateral, np.round((1.0 + road) * ONE_G), zero, zero, rate_counts],
+                       axis=-1).astype(np.int16)
+    dt = np.full(n, DT_US, dtype=np.int32)
+    start = _still(speed=8.0, zr_v=8.0, flags=float(F.VEHICLE))
+    truth = float(lateral[-1] / ONE_G * G / rate[-1])  # 6 m/s but for the counts' rounding
+    trace = run(impl, chunks(samples, dt, 200), tmp_path, start=start)
+    assert trace.series("speed")[:4] == pytest.approx(8.0, abs=1e-3)  # straight: nothing to see
+    assert trace.at(-1, "speed") == pytest.approx(truth, abs=0.4)
+    blind = run(impl, chunks(samples, dt, 200), tmp_path, start=start, params=replace(FCFG, nhc_sigma_ms2=0.0))
+    assert blind.at(-1, "speed") == pytest.approx(8.0, abs=1e-3)
+
+
 # ------------------------------------------------------------------------------------------------ steps or a vehicle
 def _shaken(kind, n=1200, seed=0):
     """n samples of a level device whose |f| swings 0.1 g rms: "steps", a 2 Hz sine (a walker's bob), or "road",

@@ -2,8 +2,9 @@
 
 Per sample (`process`): tilt corrected towards gravity, motion statistics (rest, walking, a vehicle's vibration), a
 travel direction turned by the gyro (a walker's slow swings held back) and a speed along it (a walker's learned
-speed, a vehicle's integrated acceleration with its zero-velocity updates), the position in true ENU; at rest, every
-rest_update_s, the gyro bias and the tilt/offset filter (`rest_update`). At each GPS fix (`position_update`, then
+speed, a vehicle's integrated acceleration with its zero-velocity updates and, in an outage, its lateral update:
+no sideways sliding, so a turn's centripetal acceleration shows the speed error), the position in true ENU; at rest,
+every rest_update_s, the gyro bias and the tilt/offset filter (`rest_update`). At each GPS fix (`position_update`, then
 `gps_update`): the fix smoothed with the Doppler and the IMU, the heading alignment of the kernel frame to North, the
 travel direction, the speed, the along-track bias, the walking speed, and a 5-state Kalman filter of the tilt and
 the accelerometer's offsets (`tilt_and_offset_update`). docs/fused.md gives the equations and how the defaults were
@@ -121,6 +122,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     inv_stat = 1.0 / fcfg.stat_tau_s
     inv_speed = 1.0 / fcfg.speed_tau_s if fcfg.speed_tau_s > 0.0 else 0.0
     inv_acc = 1.0 / fcfg.accel_tau_s if fcfg.accel_tau_s > 0.0 else 0.0
+    nhc_r = fcfg.nhc_sigma_ms2 * fcfg.nhc_sigma_ms2  # the lateral residual's variance, averaged over 1 s
     median = kcfg.block if fcfg.median > 0.0 and kcfg.block > 1 else 0
     if median > FUSED_MEDIAN_MAX:
         raise ValueError(f"the median option takes algorithm.block <= {FUSED_MEDIAN_MAX}, not {median}")
@@ -284,6 +286,18 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
             st.zr_v += a * dt
             if st.speed < 0.0:
                 st.speed = 0.0
+        if nhc_r > 0.0:
+            if rest or walking or not vehicle or st.since_fix < fcfg.gps_timeout_s:
+                _nhc_restart(st, fcfg)
+            else:
+                # a vehicle does not slide sideways: across u its acceleration is the centripetal speed x rate, so
+                # what is left, a_lat - s r = leak - (s - s_true) r, sees the lateral leak and, in turns, the speed
+                # error
+                st.nh_t += dt
+                st.nh_z += (an * st.ux - ae * st.uy - st.speed * r) * dt
+                st.nh_r += r * dt
+                if st.nh_t + 0.5 * dt >= fcfg.nhc_period_s:  # half a sample's margin: float32 sums agree
+                    _nhc_update(st, nhc_r, fcfg)
         if rest and st.rest_s >= fcfg.rest_time_s + fcfg.rest_update_s:
             st.zt += dt  # a rest update every rest_update_s, after the rest's first (the end of the braking)
         st.dpx += (st.dvx + 0.5 * ae * dt) * dt
@@ -353,6 +367,51 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     vn = st.speed * (st.sin_t * st.ux + st.cos_t * st.uy)
     out = np.array([st.pe - pe0, st.pn - pn0, 0.0, ve, vn, 0.0])
     return out, flags
+
+
+def _nhc_restart(st: FusedState, fcfg: FusedConfig) -> None:
+    """The lateral filter's start (at a fix, at rest, walking): the speed known, the lateral leak 0 +-
+    nhc_leak_sigma_ms2 (the tilt/offset filter has just taken out what it knew)."""
+    st.nh_t = st.nh_z = st.nh_r = st.nh_b = st.nh_pss = st.nh_psb = 0.0
+    st.nh_pbb = fcfg.nhc_leak_sigma_ms2 * fcfg.nhc_leak_sigma_ms2
+
+
+def _nhc_update(st: FusedState, var: float, fcfg: FusedConfig) -> None:
+    """A vehicle's lateral update in an outage, every nhc_period_s: a 2-state Kalman filter of the speed error
+    e = s - s_true (fed back into the speed at once) and the lateral leak l (a random walk, faster in turns),
+        z = (integral of a_lat - s r dt) / T = l - rbar e + noise,   rbar = (integral of r dt) / T,
+    noise variance var / T (var: of a 1 s average). Restarts the averages."""
+    t = st.nh_t
+    rbar = st.nh_r / t
+    z = st.nh_z / t
+    if abs(rbar) < fcfg.nhc_min_rate:
+        rbar = 0.0  # no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle
+    turn = fcfg.nhc_leak_turn * st.nh_r
+    pss = st.nh_pss + fcfg.nhc_speed_noise * fcfg.nhc_speed_noise * t
+    psb = st.nh_psb
+    pbb = st.nh_pbb + turn * turn
+    hs = -rbar * pss + psb  # P h^T, h = (-rbar, 1)
+    hb = -rbar * psb + pbb
+    inv_s = 1.0 / (-rbar * hs + hb + var / t)
+    ks = hs * inv_s
+    kb = hb * inv_s
+    y = z - st.nh_b
+    e = ks * y
+    st.speed -= e
+    st.zr_v -= e
+    if fcfg.nhc_position > 0.0 and st.zr_t > 0.0:
+        # the speed error found is taken as grown as the zero-velocity update takes it (at the rate w(t) since the
+        # speed was last known): the position moved by its integral along the way, taken back as that update does
+        k = fcfg.nhc_position * e / st.zr_t
+        st.pe -= k * st.zr_pe
+        st.pn -= k * st.zr_pn
+    if st.speed < 0.0:
+        st.speed = 0.0
+    st.nh_b += kb * y
+    st.nh_pss = pss - ks * hs
+    st.nh_psb = psb - ks * hb
+    st.nh_pbb = pbb - kb * hb
+    st.nh_t = st.nh_z = st.nh_r = 0.0
 
 
 def _ring_median(st: FusedState, ring: list, a: float, b: int) -> float:
@@ -479,6 +538,7 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
     st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_turn = 0.0
     st.zr_v = st.speed
     st.since_fix = 0.0
+    _nhc_restart(st, fcfg)
 
 
 # the covariance's upper triangle: (row, column) -> field; the 4 x 4 block row by row, then the fifth column

@@ -342,6 +342,12 @@ FUSED = Kernel(
         Field("med_i", "", "the median option's ring: next slot (a whole number)"),
         Field("med_n", "", "the median option's ring: slots filled (a whole number)"),
         Field("med", "m/s^2", "the median option's ring: the last along-track accelerations", FUSED_MEDIAN_MAX),
+        Field("nh_t", "s", "a vehicle in an outage: time gathered towards the next lateral update"),
+        Field("nh_z", "m/s", "the integral of the lateral residual a_lat - speed x rate about Up over that time"),
+        Field("nh_r", "rad", "the integral of the rate about Up over that time"),
+        Field("nh_b", "m/s^2", "the lateral leak (horizontal specific force across the travel direction) estimated"),
+        Field("nh_p", "", "the lateral filter's covariance: speed error (m/s), lateral leak (m/s^2)", 3,
+              ("nh_pss", "nh_psb", "nh_pbb")),
     ),
     params=(
         Param("tilt_tau_s", "s", "tilt correction time constant while GPS fixes arrive", Store("kp", "1/s", "recip"),
@@ -435,6 +441,21 @@ FUSED = Kernel(
         Param("accel_tau_s", "s", "a vehicle's along-track acceleration passes the deadband while its average over "
               "this does (the road's shaking averages out; 0: each sample on its own)",
               Store("inv_accel_tau", "1/s", "rate"), 0.5, ge=0),
+        Param("nhc_sigma_ms2", "m/s^2", "a vehicle in an outage: error of the lateral residual a_lat - speed x rate "
+              "about Up averaged over 1 s, which sees the speed error in turns (0: no lateral update)",
+              Store("nhc_var", "(m/s^2)^2", "square"), 0.15, ge=0),
+        Param("nhc_period_s", "s", "the lateral residual is averaged over this between updates",
+              Store("nhc_period_s", "s"), 0.5, gt=0),
+        Param("nhc_speed_noise", "m/s/sqrt(s)", "random walk of a vehicle's speed error in an outage",
+              Store("nhc_speed_q", "(m/s)^2/s", "square"), 0.3, ge=0),
+        Param("nhc_leak_sigma_ms2", "m/s^2", "the lateral leak's sigma when the outage starts (or after a rest)",
+              Store("nhc_leak_var", "(m/s^2)^2", "square"), 0.1, ge=0),
+        Param("nhc_min_rate", "rad/s", "the speed error is seen only while the rate about Up averaged over "
+              "nhc_period_s exceeds this (a turn, not a wobble)", Store("nhc_min_rate", "rad/s"), 0.1, ge=0),
+        Param("nhc_position", "", "the share of the position error a lateral update's speed correction implies (as "
+              "the zero-velocity update takes it) that is taken back", Store("nhc_position", ""), 1.0, ge=0, le=1),
+        Param("nhc_leak_turn", "m/s^2 per rad", "lateral leak a turn may add (offsets folded into the tilt)",
+              Store("nhc_leak_turn", "m/s^2 per rad"), 0.3, ge=0),
     ),
     flags=(
         Flag("AT_REST", 1, "the last sample was at rest"),

@@ -376,8 +376,8 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(175)
-_F_KCFG = const(163)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(189)
+_F_KCFG = const(177)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
@@ -442,47 +442,59 @@ _F_ZT = const(87)  # s: at rest: time since the last rest update
 _F_MED_I = const(88)  # the median option's ring: next slot (a whole number)
 _F_MED_N = const(89)  # the median option's ring: slots filled (a whole number)
 _F_MED = const(90)  # m/s^2: the median option's ring: the last along-track accelerations
-_FC_KP = const(122)  # 1/s, from tilt_tau_s (s)
-_FC_REJECT_MS2 = const(123)  # m/s^2, from accel_reject_g (g)
-_FC_KP_DARK = const(124)  # 1/s, from tilt_tau_dark_s (s)
-_FC_STEADY_MS2 = const(125)  # m/s^2, from steady_accel_ms2 (m/s^2)
-_FC_INV_SPEED_TAU = const(126)  # 1/s, from speed_tau_s (s)
-_FC_GPS_TIMEOUT_S = const(127)  # s, from gps_timeout_s (s)
-_FC_INV_STAT_TAU = const(128)  # 1/s, from stat_tau_s (s)
-_FC_REST_VAR = const(129)  # (m/s^2)^2, from rest_accel_g (g)
-_FC_REST_W2 = const(130)  # (rad/s)^2, from rest_gyro_dps (degree/s)
-_FC_REST_TIME_S = const(131)  # s, from rest_time_s (s)
-_FC_INV_BIAS_TAU = const(132)  # 1/s, from bias_tau_s (s)
-_FC_WALK_VAR = const(133)  # (m/s^2)^2, from walk_accel_g (g)
-_FC_MIN_SPEED_MS = const(134)  # m/s, from min_speed_ms (m/s)
-_FC_HEADING_GAIN = const(135)  # per fix, from heading_gain (per fix)
-_FC_ALIGN_FORGET = const(136)  # per fix, from align_forget (per fix)
-_FC_SPEED_GAIN = const(137)  # per fix, from speed_gain (per fix)
-_FC_BIAS_GAIN = const(138)  # per fix, from bias_gain (per fix)
-_FC_WALK_SPEED_GAIN = const(139)  # per fix, from walk_speed_gain (per fix)
-_FC_KF_BIAS_VAR = const(140)  # (m/s^2)^2, from kf_bias_init_g (g)
-_FC_KF_BIAS_Q = const(141)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
-_FC_KF_TILT_Q = const(142)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
-_FC_KF_TURN_Q = const(143)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
-_FC_KF_VEL_R = const(144)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
-_FC_KF_ALIGN_MIN = const(145)  # (m/s)^2, from kf_align_min ((m/s)^2)
-_FC_MEDIAN = const(146)  # 1: on, from median
-_FC_POS_VAR = const(147)  # m^2, from pos_sigma_m (m)
-_FC_INV_POS_TAU = const(148)  # 1/s, from pos_tau_s (s)
-_FC_POS_STEP_Q = const(149)  # (m/s)^2, from pos_step_sigma_ms (m/s)
-_FC_HOLD_RATE = const(150)  # 1/s, from turn_hold_tau_s (s)
-_FC_TURN_START = const(151)  # rad/s, from turn_start_dps (degree/s)
-_FC_TURN_END = const(152)  # rad/s, from turn_end_dps (degree/s)
-_FC_PLATFORM = const(153)  # choice, from platform
-_FC_VIB_RATE = const(154)  # rad/s, from vibration_hz (Hz)
-_FC_VIB_RATIO = const(155)  # , from vibration_ratio
-_FC_INV_VIB_TAU = const(156)  # 1/s, from vibration_tau_s (s)
-_FC_WALK_TIME_S = const(157)  # s, from walk_time_s (s)
-_FC_REST_SPEED_MS = const(158)  # m/s, from rest_speed_ms (m/s)
-_FC_REST_UPDATE_S = const(159)  # s, from rest_update_s (s)
-_FC_KF_REST_R = const(160)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
-_FC_ZUPT_TURN_WEIGHT = const(161)  # 1/rad, from zupt_turn_weight (1/rad)
-_FC_INV_ACCEL_TAU = const(162)  # 1/s, from accel_tau_s (s)
+_F_NH_T = const(122)  # s: a vehicle in an outage: time gathered towards the next lateral update
+_F_NH_Z = const(123)  # m/s: the integral of the lateral residual a_lat - speed x rate about Up over that time
+_F_NH_R = const(124)  # rad: the integral of the rate about Up over that time
+_F_NH_B = const(125)  # m/s^2: the lateral leak (horizontal specific force across the travel direction) estimated
+_F_NH_P = const(126)  # the lateral filter's covariance: speed error (m/s), lateral leak (m/s^2)
+_FC_KP = const(129)  # 1/s, from tilt_tau_s (s)
+_FC_REJECT_MS2 = const(130)  # m/s^2, from accel_reject_g (g)
+_FC_KP_DARK = const(131)  # 1/s, from tilt_tau_dark_s (s)
+_FC_STEADY_MS2 = const(132)  # m/s^2, from steady_accel_ms2 (m/s^2)
+_FC_INV_SPEED_TAU = const(133)  # 1/s, from speed_tau_s (s)
+_FC_GPS_TIMEOUT_S = const(134)  # s, from gps_timeout_s (s)
+_FC_INV_STAT_TAU = const(135)  # 1/s, from stat_tau_s (s)
+_FC_REST_VAR = const(136)  # (m/s^2)^2, from rest_accel_g (g)
+_FC_REST_W2 = const(137)  # (rad/s)^2, from rest_gyro_dps (degree/s)
+_FC_REST_TIME_S = const(138)  # s, from rest_time_s (s)
+_FC_INV_BIAS_TAU = const(139)  # 1/s, from bias_tau_s (s)
+_FC_WALK_VAR = const(140)  # (m/s^2)^2, from walk_accel_g (g)
+_FC_MIN_SPEED_MS = const(141)  # m/s, from min_speed_ms (m/s)
+_FC_HEADING_GAIN = const(142)  # per fix, from heading_gain (per fix)
+_FC_ALIGN_FORGET = const(143)  # per fix, from align_forget (per fix)
+_FC_SPEED_GAIN = const(144)  # per fix, from speed_gain (per fix)
+_FC_BIAS_GAIN = const(145)  # per fix, from bias_gain (per fix)
+_FC_WALK_SPEED_GAIN = const(146)  # per fix, from walk_speed_gain (per fix)
+_FC_KF_BIAS_VAR = const(147)  # (m/s^2)^2, from kf_bias_init_g (g)
+_FC_KF_BIAS_Q = const(148)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
+_FC_KF_TILT_Q = const(149)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
+_FC_KF_TURN_Q = const(150)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
+_FC_KF_VEL_R = const(151)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
+_FC_KF_ALIGN_MIN = const(152)  # (m/s)^2, from kf_align_min ((m/s)^2)
+_FC_MEDIAN = const(153)  # 1: on, from median
+_FC_POS_VAR = const(154)  # m^2, from pos_sigma_m (m)
+_FC_INV_POS_TAU = const(155)  # 1/s, from pos_tau_s (s)
+_FC_POS_STEP_Q = const(156)  # (m/s)^2, from pos_step_sigma_ms (m/s)
+_FC_HOLD_RATE = const(157)  # 1/s, from turn_hold_tau_s (s)
+_FC_TURN_START = const(158)  # rad/s, from turn_start_dps (degree/s)
+_FC_TURN_END = const(159)  # rad/s, from turn_end_dps (degree/s)
+_FC_PLATFORM = const(160)  # choice, from platform
+_FC_VIB_RATE = const(161)  # rad/s, from vibration_hz (Hz)
+_FC_VIB_RATIO = const(162)  # , from vibration_ratio
+_FC_INV_VIB_TAU = const(163)  # 1/s, from vibration_tau_s (s)
+_FC_WALK_TIME_S = const(164)  # s, from walk_time_s (s)
+_FC_REST_SPEED_MS = const(165)  # m/s, from rest_speed_ms (m/s)
+_FC_REST_UPDATE_S = const(166)  # s, from rest_update_s (s)
+_FC_KF_REST_R = const(167)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
+_FC_ZUPT_TURN_WEIGHT = const(168)  # 1/rad, from zupt_turn_weight (1/rad)
+_FC_INV_ACCEL_TAU = const(169)  # 1/s, from accel_tau_s (s)
+_FC_NHC_VAR = const(170)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
+_FC_NHC_PERIOD_S = const(171)  # s, from nhc_period_s (s)
+_FC_NHC_SPEED_Q = const(172)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
+_FC_NHC_LEAK_VAR = const(173)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
+_FC_NHC_MIN_RATE = const(174)  # rad/s, from nhc_min_rate (rad/s)
+_FC_NHC_POSITION = const(175)  # , from nhc_position
+_FC_NHC_LEAK_TURN = const(176)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
@@ -536,11 +548,18 @@ _FUSED_PARAMS = (
     0.03,  # kf_rest_sigma_ms2, m/s^2
     3.0,  # zupt_turn_weight, 1/rad
     0.5,  # accel_tau_s, s
+    0.15,  # nhc_sigma_ms2, m/s^2
+    0.5,  # nhc_period_s, s
+    0.3,  # nhc_speed_noise, m/s/sqrt(s)
+    0.1,  # nhc_leak_sigma_ms2, m/s^2
+    0.1,  # nhc_min_rate, rad/s
+    1.0,  # nhc_position
+    0.3,  # nhc_leak_turn, m/s^2 per rad
 )
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 41 values in the
+    """Reset the fused state and store the configuration: the board's, or 48 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -625,6 +644,20 @@ def fused_init(fstate, params=_FUSED_PARAMS):
         raise ValueError("zupt_turn_weight must be >= 0")
     if not (p[40] >= 0):
         raise ValueError("accel_tau_s must be >= 0")
+    if not (p[41] >= 0):
+        raise ValueError("nhc_sigma_ms2 must be >= 0")
+    if not (p[42] > 0):
+        raise ValueError("nhc_period_s must be > 0")
+    if not (p[43] >= 0):
+        raise ValueError("nhc_speed_noise must be >= 0")
+    if not (p[44] >= 0):
+        raise ValueError("nhc_leak_sigma_ms2 must be >= 0")
+    if not (p[45] >= 0):
+        raise ValueError("nhc_min_rate must be >= 0")
+    if not (p[46] >= 0 and p[46] <= 1):
+        raise ValueError("nhc_position must be >= 0 and <= 1")
+    if not (p[47] >= 0):
+        raise ValueError("nhc_leak_turn must be >= 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
     fstate[_F_Q + 0] = 1.0
@@ -671,6 +704,13 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_KF_REST_R] = p[38] * p[38]
     fstate[_FC_ZUPT_TURN_WEIGHT] = p[39]
     fstate[_FC_INV_ACCEL_TAU] = 1.0 / p[40] if p[40] > 0 else 0.0
+    fstate[_FC_NHC_VAR] = p[41] * p[41]
+    fstate[_FC_NHC_PERIOD_S] = p[42]
+    fstate[_FC_NHC_SPEED_Q] = p[43] * p[43]
+    fstate[_FC_NHC_LEAK_VAR] = p[44] * p[44]
+    fstate[_FC_NHC_MIN_RATE] = p[45]
+    fstate[_FC_NHC_POSITION] = p[46]
+    fstate[_FC_NHC_LEAK_TURN] = p[47]
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -735,6 +775,13 @@ def fused_process(fstate, samples, dt_us, out):
     vib_ratio = st[_FC_VIB_RATIO]
     inv_vib = st[_FC_INV_VIB_TAU]
     turn_weight = st[_FC_ZUPT_TURN_WEIGHT]
+    nhc = st[_FC_NHC_VAR] > 0.0
+    nhc_period = st[_FC_NHC_PERIOD_S]
+    nhc_position = st[_FC_NHC_POSITION]
+    nh_t = st[_F_NH_T]
+    nh_z = st[_F_NH_Z]
+    nh_r = st[_F_NH_R]
+    nh_fresh = False  # the lateral filter restarted in this call (its buffer need not be written again)
     platform = int(st[_FC_PLATFORM])
     hold_rate = st[_FC_HOLD_RATE]
     turn_start = st[_FC_TURN_START]
@@ -973,6 +1020,10 @@ def fused_process(fstate, samples, dt_us, out):
                 speed = walk_speed
                 zr_v = speed
             zr_t = zr_turn = zr_pe = zr_pn = zr_ce = zr_cn = 0.0
+            if nhc and not nh_fresh:
+                nh_t = nh_z = nh_r = 0.0
+                _nhc_restart(st)
+                nh_fresh = True
         else:
             a = ae * ux + an * uy
             if median:  # the seed's block median, sliding: the median of the last b along-track accelerations
@@ -1001,6 +1052,30 @@ def fused_process(fstate, samples, dt_us, out):
                 zr_v += a * dt
             if speed < 0.0:
                 speed = 0.0
+            if not nhc:
+                pass
+            elif not vehicle or since < timeout:
+                if not nh_fresh:
+                    nh_t = nh_z = nh_r = 0.0
+                    _nhc_restart(st)
+                    nh_fresh = True
+            else:
+                # no sideways sliding: a_lat - s r = leak - (s - s_true) r sees the lateral leak and the speed error
+                nh_t += dt
+                nh_z += (an * ux - ae * uy - speed * r) * dt
+                nh_r += r * dt
+                if nh_t + 0.5 * dt >= nhc_period:  # half a sample's margin: float32 sums agree
+                    e = _nhc_update(st, nh_t, nh_z, nh_r)
+                    speed -= e
+                    zr_v -= e
+                    if nhc_position > 0.0 and zr_t > 0.0:
+                        kzr = nhc_position * e / zr_t
+                        pe -= kzr * zr_pe
+                        pn -= kzr * zr_pn
+                    if speed < 0.0:
+                        speed = 0.0
+                    nh_t = nh_z = nh_r = 0.0
+                    nh_fresh = False
             # the integrals a zero-velocity update corrects the position by
             zr_turn += ada
             zr_t += (1.0 + zr_turn * turn_weight) * dt
@@ -1146,6 +1221,9 @@ def fused_process(fstate, samples, dt_us, out):
     st[_F_ZR_V] = zr_v
     st[_F_ZR_C] = zr_ce
     st[_F_ZR_C + 1] = zr_cn
+    st[_F_NH_T] = nh_t
+    st[_F_NH_Z] = nh_z
+    st[_F_NH_R] = nh_r
     st[_F_RATE_UP] = rate_up
     st[_F_HELD] = held
     st[_F_SINCE_FIX] = since
@@ -1290,6 +1368,37 @@ def _rest_update(st):
     st[_F_AH + 1] -= x[1] + h[3] * x[2] + h[4] * x[3] + h[5] * x[4]
 
 
+def _nhc_restart(st):
+    # the lateral filter's start (codegen.kernel.fused's _nhc_restart): the speed known, the lateral leak 0 +- its sigma
+    st[_F_NH_T] = st[_F_NH_Z] = st[_F_NH_R] = st[_F_NH_B] = st[_F_NH_P] = st[_F_NH_P + 1] = 0.0
+    st[_F_NH_P + 2] = st[_FC_NHC_LEAK_VAR]
+
+
+def _nhc_update(st, t, z, rsum):
+    # a vehicle's lateral update in an outage (codegen.kernel.fused's _nhc_update): the 2-state filter of the speed
+    # error and the lateral leak from z = (integral of a_lat - s r) / t; returns the speed error found
+    rbar = rsum / t
+    z /= t
+    if -st[_FC_NHC_MIN_RATE] < rbar < st[_FC_NHC_MIN_RATE]:
+        rbar = 0.0  # no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle
+    turn = st[_FC_NHC_LEAK_TURN] * rsum
+    pss = st[_F_NH_P] + st[_FC_NHC_SPEED_Q] * t
+    psb = st[_F_NH_P + 1]
+    pbb = st[_F_NH_P + 2] + turn * turn
+    hs = -rbar * pss + psb  # P h^T, h = (-rbar, 1)
+    hb = -rbar * psb + pbb
+    inv_s = 1.0 / (-rbar * hs + hb + st[_FC_NHC_VAR] / t)
+    ks = hs * inv_s
+    kb = hb * inv_s
+    y = z - st[_F_NH_B]
+    st[_F_NH_B] += kb * y
+    st[_F_NH_P] = pss - ks * hs
+    st[_F_NH_P + 1] = psb - ks * hb
+    st[_F_NH_P + 2] = pbb - kb * hb
+    st[_F_NH_T] = st[_F_NH_Z] = st[_F_NH_R] = 0.0
+    return ks * y
+
+
 def _fused_filter(st, ve, vn, moving, t):
     # the GPS-aided update of the tilt/offset filter at a fix (codegen.kernel.fused's tilt_and_offset_update)
     if _kf_start(st):
@@ -1429,3 +1538,4 @@ def fused_gps(fstate, ve, vn):
     st[_F_ZR_T] = st[_F_ZR_TURN] = st[_F_ZR_P] = st[_F_ZR_P + 1] = st[_F_ZR_C] = st[_F_ZR_C + 1] = 0.0
     st[_F_ZR_V] = st[_F_SPEED]
     st[_F_SINCE_FIX] = 0.0
+    _nhc_restart(st)

@@ -70,5 +70,12 @@
 #define DR_FUSED_KF_REST_SIGMA_MS2 (0.03f) /* m/s^2 */
 #define DR_FUSED_ZUPT_TURN_WEIGHT (3.0f) /* 1/rad */
 #define DR_FUSED_ACCEL_TAU_S (0.5f) /* s */
+#define DR_FUSED_NHC_SIGMA_MS2 (0.15f) /* m/s^2 */
+#define DR_FUSED_NHC_PERIOD_S (0.5f) /* s */
+#define DR_FUSED_NHC_SPEED_NOISE (0.3f) /* m/s/sqrt(s) */
+#define DR_FUSED_NHC_LEAK_SIGMA_MS2 (0.1f) /* m/s^2 */
+#define DR_FUSED_NHC_MIN_RATE (0.1f) /* rad/s */
+#define DR_FUSED_NHC_POSITION (1.0f) /* 1: on, 0: off */
+#define DR_FUSED_NHC_LEAK_TURN (0.3f) /* m/s^2 per rad */
 
 #endif /* DR_BOARD_H */

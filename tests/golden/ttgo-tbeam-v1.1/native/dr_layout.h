@@ -166,6 +166,13 @@ typedef struct {
     float kf_rest_r; /* (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2) */
     float zupt_turn_weight; /* 1/rad, from zupt_turn_weight (1/rad) */
     float inv_accel_tau; /* 1/s, from accel_tau_s (s) */
+    float nhc_var; /* (m/s^2)^2, from nhc_sigma_ms2 (m/s^2) */
+    float nhc_period_s; /* s, from nhc_period_s (s) */
+    float nhc_speed_q; /* (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s)) */
+    float nhc_leak_var; /* (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2) */
+    float nhc_min_rate; /* rad/s, from nhc_min_rate (rad/s) */
+    float nhc_position; /* from nhc_position */
+    float nhc_leak_turn; /* m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad) */
 } dr_fused_config;
 
 /* The state. */
@@ -233,11 +240,16 @@ typedef struct {
     float med_i; /* the median option's ring: next slot (a whole number) */
     float med_n; /* the median option's ring: slots filled (a whole number) */
     float med[32]; /* m/s^2: the median option's ring: the last along-track accelerations */
+    float nh_t; /* s: a vehicle in an outage: time gathered towards the next lateral update */
+    float nh_z; /* m/s: the integral of the lateral residual a_lat - speed x rate about Up over that time */
+    float nh_r; /* rad: the integral of the rate about Up over that time */
+    float nh_b; /* m/s^2: the lateral leak (horizontal specific force across the travel direction) estimated */
+    float nh_p[3]; /* the lateral filter's covariance: speed error (m/s), lateral leak (m/s^2) */
 } dr_fused_state;
 
-#define DR_FUSED_STATE_FLOATS (122) /* floats in dr_fused_state */
-#define DR_FUSED_CONFIG_FLOATS (41) /* floats in dr_fused_config */
-#define DR_FUSED_PARAMS (41) /* parameters dr_fused_config_set takes */
+#define DR_FUSED_STATE_FLOATS (129) /* floats in dr_fused_state */
+#define DR_FUSED_CONFIG_FLOATS (48) /* floats in dr_fused_config */
+#define DR_FUSED_PARAMS (48) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
 #define DR_FUSED_STATE_Q (0)
 #define DR_FUSED_STATE_GYRO_BIAS_LSB (4)
@@ -302,10 +314,15 @@ typedef struct {
 #define DR_FUSED_STATE_MED_I (88)
 #define DR_FUSED_STATE_MED_N (89)
 #define DR_FUSED_STATE_MED (90)
-typedef char dr_fused_state_is_122_floats[
-    sizeof(dr_fused_state) == 122 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_41_floats[
-    sizeof(dr_fused_config) == 41 * sizeof(float) ? 1 : -1];
+#define DR_FUSED_STATE_NH_T (122)
+#define DR_FUSED_STATE_NH_Z (123)
+#define DR_FUSED_STATE_NH_R (124)
+#define DR_FUSED_STATE_NH_B (125)
+#define DR_FUSED_STATE_NH_P (126)
+typedef char dr_fused_state_is_129_floats[
+    sizeof(dr_fused_state) == 129 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_48_floats[
+    sizeof(dr_fused_config) == 48 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
     ? 1 : -1];
@@ -380,6 +397,20 @@ typedef char dr_fused_fix_ae_at_50[
 /* s: a vehicle's along-track acceleration passes the deadband while its average over this does (the road's shaking
  * averages out; 0: each sample on its own) */
 #define DR_FUSED_P_ACCEL_TAU_S (40)
+/* m/s^2: a vehicle in an outage: error of the lateral residual a_lat - speed x rate about Up averaged over 1 s,
+ * which sees the speed error in turns (0: no lateral update) */
+#define DR_FUSED_P_NHC_SIGMA_MS2 (41)
+#define DR_FUSED_P_NHC_PERIOD_S (42) /* s: the lateral residual is averaged over this between updates */
+#define DR_FUSED_P_NHC_SPEED_NOISE (43) /* m/s/sqrt(s): random walk of a vehicle's speed error in an outage */
+/* m/s^2: the lateral leak's sigma when the outage starts (or after a rest) */
+#define DR_FUSED_P_NHC_LEAK_SIGMA_MS2 (44)
+/* rad/s: the speed error is seen only while the rate about Up averaged over nhc_period_s exceeds this (a turn, not a
+ * wobble) */
+#define DR_FUSED_P_NHC_MIN_RATE (45)
+/* the share of the position error a lateral update's speed correction implies (as the zero-velocity update takes it)
+ * that is taken back */
+#define DR_FUSED_P_NHC_POSITION (46)
+#define DR_FUSED_P_NHC_LEAK_TURN (47) /* m/s^2 per rad: lateral leak a turn may add (offsets folded into the tilt) */
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
@@ -511,6 +542,28 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     if (!(p[DR_FUSED_P_ACCEL_TAU_S] >= 0.0f)) { /* accel_tau_s must be >= 0 */
         return DR_ERR_RANGE;
     }
+    if (!(p[DR_FUSED_P_NHC_SIGMA_MS2] >= 0.0f)) { /* nhc_sigma_ms2 must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_NHC_PERIOD_S] > 0.0f)) { /* nhc_period_s must be > 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_NHC_SPEED_NOISE] >= 0.0f)) { /* nhc_speed_noise must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_NHC_LEAK_SIGMA_MS2] >= 0.0f)) { /* nhc_leak_sigma_ms2 must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_NHC_MIN_RATE] >= 0.0f)) { /* nhc_min_rate must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    /* nhc_position must be >= 0 and <= 1 */
+    if (!(p[DR_FUSED_P_NHC_POSITION] >= 0.0f) || !(p[DR_FUSED_P_NHC_POSITION] <= 1.0f)) {
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_NHC_LEAK_TURN] >= 0.0f)) { /* nhc_leak_turn must be >= 0 */
+        return DR_ERR_RANGE;
+    }
     return DR_OK;
 }
 
@@ -557,6 +610,13 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->kf_rest_r = p[DR_FUSED_P_KF_REST_SIGMA_MS2] * p[DR_FUSED_P_KF_REST_SIGMA_MS2];
     cfg->zupt_turn_weight = p[DR_FUSED_P_ZUPT_TURN_WEIGHT];
     cfg->inv_accel_tau = p[DR_FUSED_P_ACCEL_TAU_S] > 0.0f ? dr_recip(p[DR_FUSED_P_ACCEL_TAU_S]) : 0.0f;
+    cfg->nhc_var = p[DR_FUSED_P_NHC_SIGMA_MS2] * p[DR_FUSED_P_NHC_SIGMA_MS2];
+    cfg->nhc_period_s = p[DR_FUSED_P_NHC_PERIOD_S];
+    cfg->nhc_speed_q = p[DR_FUSED_P_NHC_SPEED_NOISE] * p[DR_FUSED_P_NHC_SPEED_NOISE];
+    cfg->nhc_leak_var = p[DR_FUSED_P_NHC_LEAK_SIGMA_MS2] * p[DR_FUSED_P_NHC_LEAK_SIGMA_MS2];
+    cfg->nhc_min_rate = p[DR_FUSED_P_NHC_MIN_RATE];
+    cfg->nhc_position = p[DR_FUSED_P_NHC_POSITION];
+    cfg->nhc_leak_turn = p[DR_FUSED_P_NHC_LEAK_TURN];
 }
 
 /* p <- the board's parameters (dr_board.h), in the order of DR_FUSED_P_*. */
@@ -602,6 +662,13 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_KF_REST_SIGMA_MS2] = DR_FUSED_KF_REST_SIGMA_MS2;
     p[DR_FUSED_P_ZUPT_TURN_WEIGHT] = DR_FUSED_ZUPT_TURN_WEIGHT;
     p[DR_FUSED_P_ACCEL_TAU_S] = DR_FUSED_ACCEL_TAU_S;
+    p[DR_FUSED_P_NHC_SIGMA_MS2] = DR_FUSED_NHC_SIGMA_MS2;
+    p[DR_FUSED_P_NHC_PERIOD_S] = DR_FUSED_NHC_PERIOD_S;
+    p[DR_FUSED_P_NHC_SPEED_NOISE] = DR_FUSED_NHC_SPEED_NOISE;
+    p[DR_FUSED_P_NHC_LEAK_SIGMA_MS2] = DR_FUSED_NHC_LEAK_SIGMA_MS2;
+    p[DR_FUSED_P_NHC_MIN_RATE] = DR_FUSED_NHC_MIN_RATE;
+    p[DR_FUSED_P_NHC_POSITION] = DR_FUSED_NHC_POSITION;
+    p[DR_FUSED_P_NHC_LEAK_TURN] = DR_FUSED_NHC_LEAK_TURN;
 }
 
 /* st <- every field 0, then the declared starting values. */
@@ -619,8 +686,8 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
 /* The buffers dr_native hands the app, in floats: the seed's dr_state | dr_config | scratch (3 * block), the fused
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
-#define DR_FUSED_CONFIG_AT (122)
-#define DR_FUSED_KERNEL_CONFIG_AT (163)
-#define DR_FUSED_BUFFER_FLOATS (175)
+#define DR_FUSED_CONFIG_AT (129)
+#define DR_FUSED_KERNEL_CONFIG_AT (177)
+#define DR_FUSED_BUFFER_FLOATS (189)
 
 #endif /* DR_LAYOUT_H */
