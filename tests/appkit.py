@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen.sim import harness, mpu6050, neo6m, trajectory
+from codegen.sim import harness
 
 TAP = r"""
 import struct
@@ -209,15 +209,7 @@ def outage_world(board, scenario: str, seed: int, duration: float, outages, work
     """A simulated run of `scenario` for the emulated board: the MPU-6050 model's counts, the NEO-6M model's NMEA
     with `outages` [(start s, end s)] cut in (each epoch's sentences arrive 0.1 s after it). Returns
     (mpsim scenario dict, trajectory, GPS track)."""
-    traj = trajectory.make_scenario(scenario, seed=seed, duration=duration)
-    _, counts = mpu6050.simulate_imu(traj, board, seed=seed)
-    track = neo6m.simulate_gps(traj, seed=seed + 1000, rate_hz=board.gps.rate_hz, outages=list(outages))
-    sentences = neo6m.nmea_sentences(track)
-    per_epoch = len(sentences) // len(track.t)
-    chunks = [(float(track.t[i]) + 0.1, b"".join(sentences[i * per_epoch : (i + 1) * per_epoch]).decode())
-              for i in range(len(track.t)) if track.t[i] + 0.1 < duration]
-    gps_path = harness.write_stream(work / "gps.txt", chunks)
-    counts_path = harness.write_counts(work / "imu.bin", counts)
+    traj, track, counts_path, gps_path = harness.modelled_streams(board, scenario, seed, duration, outages, work)
     spec = harness.tbeam_scenario(
         work, counts_path, gps_path, duration, rate_hz=board.imu.achieved_sample_rate_hz,
         imu={"address": board.imu.address, "accel_range_g": board.imu.accel_range_g,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from codegen.sim import harness, mpu6050, neo6m, trajectory
+from codegen.sim import harness
 from codegen.sim.cpharness import breadboard_world, run_circuitpython, with_circuitpython
 
 # code.py's own order of imports (the largest modules first, for the compiler's room), for a test script that
@@ -20,15 +20,7 @@ def walk_world(board, scenario: str, seed: int, duration: float, outages, work: 
     model's NMEA with `outages` cut in (each epoch 0.1 s after its time), wired as `board` says. The world is the
     same for a board and its twin of the other target. Returns (world, GPS track)."""
     work.mkdir(parents=True, exist_ok=True)
-    traj = trajectory.make_scenario(scenario, seed=seed, duration=duration)
-    _, counts = mpu6050.simulate_imu(traj, board, seed=seed)
-    track = neo6m.simulate_gps(traj, seed=seed + 1000, rate_hz=board.gps.rate_hz, outages=list(outages))
-    sentences = neo6m.nmea_sentences(track)
-    per_epoch = len(sentences) // len(track.t)
-    chunks = [(float(track.t[i]) + 0.1, b"".join(sentences[i * per_epoch : (i + 1) * per_epoch]).decode())
-              for i in range(len(track.t)) if track.t[i] + 0.1 < duration]
-    gps = harness.write_stream(work / "gps.txt", chunks)
-    imu = harness.write_counts(work / "imu.bin", counts)
+    _, track, imu, gps = harness.modelled_streams(board, scenario, seed, duration, outages, work)
     world = breadboard_world(board, work, imu, gps, duration, rate_hz=board.imu.achieved_sample_rate_hz, pins=pins)
     world["i2c"][str(board.i2c[board.imu.bus].id)][0].update(accel_range_g=board.imu.accel_range_g,
                                                            gyro_range_dps=board.imu.gyro_range_dps)

@@ -184,6 +184,22 @@ def write_counts(path: Path, counts) -> Path:
     return path
 
 
+def modelled_streams(board, scenario: str, seed: int, duration: float, outages, work: Path):
+    """What the emulated board's sensors give on a simulated run of `scenario`: the MPU-6050 model's counts
+    (work/imu.bin) and the NEO-6M model's NMEA with `outages` [(start s, end s)] cut in, each epoch's sentences
+    arriving 0.1 s after it (work/gps.txt). Returns (trajectory, GPS track, counts path, NMEA path)."""
+    from codegen.sim import mpu6050, neo6m, trajectory
+
+    traj = trajectory.make_scenario(scenario, seed=seed, duration=duration)
+    _, counts = mpu6050.simulate_imu(traj, board, seed=seed)
+    track = neo6m.simulate_gps(traj, seed=seed + 1000, rate_hz=board.gps.rate_hz, outages=list(outages))
+    sentences = neo6m.nmea_sentences(track)
+    per_epoch = len(sentences) // len(track.t)
+    chunks = [(float(track.t[i]) + 0.1, b"".join(sentences[i * per_epoch : (i + 1) * per_epoch]).decode())
+              for i in range(len(track.t)) if track.t[i] + 0.1 < duration]
+    return traj, track, write_counts(work / "imu.bin", counts), write_stream(work / "gps.txt", chunks)
+
+
 def nmea_epoch(t_s: float, lat: float, lon: float, speed_kn: float = 0.0, course: float | None = None,
                alt: float = 183.8, date: str = "241013", day_offset_s: float = 43200.0) -> str:
     """One NEO-6M style epoch (RMC, VTG, GGA, GSA) at receiver time day_offset_s + t_s."""
