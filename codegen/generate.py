@@ -39,7 +39,7 @@ from codegen.errors import UserError
 from codegen.font import FONT
 from codegen.kernel.layout import LAYOUT
 from codegen.paths import native_ext_dir, templates_dir
-from codegen.safeio import read_bounded, write_atomically
+from codegen.safeio import read_bounded, regular_file_sha256, write_atomically
 
 MANIFEST = "MANIFEST.json"
 GENERATOR = "deadreckon"
@@ -306,26 +306,12 @@ def read_manifest(root: Path) -> dict:
     return manifest
 
 
-def _file_sha256(path: Path) -> Optional[str]:
-    """SHA-256 of a regular file read in chunks; None for anything else (a link, a folder, a FIFO, a device)."""
-    try:
-        if not stat.S_ISREG(path.lstat().st_mode):
-            return None
-        digest = hashlib.sha256()
-        with open(path, "rb") as handle:
-            for chunk in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(chunk)
-        return digest.hexdigest()
-    except OSError:
-        return None
-
-
 def _edited_files(root: Path, manifest: dict) -> list[str]:
     """Files of the old manifest that are no longer what deadreckon wrote (edited, replaced by a link, ...)."""
     edited = []
     for relative, entry in manifest["files"].items():
         path = root / relative
-        if os.path.lexists(path) and _file_sha256(path) != entry.get("sha256"):
+        if os.path.lexists(path) and regular_file_sha256(path) != entry.get("sha256"):
             edited.append(relative)
     return edited
 

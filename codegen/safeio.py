@@ -5,14 +5,18 @@
                                  a FIFO is opened without waiting for a writer
     write_atomically(path, ...)  a new file renamed over `path`: never written through a link or into a file that
                                  shares its data with another name (a hard link), never seen half-written
+    regular_file_sha256(path)    the SHA-256 of a regular file read in chunks; None for a link, a folder, a FIFO, a
+                                 device, or nothing there
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 import stat
 import tempfile
 from pathlib import Path
+from typing import Optional
 
 from codegen.errors import Location, UserError
 
@@ -77,3 +81,18 @@ def write_atomically(target: Path, content: bytes) -> None:
         if os.path.lexists(temporary):
             os.unlink(temporary)
         raise
+
+
+def regular_file_sha256(path: Path) -> Optional[str]:
+    """SHA-256 of a regular file read in chunks; None for anything else (a link, a folder, a FIFO, a device) or
+    when it cannot be read."""
+    try:
+        if not stat.S_ISREG(path.lstat().st_mode):
+            return None
+        digest = hashlib.sha256()
+        with open(path, "rb") as handle:
+            for chunk in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(chunk)
+        return digest.hexdigest()
+    except OSError:
+        return None

@@ -25,15 +25,14 @@ import hashlib
 import json
 import os
 import shutil
-import stat
 import time
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
-from typing import Callable, Optional
+from typing import Callable
 
 from codegen.board.circuitpython import MIN_CIRCUITPYTHON
 from codegen.errors import UserError
-from codegen.safeio import read_bounded
+from codegen.safeio import read_bounded, regular_file_sha256
 
 Progress = Callable[[str], None]
 
@@ -98,20 +97,6 @@ def _release(version: str) -> tuple[int, ...]:
             break
         numbers.append(int(digits))
     return tuple(numbers)
-
-
-def _sha256(path: Path) -> Optional[str]:
-    """SHA-256 of a regular file on the drive; None when there is none (or something else is there)."""
-    try:
-        if not stat.S_ISREG(path.lstat().st_mode):
-            return None
-        digest = hashlib.sha256()
-        with open(path, "rb") as handle:
-            for chunk in iter(lambda: handle.read(1 << 16), b""):
-                digest.update(chunk)
-        return digest.hexdigest()
-    except OSError:
-        return None
 
 
 def _order(paths: list[str]) -> list[str]:
@@ -232,10 +217,10 @@ def upload_to_drive(app_dir: Path, drive: Path, board_id: str, force: bool = Fal
     result = DriveResult(board_id=boot.board_id, version=boot.version)
     targets = {rel: _check_inside(drive, rel) for rel in files}
     wanted = {rel: hashlib.sha256(data).hexdigest() for rel, data in files.items()}
-    on_drive = {rel: _sha256(target) for rel, target in targets.items()}
+    on_drive = {rel: regular_file_sha256(target) for rel, target in targets.items()}
     changed = [rel for rel in files if force or on_drive[rel] != wanted[rel]]
     old = _read_record(drive)
-    stale = [rel for rel in old if rel not in files and _sha256(drive / rel) == old[rel]]
+    stale = [rel for rel in old if rel not in files and regular_file_sha256(drive / rel) == old[rel]]
     need = sum(len(files[rel]) - (targets[rel].stat().st_size if on_drive[rel] else 0) for rel in changed)
     free = shutil.disk_usage(drive).free
     if need > free:
