@@ -2,15 +2,20 @@
 
     python3 benchmarks/outage_tail.py                        # car, tuning seeds 100-119, 30 s (about 2 minutes)
     python3 benchmarks/outage_tail.py --scenario bike --horizon 60 --seeds 10
+    python3 benchmarks/outage_tail.py --set nhc_fold_scale=0   # a fused parameter changed (repeatable)
 
 Runs the fused reference through every outage of the accuracy benchmark (an outage every 5 s) in steps of 0.5 s
 and splits each outage's horizontal error at the horizon into what the device got wrong:
   start       the error of the smoothed fix the outage starts from (the receiver's);
   along       the speed error integrated, integral of (s - s_true) dt: the along-track part;
   across      the travel direction's error integrated, integral of s_true sin(heading error) dt: the cross-track part;
-and, per outage, the speed error at the horizon and how far the vehicle turned (truth). The table compares all
-outages with the worst tenth (error above the 90th percentile): the medians of those magnitudes. Tuning seeds
-only (codegen.sim.run.TUNING_SEEDS): this is where an algorithm is taken apart, not where it is reported.
+and, per outage, the speed error at the horizon, how far the vehicle turned (truth), when the outage began, and
+what calibration folded into the tilt that is still there: the horizontal part of the simulated chip's offsets
+(its zero-g offset and its scale and cross-axis errors on gravity, codegen.sim.mpu6050) minus the tilt/offset
+filter's estimate, at the outage's start ("fold"), against that filter's own horizontal sigma of it ("kf sigma").
+A turn makes the fold a leak along the track. The table compares all outages with the worst tenth (error above the
+90th percentile): the medians of those magnitudes. Tuning seeds only (codegen.sim.run.TUNING_SEEDS): this is where
+an algorithm is taken apart, not where it is reported.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import argparse
 import math
 import sys
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -27,23 +33,42 @@ import numpy as np  # noqa: E402
 
 from codegen.board.loader import load_board  # noqa: E402
 from codegen.kernel import fused as F  # noqa: E402
+from codegen.kernel.layout import FUSED  # noqa: E402
+from codegen.kernel.reference import STANDARD_GRAVITY, quat_to_matrix  # noqa: E402
+from codegen.sim.mpu6050 import MpuErrors, draw_device  # noqa: E402
 from codegen.sim.run import TUNING_SEEDS, build_run, outage_starts  # noqa: E402
 
 STEP_S = 0.5
 OUTAGE_S = 60.0  # the accuracy benchmark's longest horizon: the same outage starts
-COLUMNS = ("seed", "error", "start", "along", "across", "speed_error", "turn_deg")
+COLUMNS = ("seed", "error", "start", "along", "across", "speed_error", "turn_deg", "began", "fold", "kf_sigma")
 
 
-def outage_rows(scenario: str, seed: int, horizon: float) -> list[tuple]:
-    """One row of COLUMNS per outage of one run."""
+def _fold(st, device, axis_map) -> tuple[float, float]:
+    """The offsets calibration folded into the tilt that the tilt/offset filter has not taken out, seen
+    horizontally (m/s^2), and that filter's own sigma of it."""
+    r = quat_to_matrix(np.array([st.qw, st.qx, st.qy, st.qz]))  # body -> kernel frame
+    perm = np.zeros((3, 3))  # body = perm @ sensor (the board's axis remap)
+    for i, (src, sign) in enumerate(axis_map):
+        perm[i, src] = sign
+    up_sensor = perm.T @ r.T @ np.array([0.0, 0.0, STANDARD_GRAVITY])
+    offset = perm @ (device.accel_offset + (device.accel_matrix - np.eye(3)) @ up_sensor)
+    left = r[:2] @ (offset - np.array([st.bax, st.bay, st.baz]))
+    pbb = np.array([[getattr(st, F._PIJ[(min(i, j) + 2, max(i, j) + 2)]) for j in range(3)] for i in range(3)])
+    return float(np.linalg.norm(left)), math.sqrt(max(float(np.trace(r[:2] @ pbb @ r[:2].T)), 0.0))
+
+
+def outage_rows(scenario: str, seed: int, horizon: float, changes: dict) -> list[tuple]:
+    """One row of COLUMNS per outage of one run; `changes`: fused parameters (FusedConfig names) to change."""
     board = load_board(None).board
     run = build_run(scenario, board, seed=seed)
-    t, dt_us, snaps, kcfg, fcfg = F._fused_pass(run)
+    device = draw_device(MpuErrors(), np.random.default_rng(seed))  # as codegen.sim.mpu6050.simulate_imu draws it
+    t, dt_us, snaps, kcfg, fcfg = F._fused_pass(run, replace(F.FusedConfig.from_board(board), **changes))
     starts = outage_starts(run, OUTAGE_S, 5.0)
     rows = []
     for o, j in enumerate(run.gps.last_valid_before(starts)):
         k, snap = snaps[int(j)]
         st = snap.copy()
+        fold, kf_sigma = _fold(st, device, board.imu.axis_map)
         st.pe = st.pn = 0.0
         base = run.gps.enu[j, :2] + (st.fix_ae, st.fix_an)
         ta, end_t = float(run.gps.t[j]), float(starts[o] + horizon)
@@ -68,7 +93,8 @@ def outage_rows(scenario: str, seed: int, horizon: float) -> list[tuple]:
         moving = np.linalg.norm(course, axis=1) > 0.5
         heading = np.unwrap(np.arctan2(course[moving, 1], course[moving, 0])) if moving.sum() > 1 else np.zeros(1)
         speed_err = st.speed - float(np.linalg.norm(run.truth.velocity_at(np.array([end_t]))[0, :2]))
-        rows.append((seed, err, start_err, along, across, speed_err, math.degrees(float(np.ptp(heading)))))
+        rows.append((seed, err, start_err, along, across, speed_err, math.degrees(float(np.ptp(heading))),
+                     float(starts[o]), fold, kf_sigma))
     return rows
 
 
@@ -80,11 +106,14 @@ def report(data: np.ndarray, horizon: float) -> str:
     lines = [f"{len(data)} outages; error at {horizon:g} s: median {np.median(c['error']):.1f} m, p90 {p90:.1f} m "
              f"({p90 / np.median(c['error']):.2f} x the median)", "",
              f"{'median of |x|':18s} {'error':>7s} {'start':>7s} {'along':>7s} {'across':>7s} {'speed err':>10s}"
-             f" {'turned':>7s}", f"{'':18s} {'m':>7s} {'m':>7s} {'m':>7s} {'m':>7s} {'m/s':>10s} {'deg':>7s}"]
+             f" {'turned':>7s} {'began':>7s} {'fold':>7s} {'kf sigma':>9s}",
+             f"{'':18s} {'m':>7s} {'m':>7s} {'m':>7s} {'m':>7s} {'m/s':>10s} {'deg':>7s} {'s':>7s} {'m/s^2':>7s}"
+             f" {'m/s^2':>9s}"]
     for label, m in groups:
-        lines.append(f"{label:18s}" + "".join(f" {np.median(np.abs(c[n][m])):{w}.1f}" for n, w in
-                                              (("error", 7), ("start", 7), ("along", 7), ("across", 7),
-                                               ("speed_error", 10), ("turn_deg", 7))))
+        lines.append(f"{label:18s}" + "".join(f" {np.median(np.abs(c[n][m])):{w}.{d}f}" for n, w, d in
+                                              (("error", 7, 1), ("start", 7, 1), ("along", 7, 1), ("across", 7, 1),
+                                               ("speed_error", 10, 1), ("turn_deg", 7, 1), ("began", 7, 0),
+                                               ("fold", 7, 3), ("kf_sigma", 9, 3))))
     turned = c["turn_deg"] > 45.0
     lines += ["", f"outages that turned more than 45 deg: {turned.mean():.0%} of all, {turned[tail].mean():.0%} of the "
               f"worst tenth; the along-track part is the larger in {(np.abs(c['along']) > np.abs(c['across']))[tail].mean():.0%}"
@@ -98,13 +127,27 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", type=int, default=20, help="tuning seeds from 100 (default 20)")
     parser.add_argument("--horizon", type=float, default=30.0, help="seconds into the outage (at most 60)")
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="a fused parameter in its declared unit (codegen/kernel/layout.py), e.g. nhc_fold_scale=0")
     args = parser.parse_args(argv)
     if not 0.0 < args.horizon <= OUTAGE_S:
         parser.error(f"--horizon takes 0 < s <= {OUTAGE_S:g}, not {args.horizon:g}")
+    names = {p.name for p in FUSED.params}
+    changes = {}
+    for item in args.set:
+        name, _, value = item.partition("=")
+        if name not in names:
+            parser.error(f"--set {item}: no fused parameter {name!r} (they are: {', '.join(sorted(names))})")
+        try:
+            changes[name] = float(value)
+        except ValueError:
+            parser.error(f"--set {item}: {value!r} is not a number")
     seeds = list(TUNING_SEEDS)[: args.seeds]
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        parts = list(pool.map(outage_rows, [args.scenario] * len(seeds), seeds, [args.horizon] * len(seeds)))
-    print(f"{args.scenario}, TUNING seeds {seeds[0]}-{seeds[-1]}, the fused reference (float64)\n")
+        parts = list(pool.map(outage_rows, [args.scenario] * len(seeds), seeds, [args.horizon] * len(seeds),
+                              [changes] * len(seeds)))
+    label = ", ".join(f"{k} {v:g}" for k, v in changes.items()) or "the defaults"
+    print(f"{args.scenario}, TUNING seeds {seeds[0]}-{seeds[-1]}, the fused reference (float64), {label}\n")
     print(report(np.array([r for part in parts for r in part], dtype=float), args.horizon))
     return 0
 

@@ -271,36 +271,109 @@ static void dr_fused_rest_update(const dr_config *kcfg, const dr_fused_config *c
     st->ah[1] -= x[1] + h[1][0] * x[2] + h[1][1] * x[3] + h[1][2] * x[4];
 }
 
-/* The lateral filter's start (codegen.fused's _nhc_restart): at a fix, at rest, walking: the speed known, the lateral
- * leak 0 +- nhc_leak_sigma_ms2. */
-static void dr_fused_nhc_restart(const dr_fused_config *cfg, dr_fused_state *st) {
+/* The lateral filter stopped (codegen.fused's _nhc_restart): at a fix, at rest, walking: the speed known. It starts
+ * again with an outage's next sample of a moving vehicle (dr_fused_nhc_start). */
+static void dr_fused_nhc_restart(dr_fused_state *st) {
+    int i;
+    if (st->nh_u0[0] == 0.0f && st->nh_u0[1] == 0.0f) {
+        return; /* not started: all 0 already (u0 is a unit vector once it has) */
+    }
     st->nh_t = 0.0f;
     st->nh_z = 0.0f;
     st->nh_r = 0.0f;
     st->nh_b = 0.0f;
-    st->nh_p[0] = 0.0f;
-    st->nh_p[1] = 0.0f;
-    st->nh_p[2] = cfg->nhc_leak_var;
+    for (i = 0; i < 2; i++) {
+        st->nh_f[i] = 0.0f;
+        st->nh_u0[i] = 0.0f;
+        st->nh_i[i] = 0.0f;
+    }
+    for (i = 0; i < 10; i++) {
+        st->nh_p[i] = 0.0f;
+    }
 }
 
-/* A vehicle's lateral update in an outage, every nhc_period_s (codegen.fused's _nhc_update): a 2-state Kalman filter
- * of the speed error e (fed back into the speed) and the lateral leak l, z = l - rbar e + noise, rbar the mean rate
- * about Up (0 below nhc_min_rate), the noise's variance nhc_var / T. */
+/* The lateral filter's start (codegen.fused's _nhc_start): the lateral leak 0 +- nhc_leak_sigma_ms2, the folded
+ * offsets 0 with what the tilt/offset filter does not know of the offsets seen horizontally, R_h P_bb R_h^T (times
+ * nhc_fold_scale, R_h the horizontal rows of R(q), q the attitude now), and the travel direction they turn from. */
+static void dr_fused_nhc_start(const dr_fused_config *cfg, dr_fused_state *st, const float q[4]) {
+    float pm[5][5], r[3][3], rp[2][3], c[3] = {0.0f, 0.0f, 0.0f};
+    int a, j, k;
+    dr_fused_p_load(st, pm);
+    dr_fused_rotation(q, r);
+    for (a = 0; a < 2; a++) { /* R_h P_bb */
+        for (j = 0; j < 3; j++) {
+            rp[a][j] = 0.0f;
+            for (k = 0; k < 3; k++) {
+                rp[a][j] += r[a][k] * pm[2 + k][2 + j];
+            }
+        }
+    }
+    for (j = 0; j < 3; j++) { /* (R_h P_bb R_h^T): xx, xy, yy */
+        c[0] += rp[0][j] * r[0][j];
+        c[1] += rp[0][j] * r[1][j];
+        c[2] += rp[1][j] * r[1][j];
+    }
+    st->nh_p[4] = cfg->nhc_leak_var;
+    st->nh_p[7] = cfg->nhc_fold_scale * c[0];
+    st->nh_p[8] = cfg->nhc_fold_scale * c[1];
+    st->nh_p[9] = cfg->nhc_fold_scale * c[2];
+    st->nh_u0[0] = st->ux;
+    st->nh_u0[1] = st->uy;
+}
+
+/* A vehicle's lateral update in an outage, every nhc_period_s T (codegen.fused's _nhc_update): a 4-state Kalman filter
+ * of the speed error e (fed back into the speed), the lateral leak l and the folded offsets f (kernel frame),
+ * z = l + (n0 - nbar) . f - rbar e + noise, e grown by T (u0 - ubar) . (f - f_estimated); rbar the mean rate about Up
+ * (0 below nhc_min_rate, its speed error term then noise), the noise's variance nhc_var / T. */
 static void dr_fused_nhc_update(const dr_fused_config *cfg, dr_fused_state *st) {
     const float t = st->nh_t, inv_t = dr_recip(st->nh_t);
-    float rbar = st->nh_r * inv_t, z = st->nh_z * inv_t, turn = cfg->nhc_leak_turn * st->nh_r;
-    float pss = st->nh_p[0] + cfg->nhc_speed_q * t, psb = st->nh_p[1], pbb = st->nh_p[2] + turn * turn;
-    float hs, hb, inv_s, ks, kb, y, e;
+    float rbar = st->nh_r * inv_t, z = st->nh_z * inv_t, turn = cfg->nhc_leak_turn * st->nh_r, unseen = 0.0f;
+    float pm[4][4], fr[4], fp[4], h[4], ph[4], gain[4], s, inv_s, y, e, dux, duy;
+    int i, j, n = 0;
     if (dr_absf(rbar) < cfg->nhc_min_rate) {
-        rbar = 0.0f; /* no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle */
+        unseen = rbar * rbar; /* no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle */
+        rbar = 0.0f;
     }
-    hs = -rbar * pss + psb; /* P h^T, h = (-rbar, 1) */
-    hb = -rbar * psb + pbb;
-    inv_s = dr_recip(-rbar * hs + hb + cfg->nhc_var * inv_t);
-    ks = hs * inv_s;
-    kb = hb * inv_s;
-    y = z - st->nh_b;
-    e = ks * y;
+    dux = st->nh_u0[0] - st->nh_i[0] * inv_t; /* u0 - ubar; n0 - nbar = (-duy, dux) */
+    duy = st->nh_u0[1] - st->nh_i[1] * inv_t;
+    for (i = 0; i < 4; i++) {
+        for (j = i; j < 4; j++) {
+            pm[i][j] = st->nh_p[n];
+            pm[j][i] = st->nh_p[n];
+            n++;
+        }
+    }
+    fr[0] = 0.0f; /* predict: F = I + (row 0: T du in columns 2, 3) */
+    fr[1] = 0.0f;
+    fr[2] = t * dux;
+    fr[3] = t * duy;
+    for (j = 0; j < 4; j++) {
+        fp[j] = fr[2] * pm[2][j] + fr[3] * pm[3][j];
+    }
+    for (j = 0; j < 4; j++) {
+        pm[0][j] += fp[j];
+        pm[j][0] = pm[0][j];
+    }
+    pm[0][0] += fp[2] * fr[2] + fp[3] * fr[3];
+    pm[0][0] += cfg->nhc_speed_q * t;
+    pm[1][1] += turn * turn;
+    h[0] = -rbar;
+    h[1] = 1.0f;
+    h[2] = -duy;
+    h[3] = dux;
+    s = cfg->nhc_var * inv_t + unseen * pm[0][0];
+    for (i = 0; i < 4; i++) {
+        ph[i] = pm[i][0] * h[0] + pm[i][1] * h[1] + pm[i][2] * h[2] + pm[i][3] * h[3];
+    }
+    for (i = 0; i < 4; i++) {
+        s += h[i] * ph[i];
+    }
+    inv_s = dr_recip(s);
+    y = z - st->nh_b - h[2] * st->nh_f[0] - h[3] * st->nh_f[1];
+    for (i = 0; i < 4; i++) {
+        gain[i] = ph[i] * inv_s;
+    }
+    e = gain[0] * y;
     st->speed -= e;
     st->zr_v -= e;
     if (cfg->nhc_position > 0.0f && st->zr_t > 0.0f) {
@@ -312,13 +385,20 @@ static void dr_fused_nhc_update(const dr_fused_config *cfg, dr_fused_state *st) 
     if (st->speed < 0.0f) {
         st->speed = 0.0f;
     }
-    st->nh_b += kb * y;
-    st->nh_p[0] = pss - ks * hs;
-    st->nh_p[1] = psb - ks * hb;
-    st->nh_p[2] = pbb - kb * hb;
+    st->nh_b += gain[1] * y;
+    st->nh_f[0] += gain[2] * y;
+    st->nh_f[1] += gain[3] * y;
+    n = 0;
+    for (i = 0; i < 4; i++) {
+        for (j = i; j < 4; j++) {
+            st->nh_p[n++] = pm[i][j] - gain[i] * ph[j];
+        }
+    }
     st->nh_t = 0.0f;
     st->nh_z = 0.0f;
     st->nh_r = 0.0f;
+    st->nh_i[0] = 0.0f;
+    st->nh_i[1] = 0.0f;
 }
 
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
@@ -497,7 +577,8 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
                 }
                 a = dr_median(window, filled);
             }
-            a -= st->bias;
+            /* the folded offsets turned with the vehicle since the outage began: along u they leak (u0 - u) . f */
+            a -= st->bias + (st->nh_u0[0] - st->ux) * st->nh_f[0] + (st->nh_u0[1] - st->uy) * st->nh_f[1];
             if (cfg->inv_accel_tau > 0.0f) { /* the deadband gates on the smoothed acceleration (not the road's) */
                 float b = dt * cfg->inv_accel_tau;
                 st->acc_lp += (b < 1.0f ? b : 1.0f) * (a - st->acc_lp);
@@ -524,12 +605,18 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         }
         if (cfg->nhc_var > 0.0f) {
             if (rest || walking || !vehicle || st->since_fix < cfg->gps_timeout_s) {
-                dr_fused_nhc_restart(cfg, st);
+                dr_fused_nhc_restart(st);
             } else {
                 /* no sideways sliding: a_lat - s r = leak - (s - s_true) r sees the lateral leak and the speed error */
+                if (st->nh_u0[0] == 0.0f && st->nh_u0[1] == 0.0f) {
+                    const float q_now[4] = {qw, qx, qy, qz};
+                    dr_fused_nhc_start(cfg, st, q_now);
+                }
                 st->nh_t += dt;
                 st->nh_z += (an * st->ux - ae * st->uy - st->speed * r) * dt;
                 st->nh_r += r * dt;
+                st->nh_i[0] += st->ux * dt;
+                st->nh_i[1] += st->uy * dt;
                 if (st->nh_t + 0.5f * dt >= cfg->nhc_period_s) { /* half a sample's margin: sums agree */
                     dr_fused_nhc_update(cfg, st);
                 }
@@ -777,5 +864,5 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     st->zr_turn = 0.0f;
     st->zr_v = st->speed;
     st->since_fix = 0.0f;
-    dr_fused_nhc_restart(cfg, st);
+    dr_fused_nhc_restart(st);
 }

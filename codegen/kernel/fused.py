@@ -273,7 +273,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
             a = ae * st.ux + an * st.uy
             if median:  # the seed's block median, sliding: the median of the last b along-track accelerations
                 a = _ring_median(st, ring, a, median)
-            a -= st.bias
+            # the folded offsets turned with the vehicle since the outage began: along u they leak (u0 - u) . f
+            a -= st.bias + (st.nh_u0x - st.ux) * st.nh_fx + (st.nh_u0y - st.uy) * st.nh_fy
             if inv_acc > 0.0:  # the deadband gates on the smoothed acceleration: the vehicle's, not the road's shaking
                 beta = dt * inv_acc
                 st.acc_lp += (beta if beta < 1.0 else 1.0) * (a - st.acc_lp)
@@ -293,9 +294,13 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
                 # a vehicle does not slide sideways: across u its acceleration is the centripetal speed x rate, so
                 # what is left, a_lat - s r = leak - (s - s_true) r, sees the lateral leak and, in turns, the speed
                 # error
+                if st.nh_u0x == 0.0 and st.nh_u0y == 0.0:
+                    _nhc_start(st, (qw, qx, qy, qz), fcfg)
                 st.nh_t += dt
                 st.nh_z += (an * st.ux - ae * st.uy - st.speed * r) * dt
                 st.nh_r += r * dt
+                st.nh_ix += st.ux * dt
+                st.nh_iy += st.uy * dt
                 if st.nh_t + 0.5 * dt >= fcfg.nhc_period_s:  # half a sample's margin: float32 sums agree
                     _nhc_update(st, nhc_r, fcfg)
         if rest and st.rest_s >= fcfg.rest_time_s + fcfg.rest_update_s:
@@ -370,33 +375,72 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
 
 
 def _nhc_restart(st: FusedState, fcfg: FusedConfig) -> None:
-    """The lateral filter's start (at a fix, at rest, walking): the speed known, the lateral leak 0 +-
-    nhc_leak_sigma_ms2 (the tilt/offset filter has just taken out what it knew)."""
-    st.nh_t = st.nh_z = st.nh_r = st.nh_b = st.nh_pss = st.nh_psb = 0.0
+    """The lateral filter stopped (at a fix, at rest, walking): the speed known; it starts again with the outage's
+    next sample of a moving vehicle (_nhc_start). Everything is 0 until it starts (u0 is a unit vector then)."""
+    if st.nh_u0x == 0.0 and st.nh_u0y == 0.0:
+        return
+    for name in NHC_FIELDS:
+        setattr(st, name, 0.0)
+
+
+def _nhc_start(st: FusedState, q, fcfg: FusedConfig) -> None:
+    """The lateral filter's start on an outage's first sample of a moving vehicle: the speed known, the lateral leak
+    0 +- nhc_leak_sigma_ms2 (the tilt/offset filter has just taken out what it knew), the folded offsets 0 with what
+    that filter does not know of the offsets seen horizontally, R_h P_bb R_h^T (times nhc_fold_scale), and the
+    travel direction they turn from. q: the attitude now (the loop's, not yet stored)."""
     st.nh_pbb = fcfg.nhc_leak_sigma_ms2 * fcfg.nhc_leak_sigma_ms2
+    qw, qx, qy, qz = q
+    rh = ((1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)),
+          (2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)))
+    pb = [[getattr(st, _PIJ[(min(i, j) + 2, max(i, j) + 2)]) for j in range(3)] for i in range(3)]
+    rp = [[sum(rh[a][k] * pb[k][j] for k in range(3)) for j in range(3)] for a in range(2)]  # R_h P_bb
+    st.nh_pxx = fcfg.nhc_fold_scale * sum(rp[0][j] * rh[0][j] for j in range(3))
+    st.nh_pxy = fcfg.nhc_fold_scale * sum(rp[0][j] * rh[1][j] for j in range(3))
+    st.nh_pyy = fcfg.nhc_fold_scale * sum(rp[1][j] * rh[1][j] for j in range(3))
+    st.nh_u0x, st.nh_u0y = st.ux, st.uy
 
 
 def _nhc_update(st: FusedState, var: float, fcfg: FusedConfig) -> None:
-    """A vehicle's lateral update in an outage, every nhc_period_s: a 2-state Kalman filter of the speed error
-    e = s - s_true (fed back into the speed at once) and the lateral leak l (a random walk, faster in turns),
-        z = (integral of a_lat - s r dt) / T = l - rbar e + noise,   rbar = (integral of r dt) / T,
+    """A vehicle's lateral update in an outage, every nhc_period_s T: a 4-state Kalman filter of the speed error
+    e = s - s_true (fed back into the speed at once), the lateral leak l (a random walk, faster in turns) and the
+    offsets f folded into the tilt (kernel frame, the horizontal part of the body-fixed offsets when the outage
+    began). The tilt stays in the earth frame while the offsets turn with the vehicle, so after the travel direction
+    turned from u0 to u they leak (u0 - u) . f along the track (taken out of the along-track acceleration) and
+    (n0 - n) . f across it (n = u turned 90 degrees left). Over the period, with ubar the mean of u,
+        z = (integral of a_lat - s r dt) / T = l + (n0 - nbar) . f - rbar e + noise,   rbar = (integral of r dt) / T,
+        e grows by T (u0 - ubar) . (f - f_estimated) + speed noise,
     noise variance var / T (var: of a 1 s average). Restarts the averages."""
     t = st.nh_t
-    rbar = st.nh_r / t
-    z = st.nh_z / t
+    inv_t = 1.0 / t
+    rbar = st.nh_r * inv_t
+    z = st.nh_z * inv_t
+    unseen = 0.0
     if abs(rbar) < fcfg.nhc_min_rate:
-        rbar = 0.0  # no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle
+        # no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle; the speed error it would show
+        # is noise to the leaks (a turn's end must not pass it into the folded offsets)
+        unseen = rbar * rbar
+        rbar = 0.0
+    dux = st.nh_u0x - st.nh_ix * inv_t  # u0 - ubar
+    duy = st.nh_u0y - st.nh_iy * inv_t
+    dnx, dny = -duy, dux  # n0 - nbar
+    n = NHC_STATES
+    p = [[getattr(st, NHC_P[min(i, j)][max(i, j)]) for j in range(n)] for i in range(n)]
+    # predict: e += T du . (f - f_est): F = I + T du in row 0, columns 2, 3
+    fr = (0.0, 0.0, t * dux, t * duy)
+    fp = [sum(fr[k] * p[k][j] for k in range(n)) for j in range(n)]  # row 0 of (F - I) P
+    for j in range(n):
+        p[0][j] += fp[j]
+        p[j][0] = p[0][j]
+    p[0][0] += sum(fp[k] * fr[k] for k in range(n))
     turn = fcfg.nhc_leak_turn * st.nh_r
-    pss = st.nh_pss + fcfg.nhc_speed_noise * fcfg.nhc_speed_noise * t
-    psb = st.nh_psb
-    pbb = st.nh_pbb + turn * turn
-    hs = -rbar * pss + psb  # P h^T, h = (-rbar, 1)
-    hb = -rbar * psb + pbb
-    inv_s = 1.0 / (-rbar * hs + hb + var / t)
-    ks = hs * inv_s
-    kb = hb * inv_s
-    y = z - st.nh_b
-    e = ks * y
+    p[0][0] += fcfg.nhc_speed_noise * fcfg.nhc_speed_noise * t
+    p[1][1] += turn * turn
+    h = (-rbar, 1.0, dnx, dny)
+    ph = [sum(p[i][k] * h[k] for k in range(n)) for i in range(n)]
+    inv_s = 1.0 / (sum(h[i] * ph[i] for i in range(n)) + var * inv_t + unseen * p[0][0])
+    y = z - st.nh_b - dnx * st.nh_fx - dny * st.nh_fy
+    gain = [ph[i] * inv_s for i in range(n)]
+    e = gain[0] * y
     st.speed -= e
     st.zr_v -= e
     if fcfg.nhc_position > 0.0 and st.zr_t > 0.0:
@@ -407,11 +451,13 @@ def _nhc_update(st: FusedState, var: float, fcfg: FusedConfig) -> None:
         st.pn -= k * st.zr_pn
     if st.speed < 0.0:
         st.speed = 0.0
-    st.nh_b += kb * y
-    st.nh_pss = pss - ks * hs
-    st.nh_psb = psb - ks * hb
-    st.nh_pbb = pbb - kb * hb
-    st.nh_t = st.nh_z = st.nh_r = 0.0
+    st.nh_b += gain[1] * y
+    st.nh_fx += gain[2] * y
+    st.nh_fy += gain[3] * y
+    for i in range(n):
+        for j in range(i, n):
+            setattr(st, NHC_P[i][j], p[i][j] - gain[i] * ph[j])
+    st.nh_t = st.nh_z = st.nh_r = st.nh_ix = st.nh_iy = 0.0
 
 
 def _ring_median(st: FusedState, ring: list, a: float, b: int) -> float:
@@ -546,6 +592,14 @@ COVARIANCE_FIELDS = FUSED.field("p").element_names() + FUSED.field("pz").element
 _PIJ = {(i, j): name for (i, j), name in zip([(i, j) for i in range(4) for j in range(i, 4)]
                                              + [(i, 4) for i in range(5)], COVARIANCE_FIELDS)}
 KF_STATES = 5
+# the lateral filter: its covariance's fields by (row, column), upper triangle; everything it restarts
+_NHC_NAMES = FUSED.field("nh_p").element_names()
+NHC_STATES = 4
+NHC_P = [[None] * NHC_STATES for _ in range(NHC_STATES)]
+for _n, (_i, _j) in zip(_NHC_NAMES, [(i, j) for i in range(NHC_STATES) for j in range(i, NHC_STATES)]):
+    NHC_P[_i][_j] = _n
+NHC_FIELDS = ("nh_t", "nh_z", "nh_r", "nh_b") + tuple(
+    n for f in ("nh_f", "nh_u0", "nh_i", "nh_p") for n in FUSED.field(f).element_names())
 
 
 def tilt_and_offset_update(st: FusedState, ve: float, vn: float, moving: bool, t: float, fcfg: FusedConfig) -> None:

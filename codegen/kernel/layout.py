@@ -342,12 +342,19 @@ FUSED = Kernel(
         Field("med_i", "", "the median option's ring: next slot (a whole number)"),
         Field("med_n", "", "the median option's ring: slots filled (a whole number)"),
         Field("med", "m/s^2", "the median option's ring: the last along-track accelerations", FUSED_MEDIAN_MAX),
+        # the lateral filter's fields: together, nh_t first and nh_p last (the fallback's _nhc_restart zeroes the range)
         Field("nh_t", "s", "a vehicle in an outage: time gathered towards the next lateral update"),
         Field("nh_z", "m/s", "the integral of the lateral residual a_lat - speed x rate about Up over that time"),
         Field("nh_r", "rad", "the integral of the rate about Up over that time"),
         Field("nh_b", "m/s^2", "the lateral leak (horizontal specific force across the travel direction) estimated"),
-        Field("nh_p", "", "the lateral filter's covariance: speed error (m/s), lateral leak (m/s^2)", 3,
-              ("nh_pss", "nh_psb", "nh_pbb")),
+        Field("nh_f", "m/s^2", "the accelerometer offsets folded into the tilt (their horizontal part when the outage "
+              "started, kernel frame) estimated: a turn shows them", 2, ("nh_fx", "nh_fy")),
+        Field("nh_u0", "", "the travel direction u when the outage started (kernel frame)", 2, ("nh_u0x", "nh_u0y")),
+        Field("nh_i", "s", "the integral of u over the time gathered towards the next lateral update", 2,
+              ("nh_ix", "nh_iy")),
+        Field("nh_p", "", "the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, "
+              "folded offsets x, y (m/s^2); all 0 until the outage's first sample", 10,
+              ("nh_pss", "nh_psb", "nh_psx", "nh_psy", "nh_pbb", "nh_pbx", "nh_pby", "nh_pxx", "nh_pxy", "nh_pyy")),
     ),
     params=(
         Param("tilt_tau_s", "s", "tilt correction time constant while GPS fixes arrive", Store("kp", "1/s", "recip"),
@@ -456,6 +463,9 @@ FUSED = Kernel(
               "the zero-velocity update takes it) that is taken back", Store("nhc_position", ""), 1.0, ge=0, le=1),
         Param("nhc_leak_turn", "m/s^2 per rad", "lateral leak a turn may add (offsets folded into the tilt)",
               Store("nhc_leak_turn", "m/s^2 per rad"), 0.3, ge=0),
+        Param("nhc_fold_scale", "", "a vehicle in an outage: the accelerometer offsets the tilt/offset filter has not told "
+              "apart from the tilt (its covariance, times this) are estimated too; a turn turns them against the tilt, "
+              "which shows them along and across the track (0: not estimated)", Store("nhc_fold_scale", ""), 1.0, ge=0),
     ),
     flags=(
         Flag("AT_REST", 1, "the last sample was at rest"),

@@ -376,8 +376,8 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(189)
-_F_KCFG = const(177)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(203)
+_F_KCFG = const(191)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
@@ -446,55 +446,59 @@ _F_NH_T = const(122)  # s: a vehicle in an outage: time gathered towards the nex
 _F_NH_Z = const(123)  # m/s: the integral of the lateral residual a_lat - speed x rate about Up over that time
 _F_NH_R = const(124)  # rad: the integral of the rate about Up over that time
 _F_NH_B = const(125)  # m/s^2: the lateral leak (horizontal specific force across the travel direction) estimated
-_F_NH_P = const(126)  # the lateral filter's covariance: speed error (m/s), lateral leak (m/s^2)
-_FC_KP = const(129)  # 1/s, from tilt_tau_s (s)
-_FC_REJECT_MS2 = const(130)  # m/s^2, from accel_reject_g (g)
-_FC_KP_DARK = const(131)  # 1/s, from tilt_tau_dark_s (s)
-_FC_STEADY_MS2 = const(132)  # m/s^2, from steady_accel_ms2 (m/s^2)
-_FC_INV_SPEED_TAU = const(133)  # 1/s, from speed_tau_s (s)
-_FC_GPS_TIMEOUT_S = const(134)  # s, from gps_timeout_s (s)
-_FC_INV_STAT_TAU = const(135)  # 1/s, from stat_tau_s (s)
-_FC_REST_VAR = const(136)  # (m/s^2)^2, from rest_accel_g (g)
-_FC_REST_W2 = const(137)  # (rad/s)^2, from rest_gyro_dps (degree/s)
-_FC_REST_TIME_S = const(138)  # s, from rest_time_s (s)
-_FC_INV_BIAS_TAU = const(139)  # 1/s, from bias_tau_s (s)
-_FC_WALK_VAR = const(140)  # (m/s^2)^2, from walk_accel_g (g)
-_FC_MIN_SPEED_MS = const(141)  # m/s, from min_speed_ms (m/s)
-_FC_HEADING_GAIN = const(142)  # per fix, from heading_gain (per fix)
-_FC_ALIGN_FORGET = const(143)  # per fix, from align_forget (per fix)
-_FC_SPEED_GAIN = const(144)  # per fix, from speed_gain (per fix)
-_FC_BIAS_GAIN = const(145)  # per fix, from bias_gain (per fix)
-_FC_WALK_SPEED_GAIN = const(146)  # per fix, from walk_speed_gain (per fix)
-_FC_KF_BIAS_VAR = const(147)  # (m/s^2)^2, from kf_bias_init_g (g)
-_FC_KF_BIAS_Q = const(148)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
-_FC_KF_TILT_Q = const(149)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
-_FC_KF_TURN_Q = const(150)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
-_FC_KF_VEL_R = const(151)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
-_FC_KF_ALIGN_MIN = const(152)  # (m/s)^2, from kf_align_min ((m/s)^2)
-_FC_MEDIAN = const(153)  # 1: on, from median
-_FC_POS_VAR = const(154)  # m^2, from pos_sigma_m (m)
-_FC_INV_POS_TAU = const(155)  # 1/s, from pos_tau_s (s)
-_FC_POS_STEP_Q = const(156)  # (m/s)^2, from pos_step_sigma_ms (m/s)
-_FC_HOLD_RATE = const(157)  # 1/s, from turn_hold_tau_s (s)
-_FC_TURN_START = const(158)  # rad/s, from turn_start_dps (degree/s)
-_FC_TURN_END = const(159)  # rad/s, from turn_end_dps (degree/s)
-_FC_PLATFORM = const(160)  # choice, from platform
-_FC_VIB_RATE = const(161)  # rad/s, from vibration_hz (Hz)
-_FC_VIB_RATIO = const(162)  # , from vibration_ratio
-_FC_INV_VIB_TAU = const(163)  # 1/s, from vibration_tau_s (s)
-_FC_WALK_TIME_S = const(164)  # s, from walk_time_s (s)
-_FC_REST_SPEED_MS = const(165)  # m/s, from rest_speed_ms (m/s)
-_FC_REST_UPDATE_S = const(166)  # s, from rest_update_s (s)
-_FC_KF_REST_R = const(167)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
-_FC_ZUPT_TURN_WEIGHT = const(168)  # 1/rad, from zupt_turn_weight (1/rad)
-_FC_INV_ACCEL_TAU = const(169)  # 1/s, from accel_tau_s (s)
-_FC_NHC_VAR = const(170)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
-_FC_NHC_PERIOD_S = const(171)  # s, from nhc_period_s (s)
-_FC_NHC_SPEED_Q = const(172)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
-_FC_NHC_LEAK_VAR = const(173)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
-_FC_NHC_MIN_RATE = const(174)  # rad/s, from nhc_min_rate (rad/s)
-_FC_NHC_POSITION = const(175)  # , from nhc_position
-_FC_NHC_LEAK_TURN = const(176)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
+_F_NH_F = const(126)  # m/s^2: the accelerometer offsets folded into the tilt (their horizontal part when the outage started, kernel frame) estimated: a turn shows them
+_F_NH_U0 = const(128)  # the travel direction u when the outage started (kernel frame)
+_F_NH_I = const(130)  # s: the integral of u over the time gathered towards the next lateral update
+_F_NH_P = const(132)  # the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, folded offsets x, y (m/s^2); all 0 until the outage's first sample
+_FC_KP = const(142)  # 1/s, from tilt_tau_s (s)
+_FC_REJECT_MS2 = const(143)  # m/s^2, from accel_reject_g (g)
+_FC_KP_DARK = const(144)  # 1/s, from tilt_tau_dark_s (s)
+_FC_STEADY_MS2 = const(145)  # m/s^2, from steady_accel_ms2 (m/s^2)
+_FC_INV_SPEED_TAU = const(146)  # 1/s, from speed_tau_s (s)
+_FC_GPS_TIMEOUT_S = const(147)  # s, from gps_timeout_s (s)
+_FC_INV_STAT_TAU = const(148)  # 1/s, from stat_tau_s (s)
+_FC_REST_VAR = const(149)  # (m/s^2)^2, from rest_accel_g (g)
+_FC_REST_W2 = const(150)  # (rad/s)^2, from rest_gyro_dps (degree/s)
+_FC_REST_TIME_S = const(151)  # s, from rest_time_s (s)
+_FC_INV_BIAS_TAU = const(152)  # 1/s, from bias_tau_s (s)
+_FC_WALK_VAR = const(153)  # (m/s^2)^2, from walk_accel_g (g)
+_FC_MIN_SPEED_MS = const(154)  # m/s, from min_speed_ms (m/s)
+_FC_HEADING_GAIN = const(155)  # per fix, from heading_gain (per fix)
+_FC_ALIGN_FORGET = const(156)  # per fix, from align_forget (per fix)
+_FC_SPEED_GAIN = const(157)  # per fix, from speed_gain (per fix)
+_FC_BIAS_GAIN = const(158)  # per fix, from bias_gain (per fix)
+_FC_WALK_SPEED_GAIN = const(159)  # per fix, from walk_speed_gain (per fix)
+_FC_KF_BIAS_VAR = const(160)  # (m/s^2)^2, from kf_bias_init_g (g)
+_FC_KF_BIAS_Q = const(161)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
+_FC_KF_TILT_Q = const(162)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
+_FC_KF_TURN_Q = const(163)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
+_FC_KF_VEL_R = const(164)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
+_FC_KF_ALIGN_MIN = const(165)  # (m/s)^2, from kf_align_min ((m/s)^2)
+_FC_MEDIAN = const(166)  # 1: on, from median
+_FC_POS_VAR = const(167)  # m^2, from pos_sigma_m (m)
+_FC_INV_POS_TAU = const(168)  # 1/s, from pos_tau_s (s)
+_FC_POS_STEP_Q = const(169)  # (m/s)^2, from pos_step_sigma_ms (m/s)
+_FC_HOLD_RATE = const(170)  # 1/s, from turn_hold_tau_s (s)
+_FC_TURN_START = const(171)  # rad/s, from turn_start_dps (degree/s)
+_FC_TURN_END = const(172)  # rad/s, from turn_end_dps (degree/s)
+_FC_PLATFORM = const(173)  # choice, from platform
+_FC_VIB_RATE = const(174)  # rad/s, from vibration_hz (Hz)
+_FC_VIB_RATIO = const(175)  # , from vibration_ratio
+_FC_INV_VIB_TAU = const(176)  # 1/s, from vibration_tau_s (s)
+_FC_WALK_TIME_S = const(177)  # s, from walk_time_s (s)
+_FC_REST_SPEED_MS = const(178)  # m/s, from rest_speed_ms (m/s)
+_FC_REST_UPDATE_S = const(179)  # s, from rest_update_s (s)
+_FC_KF_REST_R = const(180)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
+_FC_ZUPT_TURN_WEIGHT = const(181)  # 1/rad, from zupt_turn_weight (1/rad)
+_FC_INV_ACCEL_TAU = const(182)  # 1/s, from accel_tau_s (s)
+_FC_NHC_VAR = const(183)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
+_FC_NHC_PERIOD_S = const(184)  # s, from nhc_period_s (s)
+_FC_NHC_SPEED_Q = const(185)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
+_FC_NHC_LEAK_VAR = const(186)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
+_FC_NHC_MIN_RATE = const(187)  # rad/s, from nhc_min_rate (rad/s)
+_FC_NHC_POSITION = const(188)  # , from nhc_position
+_FC_NHC_LEAK_TURN = const(189)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
+_FC_NHC_FOLD_SCALE = const(190)  # , from nhc_fold_scale
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
@@ -555,11 +559,12 @@ _FUSED_PARAMS = (
     0.1,  # nhc_min_rate, rad/s
     1.0,  # nhc_position
     0.3,  # nhc_leak_turn, m/s^2 per rad
+    1.0,  # nhc_fold_scale
 )
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 48 values in the
+    """Reset the fused state and store the configuration: the board's, or 49 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -658,6 +663,8 @@ def fused_init(fstate, params=_FUSED_PARAMS):
         raise ValueError("nhc_position must be >= 0 and <= 1")
     if not (p[47] >= 0):
         raise ValueError("nhc_leak_turn must be >= 0")
+    if not (p[48] >= 0):
+        raise ValueError("nhc_fold_scale must be >= 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
     fstate[_F_Q + 0] = 1.0
@@ -711,6 +718,7 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_NHC_MIN_RATE] = p[45]
     fstate[_FC_NHC_POSITION] = p[46]
     fstate[_FC_NHC_LEAK_TURN] = p[47]
+    fstate[_FC_NHC_FOLD_SCALE] = p[48]
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -781,6 +789,12 @@ def fused_process(fstate, samples, dt_us, out):
     nh_t = st[_F_NH_T]
     nh_z = st[_F_NH_Z]
     nh_r = st[_F_NH_R]
+    nh_ix = st[_F_NH_I]
+    nh_iy = st[_F_NH_I + 1]
+    nh_u0x = st[_F_NH_U0]
+    nh_u0y = st[_F_NH_U0 + 1]
+    nh_fx = st[_F_NH_F]
+    nh_fy = st[_F_NH_F + 1]
     nh_fresh = False  # the lateral filter restarted in this call (its buffer need not be written again)
     platform = int(st[_FC_PLATFORM])
     hold_rate = st[_FC_HOLD_RATE]
@@ -1021,7 +1035,7 @@ def fused_process(fstate, samples, dt_us, out):
                 zr_v = speed
             zr_t = zr_turn = zr_pe = zr_pn = zr_ce = zr_cn = 0.0
             if nhc and not nh_fresh:
-                nh_t = nh_z = nh_r = 0.0
+                nh_t = nh_z = nh_r = nh_ix = nh_iy = nh_u0x = nh_u0y = nh_fx = nh_fy = 0.0
                 _nhc_restart(st)
                 nh_fresh = True
         else:
@@ -1037,7 +1051,8 @@ def fused_process(fstate, samples, dt_us, out):
                 for m in range(filled):  # after a restart the ring fills from slot 0
                     window[m] = st[_F_MED + m]
                 a = _median(window, 0, filled)
-            a -= bias
+            # the folded offsets turned with the vehicle since the outage began: along u they leak (u0 - u) . f
+            a -= bias + (nh_u0x - ux) * nh_fx + (nh_u0y - uy) * nh_fy
             if inv_acc > 0.0:  # the deadband gates on the smoothed acceleration (not the road's shaking)
                 ka = dt * inv_acc
                 acc_lp += (ka if ka < 1.0 else 1.0) * (a - acc_lp)
@@ -1056,16 +1071,25 @@ def fused_process(fstate, samples, dt_us, out):
                 pass
             elif not vehicle or since < timeout:
                 if not nh_fresh:
-                    nh_t = nh_z = nh_r = 0.0
+                    nh_t = nh_z = nh_r = nh_ix = nh_iy = nh_u0x = nh_u0y = nh_fx = nh_fy = 0.0
                     _nhc_restart(st)
                     nh_fresh = True
             else:
                 # no sideways sliding: a_lat - s r = leak - (s - s_true) r sees the lateral leak and the speed error
+                if nh_u0x == 0.0 and nh_u0y == 0.0:
+                    nh_u0x = ux
+                    nh_u0y = uy
+                    _nhc_start(st, qw, qx, qy, qz, ux, uy)
+                    nh_fresh = False
                 nh_t += dt
                 nh_z += (an * ux - ae * uy - speed * r) * dt
                 nh_r += r * dt
+                nh_ix += ux * dt
+                nh_iy += uy * dt
                 if nh_t + 0.5 * dt >= nhc_period:  # half a sample's margin: float32 sums agree
-                    e = _nhc_update(st, nh_t, nh_z, nh_r)
+                    e = _nhc_update(st, nh_t, nh_z, nh_r, nh_ix, nh_iy)
+                    nh_fx = st[_F_NH_F]
+                    nh_fy = st[_F_NH_F + 1]
                     speed -= e
                     zr_v -= e
                     if nhc_position > 0.0 and zr_t > 0.0:
@@ -1074,7 +1098,7 @@ def fused_process(fstate, samples, dt_us, out):
                         pn -= kzr * zr_pn
                     if speed < 0.0:
                         speed = 0.0
-                    nh_t = nh_z = nh_r = 0.0
+                    nh_t = nh_z = nh_r = nh_ix = nh_iy = 0.0
                     nh_fresh = False
             # the integrals a zero-velocity update corrects the position by
             zr_turn += ada
@@ -1224,6 +1248,8 @@ def fused_process(fstate, samples, dt_us, out):
     st[_F_NH_T] = nh_t
     st[_F_NH_Z] = nh_z
     st[_F_NH_R] = nh_r
+    st[_F_NH_I] = nh_ix
+    st[_F_NH_I + 1] = nh_iy
     st[_F_RATE_UP] = rate_up
     st[_F_HELD] = held
     st[_F_SINCE_FIX] = since
@@ -1369,34 +1395,84 @@ def _rest_update(st):
 
 
 def _nhc_restart(st):
-    # the lateral filter's start (codegen.kernel.fused's _nhc_restart): the speed known, the lateral leak 0 +- its sigma
-    st[_F_NH_T] = st[_F_NH_Z] = st[_F_NH_R] = st[_F_NH_B] = st[_F_NH_P] = st[_F_NH_P + 1] = 0.0
-    st[_F_NH_P + 2] = st[_FC_NHC_LEAK_VAR]
+    # the lateral filter stopped (codegen.kernel.fused's _nhc_restart): the speed known; it starts again with an
+    # outage's next sample of a moving vehicle (_nhc_start); its fields lie together, nh_t first and nh_p's 10 last
+    # (codegen/kernel/layout.py)
+    for k in range(_F_NH_T, _F_NH_P + 10):
+        st[k] = 0.0
 
 
-def _nhc_update(st, t, z, rsum):
-    # a vehicle's lateral update in an outage (codegen.kernel.fused's _nhc_update): the 2-state filter of the speed
-    # error and the lateral leak from z = (integral of a_lat - s r) / t; returns the speed error found
-    rbar = rsum / t
-    z /= t
+def _nhc_start(st, qw, qx, qy, qz, ux, uy):
+    # the lateral filter's start (codegen.kernel.fused's _nhc_start): the lateral leak 0 +- its sigma, the folded
+    # offsets 0 with what the tilt/offset filter does not know of the offsets seen horizontally, R_h P_bb R_h^T (times
+    # nhc_fold_scale), and the travel direction u0 they turn from
+    r0 = (1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy))
+    r1 = (2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx))
+    cxx = cxy = cyy = 0.0
+    for j in range(3):
+        a0 = a1 = 0.0  # (R_h P_bb)[., j]
+        for k in range(3):
+            pkj = st[_pidx(2 + k, 2 + j)]
+            a0 += r0[k] * pkj
+            a1 += r1[k] * pkj
+        cxx += a0 * r0[j]
+        cxy += a0 * r1[j]
+        cyy += a1 * r1[j]
+    scale = st[_FC_NHC_FOLD_SCALE]
+    st[_F_NH_P + 4] = st[_FC_NHC_LEAK_VAR]
+    st[_F_NH_P + 7] = scale * cxx
+    st[_F_NH_P + 8] = scale * cxy
+    st[_F_NH_P + 9] = scale * cyy
+    st[_F_NH_U0] = ux
+    st[_F_NH_U0 + 1] = uy
+
+
+def _nhc_update(st, t, z, rsum, ix, iy):
+    # a vehicle's lateral update in an outage (codegen.kernel.fused's _nhc_update): the 4-state filter of the speed
+    # error, the lateral leak and the folded offsets from z = (integral of a_lat - s r) / t and the integral (ix, iy)
+    # of u over t; returns the speed error found
+    inv_t = 1.0 / t
+    rbar = rsum * inv_t
+    z *= inv_t
+    unseen = 0.0
     if -st[_FC_NHC_MIN_RATE] < rbar < st[_FC_NHC_MIN_RATE]:
-        rbar = 0.0  # no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle
+        unseen = rbar * rbar  # no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle
+        rbar = 0.0
+    dux = st[_F_NH_U0] - ix * inv_t  # u0 - ubar; n0 - nbar = (-duy, dux)
+    duy = st[_F_NH_U0 + 1] - iy * inv_t
+    p = [[0.0] * 4 for _ in range(4)]
+    n = _F_NH_P
+    for i in range(4):
+        for j in range(i, 4):
+            p[i][j] = p[j][i] = st[n]
+            n += 1
+    f2 = t * dux  # predict: F = I + (row 0: T du in columns 2, 3)
+    f3 = t * duy
+    fp = [f2 * p[2][j] + f3 * p[3][j] for j in range(4)]
+    for j in range(4):
+        p[0][j] += fp[j]
+        p[j][0] = p[0][j]
+    p[0][0] += fp[2] * f2 + fp[3] * f3 + st[_FC_NHC_SPEED_Q] * t
     turn = st[_FC_NHC_LEAK_TURN] * rsum
-    pss = st[_F_NH_P] + st[_FC_NHC_SPEED_Q] * t
-    psb = st[_F_NH_P + 1]
-    pbb = st[_F_NH_P + 2] + turn * turn
-    hs = -rbar * pss + psb  # P h^T, h = (-rbar, 1)
-    hb = -rbar * psb + pbb
-    inv_s = 1.0 / (-rbar * hs + hb + st[_FC_NHC_VAR] / t)
-    ks = hs * inv_s
-    kb = hb * inv_s
-    y = z - st[_F_NH_B]
-    st[_F_NH_B] += kb * y
-    st[_F_NH_P] = pss - ks * hs
-    st[_F_NH_P + 1] = psb - ks * hb
-    st[_F_NH_P + 2] = pbb - kb * hb
-    st[_F_NH_T] = st[_F_NH_Z] = st[_F_NH_R] = 0.0
-    return ks * y
+    p[1][1] += turn * turn
+    h = (-rbar, 1.0, -duy, dux)
+    ph = [p[i][0] * h[0] + p[i][1] * h[1] + p[i][2] * h[2] + p[i][3] * h[3] for i in range(4)]
+    s = st[_FC_NHC_VAR] * inv_t + unseen * p[0][0]
+    for i in range(4):
+        s += h[i] * ph[i]
+    inv_s = 1.0 / s
+    y = z - st[_F_NH_B] - h[2] * st[_F_NH_F] - h[3] * st[_F_NH_F + 1]
+    gain = [ph[i] * inv_s for i in range(4)]
+    st[_F_NH_B] += gain[1] * y
+    st[_F_NH_F] += gain[2] * y
+    st[_F_NH_F + 1] += gain[3] * y
+    n = _F_NH_P
+    for i in range(4):
+        for j in range(i, 4):
+            st[n] = p[i][j] - gain[i] * ph[j]
+            n += 1
+    st[_F_NH_T] = st[_F_NH_Z] = st[_F_NH_R] = st[_F_NH_I] = st[_F_NH_I + 1] = 0.0
+    return gain[0] * y
 
 
 def _fused_filter(st, ve, vn, moving, t):

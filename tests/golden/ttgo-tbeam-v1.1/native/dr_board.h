@@ -77,5 +77,6 @@
 #define DR_FUSED_NHC_MIN_RATE (0.1f) /* rad/s */
 #define DR_FUSED_NHC_POSITION (1.0f) /* 1: on, 0: off */
 #define DR_FUSED_NHC_LEAK_TURN (0.3f) /* m/s^2 per rad */
+#define DR_FUSED_NHC_FOLD_SCALE (1.0f) /* 1: on, 0: off */
 
 #endif /* DR_BOARD_H */

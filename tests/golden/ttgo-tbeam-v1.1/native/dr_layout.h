@@ -173,6 +173,7 @@ typedef struct {
     float nhc_min_rate; /* rad/s, from nhc_min_rate (rad/s) */
     float nhc_position; /* from nhc_position */
     float nhc_leak_turn; /* m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad) */
+    float nhc_fold_scale; /* from nhc_fold_scale */
 } dr_fused_config;
 
 /* The state. */
@@ -244,12 +245,19 @@ typedef struct {
     float nh_z; /* m/s: the integral of the lateral residual a_lat - speed x rate about Up over that time */
     float nh_r; /* rad: the integral of the rate about Up over that time */
     float nh_b; /* m/s^2: the lateral leak (horizontal specific force across the travel direction) estimated */
-    float nh_p[3]; /* the lateral filter's covariance: speed error (m/s), lateral leak (m/s^2) */
+    /* m/s^2: the accelerometer offsets folded into the tilt (their horizontal part when the outage started, kernel
+     * frame) estimated: a turn shows them */
+    float nh_f[2];
+    float nh_u0[2]; /* the travel direction u when the outage started (kernel frame) */
+    float nh_i[2]; /* s: the integral of u over the time gathered towards the next lateral update */
+    /* the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, folded offsets x,
+     * y (m/s^2); all 0 until the outage's first sample */
+    float nh_p[10];
 } dr_fused_state;
 
-#define DR_FUSED_STATE_FLOATS (129) /* floats in dr_fused_state */
-#define DR_FUSED_CONFIG_FLOATS (48) /* floats in dr_fused_config */
-#define DR_FUSED_PARAMS (48) /* parameters dr_fused_config_set takes */
+#define DR_FUSED_STATE_FLOATS (142) /* floats in dr_fused_state */
+#define DR_FUSED_CONFIG_FLOATS (49) /* floats in dr_fused_config */
+#define DR_FUSED_PARAMS (49) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
 #define DR_FUSED_STATE_Q (0)
 #define DR_FUSED_STATE_GYRO_BIAS_LSB (4)
@@ -318,11 +326,14 @@ typedef struct {
 #define DR_FUSED_STATE_NH_Z (123)
 #define DR_FUSED_STATE_NH_R (124)
 #define DR_FUSED_STATE_NH_B (125)
-#define DR_FUSED_STATE_NH_P (126)
-typedef char dr_fused_state_is_129_floats[
-    sizeof(dr_fused_state) == 129 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_48_floats[
-    sizeof(dr_fused_config) == 48 * sizeof(float) ? 1 : -1];
+#define DR_FUSED_STATE_NH_F (126)
+#define DR_FUSED_STATE_NH_U0 (128)
+#define DR_FUSED_STATE_NH_I (130)
+#define DR_FUSED_STATE_NH_P (132)
+typedef char dr_fused_state_is_142_floats[
+    sizeof(dr_fused_state) == 142 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_49_floats[
+    sizeof(dr_fused_config) == 49 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
     ? 1 : -1];
@@ -411,6 +422,10 @@ typedef char dr_fused_fix_ae_at_50[
  * that is taken back */
 #define DR_FUSED_P_NHC_POSITION (46)
 #define DR_FUSED_P_NHC_LEAK_TURN (47) /* m/s^2 per rad: lateral leak a turn may add (offsets folded into the tilt) */
+/* a vehicle in an outage: the accelerometer offsets the tilt/offset filter has not told apart from the tilt (its
+ * covariance, times this) are estimated too; a turn turns them against the tilt, which shows them along and across
+ * the track (0: not estimated) */
+#define DR_FUSED_P_NHC_FOLD_SCALE (48)
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
@@ -564,6 +579,9 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     if (!(p[DR_FUSED_P_NHC_LEAK_TURN] >= 0.0f)) { /* nhc_leak_turn must be >= 0 */
         return DR_ERR_RANGE;
     }
+    if (!(p[DR_FUSED_P_NHC_FOLD_SCALE] >= 0.0f)) { /* nhc_fold_scale must be >= 0 */
+        return DR_ERR_RANGE;
+    }
     return DR_OK;
 }
 
@@ -617,6 +635,7 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->nhc_min_rate = p[DR_FUSED_P_NHC_MIN_RATE];
     cfg->nhc_position = p[DR_FUSED_P_NHC_POSITION];
     cfg->nhc_leak_turn = p[DR_FUSED_P_NHC_LEAK_TURN];
+    cfg->nhc_fold_scale = p[DR_FUSED_P_NHC_FOLD_SCALE];
 }
 
 /* p <- the board's parameters (dr_board.h), in the order of DR_FUSED_P_*. */
@@ -669,6 +688,7 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_NHC_MIN_RATE] = DR_FUSED_NHC_MIN_RATE;
     p[DR_FUSED_P_NHC_POSITION] = DR_FUSED_NHC_POSITION;
     p[DR_FUSED_P_NHC_LEAK_TURN] = DR_FUSED_NHC_LEAK_TURN;
+    p[DR_FUSED_P_NHC_FOLD_SCALE] = DR_FUSED_NHC_FOLD_SCALE;
 }
 
 /* st <- every field 0, then the declared starting values. */
@@ -686,8 +706,8 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
 /* The buffers dr_native hands the app, in floats: the seed's dr_state | dr_config | scratch (3 * block), the fused
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
-#define DR_FUSED_CONFIG_AT (129)
-#define DR_FUSED_KERNEL_CONFIG_AT (177)
-#define DR_FUSED_BUFFER_FLOATS (189)
+#define DR_FUSED_CONFIG_AT (142)
+#define DR_FUSED_KERNEL_CONFIG_AT (191)
+#define DR_FUSED_BUFFER_FLOATS (203)
 
 #endif /* DR_LAYOUT_H */
