@@ -183,13 +183,7 @@ def build(out: Path, board: Optional[Board] = None, progress: Progress = print, 
     board = tree.board
     if board.target == "circuitpython":
         return build_circuitpython(tree, progress)
-    prepare_build_folder(tree.build_dir)
-    built_from = source_hashes(tree.root)
-    target_dir = tree.build_dir / "app"
-    if target_dir.exists():
-        shutil.rmtree(target_dir)
-    target_dir.mkdir(parents=True)
-    sources = sorted(p for p in tree.app_dir.rglob("*") if p.is_file() and "__pycache__" not in p.parts)
+    built_from, target_dir, sources = _start_app_build(tree)
     progress(
         f"building {len(sources)} app files for {board.name} "
         f"(MicroPython {board.micropython.version}, {board.mpy_arch}, .mpy {mpy_format(board.micropython.version)})"
@@ -221,6 +215,20 @@ def build(out: Path, board: Optional[Board] = None, progress: Progress = print, 
     return result
 
 
+def _start_app_build(tree: GeneratedTree) -> tuple[dict[str, str], Path, list[Path]]:
+    """The start of every app build, MicroPython's and CircuitPython's: OUT/build checked as ours, OUT/app's hashes
+    taken before anything is written (what the build record will say it was built from), OUT/build/app emptied.
+    Returns those hashes, the app folder and OUT/app's files to build."""
+    prepare_build_folder(tree.build_dir)
+    built_from = source_hashes(tree.root)
+    target_dir = tree.build_dir / "app"
+    if target_dir.exists():
+        shutil.rmtree(target_dir)
+    target_dir.mkdir(parents=True)
+    sources = sorted(p for p in tree.app_dir.rglob("*") if p.is_file() and "__pycache__" not in p.parts)
+    return built_from, target_dir, sources
+
+
 _SAFE_NAME = re.compile(r"^[A-Za-z0-9_.\-/]+$")
 
 
@@ -236,13 +244,7 @@ def build_circuitpython(tree: GeneratedTree, progress: Progress = print) -> Buil
     from codegen.deploy.cpimports import check_imports
 
     board = tree.board
-    prepare_build_folder(tree.build_dir)
-    built_from = source_hashes(tree.root)
-    target_dir = tree.build_dir / "app"
-    if target_dir.exists():
-        shutil.rmtree(target_dir)
-    target_dir.mkdir(parents=True)
-    sources = sorted(p for p in tree.app_dir.rglob("*") if p.is_file() and "__pycache__" not in p.parts)
+    built_from, target_dir, sources = _start_app_build(tree)
     progress(f"building {len(sources)} app files for {board.name} (CircuitPython {board.circuitpython.version} "
              f"on {board.circuitpython.board}): .py as CircuitPython runs them")
     result = BuildResult(tree=tree, app_dir=target_dir, image=None)
