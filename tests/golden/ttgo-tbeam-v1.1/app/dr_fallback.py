@@ -1051,8 +1051,11 @@ def fused_process(fstate, samples, dt_us, out):
                 for m in range(filled):  # after a restart the ring fills from slot 0
                     window[m] = st[_F_MED + m]
                 a = _median(window, 0, filled)
-            # the folded offsets turned with the vehicle since the outage began: along u they leak (u0 - u) . f
-            a -= bias + (nh_u0x - ux) * nh_fx + (nh_u0y - uy) * nh_fy
+            if nh_fx or nh_fy:
+                # the folded offsets turned with the vehicle since the outage began: along u they leak (u0 - u) . f
+                a -= bias + (nh_u0x - ux) * nh_fx + (nh_u0y - uy) * nh_fy
+            else:  # the same with f = 0, without the float operations (each allocates here)
+                a -= bias
             if inv_acc > 0.0:  # the deadband gates on the smoothed acceleration (not the road's shaking)
                 ka = dt * inv_acc
                 acc_lp += (ka if ka < 1.0 else 1.0) * (a - acc_lp)
