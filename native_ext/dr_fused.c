@@ -328,7 +328,7 @@ static void dr_fused_nhc_start(const dr_fused_config *cfg, dr_fused_state *st, c
 static void dr_fused_nhc_update(const dr_fused_config *cfg, dr_fused_state *st) {
     const float t = st->nh_t, inv_t = dr_recip(st->nh_t);
     float rbar = st->nh_r * inv_t, z = st->nh_z * inv_t, turn = cfg->nhc_leak_turn * st->nh_r, unseen = 0.0f;
-    float pm[4][4], fr[4], fp[4], h[4], ph[4], gain[4], s, inv_s, y, e, dux, duy;
+    float pm[4][4], fp[4], h[4], ph[4], gain[4], s, inv_s, y, e, dux, duy, f2, f3;
     int i, j, n = 0;
     if (dr_absf(rbar) < cfg->nhc_min_rate) {
         unseen = rbar * rbar; /* no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle */
@@ -343,18 +343,16 @@ static void dr_fused_nhc_update(const dr_fused_config *cfg, dr_fused_state *st) 
             n++;
         }
     }
-    fr[0] = 0.0f; /* predict: F = I + (row 0: T du in columns 2, 3) */
-    fr[1] = 0.0f;
-    fr[2] = t * dux;
-    fr[3] = t * duy;
+    f2 = t * dux; /* predict: F = I + (row 0: T du in columns 2, 3) */
+    f3 = t * duy;
     for (j = 0; j < 4; j++) {
-        fp[j] = fr[2] * pm[2][j] + fr[3] * pm[3][j];
+        fp[j] = f2 * pm[2][j] + f3 * pm[3][j];
     }
     for (j = 0; j < 4; j++) {
         pm[0][j] += fp[j];
         pm[j][0] = pm[0][j];
     }
-    pm[0][0] += fp[2] * fr[2] + fp[3] * fr[3];
+    pm[0][0] += fp[2] * f2 + fp[3] * f3;
     pm[0][0] += cfg->nhc_speed_q * t;
     pm[1][1] += turn * turn;
     h[0] = -rbar;

@@ -424,7 +424,7 @@ def _nhc_update(st: FusedState, var: float, fcfg: FusedConfig) -> None:
     duy = st.nh_u0y - st.nh_iy * inv_t
     dnx, dny = -duy, dux  # n0 - nbar
     n = NHC_STATES
-    p = [[getattr(st, NHC_P[min(i, j)][max(i, j)]) for j in range(n)] for i in range(n)]
+    p = [[getattr(st, _NHC_PIJ[(min(i, j), max(i, j))]) for j in range(n)] for i in range(n)]
     # predict: e += T du . (f - f_est): F = I + T du in row 0, columns 2, 3
     fr = (0.0, 0.0, t * dux, t * duy)
     fp = [sum(fr[k] * p[k][j] for k in range(n)) for j in range(n)]  # row 0 of (F - I) P
@@ -454,9 +454,8 @@ def _nhc_update(st: FusedState, var: float, fcfg: FusedConfig) -> None:
     st.nh_b += gain[1] * y
     st.nh_fx += gain[2] * y
     st.nh_fy += gain[3] * y
-    for i in range(n):
-        for j in range(i, n):
-            setattr(st, NHC_P[i][j], p[i][j] - gain[i] * ph[j])
+    for (i, j), name in _NHC_PIJ.items():
+        setattr(st, name, p[i][j] - gain[i] * ph[j])
     st.nh_t = st.nh_z = st.nh_r = st.nh_ix = st.nh_iy = 0.0
 
 
@@ -592,12 +591,10 @@ COVARIANCE_FIELDS = FUSED.field("p").element_names() + FUSED.field("pz").element
 _PIJ = {(i, j): name for (i, j), name in zip([(i, j) for i in range(4) for j in range(i, 4)]
                                              + [(i, 4) for i in range(5)], COVARIANCE_FIELDS)}
 KF_STATES = 5
-# the lateral filter: its covariance's fields by (row, column), upper triangle; everything it restarts
-_NHC_NAMES = FUSED.field("nh_p").element_names()
+# the lateral filter: its covariance's upper triangle, (row, column) -> field, row by row; everything it restarts
 NHC_STATES = 4
-NHC_P = [[None] * NHC_STATES for _ in range(NHC_STATES)]
-for _n, (_i, _j) in zip(_NHC_NAMES, [(i, j) for i in range(NHC_STATES) for j in range(i, NHC_STATES)]):
-    NHC_P[_i][_j] = _n
+_NHC_PIJ = dict(zip([(i, j) for i in range(NHC_STATES) for j in range(i, NHC_STATES)],
+                    FUSED.field("nh_p").element_names()))
 NHC_FIELDS = ("nh_t", "nh_z", "nh_r", "nh_b") + tuple(
     n for f in ("nh_f", "nh_u0", "nh_i", "nh_p") for n in FUSED.field(f).element_names())
 
