@@ -56,3 +56,21 @@ def test_walk_end_to_end(walk, tmp_path, capsys):
     assert abs(roll) < 15 and abs(pitch) < 15
     gpx = (out / "trajectory.gpx").read_text()
     assert "<time>2025-08-28T17:30:" in gpx  # GPST - 18 s leap seconds = UTC
+
+
+def test_gps_option_takes_an_rtklib_solution(walk, tmp_path):
+    """`post IMU.csv --gps run.pos` reads what the folder form reads: the raw IMU CSV through its .tag, the .pos
+    epochs on GPST (it was refused before, with a complaint about the IMU CSV's missing header)."""
+    folder = load_log(walk)
+    pair = load_log(walk / "imu_1730.csv", gps=walk / "gnss_1730_sf.pos")
+    assert pair.time_scale == "gpst"
+    assert np.array_equal(pair.imu.t, folder.imu.t) and np.array_equal(pair.imu.acc, folder.imu.acc)
+    assert np.array_equal(pair.gps.t, folder.gps.t) and np.array_equal(pair.gps.vel, folder.gps.vel)
+    # an IMU CSV of our own format (t,ax,ay,az in g on GPST) goes with a .pos too
+    imu = tmp_path / "imu.csv"
+    rows = ["t,ax,ay,az"] + [f"{t:.4f},{a[0] / 9.80665:.5f},{a[1] / 9.80665:.5f},{a[2] / 9.80665:.5f}"
+                             for t, a in zip(folder.imu.t[:2000], folder.imu.acc[:2000])]
+    imu.write_text("\n".join(rows) + "\n")
+    mine = load_log(imu, gps=walk / "gnss_1730_sf.pos")
+    assert mine.time_scale == "gpst" and len(mine.imu) == 2000
+    assert np.allclose(mine.imu.t, folder.imu.t[:2000], atol=1e-4)

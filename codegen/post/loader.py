@@ -14,14 +14,21 @@ from codegen.post.table import read_text
 UNIX_TIME_2000 = 946684800.0  # s: GPS times beyond this are absolute (UTC), not seconds since a start
 
 
-def read_gps_file(path: Path) -> tuple[GpsSeries, list[str]]:
-    """A GPS log for --gps: the CSV (t,lat,lon,sog,cog,climb), an NMEA log or a GPX track, told apart by content."""
+def read_gps_file(path: Path) -> tuple[GpsSeries, list[str], str]:
+    """A GPS log for --gps: the CSV (t,lat,lon,sog,cog,climb), an NMEA log, a GPX track or an RTKLIB solution
+    (.pos with velocities), told apart by content. Returns the series, notes and its time scale (PostLog's)."""
     text = read_text(path, "GPS log")
+    if rtklib.looks_like_pos(text):
+        series = rtklib.read_pos(path, text)
+        return series, [f"GPS: {path.name}, {len(series)} epochs (RTKLIB solution)"], "gpst"
     if nmealog.looks_like_nmea(text):
-        return to_gps_series(nmealog.read_nmea(path, text), str(path))
-    if gpxlog.looks_like_gpx(text):
-        return to_gps_series(gpxlog.read_gpx(path, text), str(path))
-    return csvlog.read_gps_csv(path)
+        series, notes = to_gps_series(nmealog.read_nmea(path, text), str(path))
+    elif gpxlog.looks_like_gpx(text):
+        series, notes = to_gps_series(gpxlog.read_gpx(path, text), str(path))
+    else:
+        series, notes = csvlog.read_gps_csv(path)
+    absolute = len(series) > 0 and series.t[0] > UNIX_TIME_2000
+    return series, notes, "utc" if absolute else "relative"
 
 
 def load_log(log: Path, gps: Optional[Path] = None) -> PostLog:
@@ -31,10 +38,13 @@ def load_log(log: Path, gps: Optional[Path] = None) -> PostLog:
     if gps is not None:
         if log.is_dir():
             raise UserError(f"{log} is a folder; --gps goes with an IMU CSV file")
-        imu, imu_notes = csvlog.read_imu_csv(log)
-        series, gps_notes = read_gps_file(Path(gps))
-        absolute = len(series) > 0 and series.t[0] > UNIX_TIME_2000
-        return PostLog(log.stem, imu, series, notes=imu_notes + gps_notes, time_scale="utc" if absolute else "relative")
+        series, gps_notes, time_scale = read_gps_file(Path(gps))
+        if time_scale == "gpst" and log.with_name(log.name + ".tag").exists():
+            # a logger's raw IMU CSV with its RTKLIB time tags, as in a recording folder
+            imu, imu_notes = rtklib.read_tagged_or_stamped_imu(log)
+        else:
+            imu, imu_notes = csvlog.read_imu_csv(log)
+        return PostLog(log.stem, imu, series, notes=imu_notes + gps_notes, time_scale=time_scale)
     if log.is_dir():
         if any(log.glob("*.pos")):
             return rtklib.read_recording_folder(log)

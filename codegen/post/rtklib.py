@@ -79,9 +79,19 @@ def _pos_time(date: str, clock: str) -> float:
     return calendar.timegm(stamp.timetuple()) + stamp.microsecond * 1e-6
 
 
-def read_pos(path: Path) -> GpsSeries:
+def looks_like_pos(text: str) -> bool:
+    """An RTKLIB solution file: a '%' comment header naming the GPST time and latitude columns."""
+    for line in text.splitlines()[:200]:
+        if line.startswith("%") and "GPST" in line and "latitude" in line:
+            return True
+        if line.strip() and not line.startswith("%"):
+            return False
+    return False
+
+
+def read_pos(path: Path, text: str | None = None) -> GpsSeries:
     """RTKLIB .pos with lat/lon/height and velocity columns (rnx2rtkp/rtkpost with velocity output)."""
-    text = read_text(path, "RTKLIB solution")
+    text = read_text(path, "RTKLIB solution") if text is None else text
     header = None
     rows, numbers = [], []
     for number, line in enumerate(text.splitlines(), start=1):
@@ -214,6 +224,17 @@ def read_sf_imu(path: Path) -> ImuSeries:
     return ImuSeries(data[:, 0], data[:, 1:4] * STANDARD_GRAVITY, data[:, 4:7])
 
 
+def read_tagged_or_stamped_imu(path: Path) -> tuple[ImuSeries, list[str]]:
+    """An IMU CSV beside an RTKLIB solution: the raw logger CSV with its `.tag` (put on GPST through the tag), or
+    the GPS-stamped `*_sf.csv`."""
+    tag_path = path.with_name(path.name + ".tag")
+    if tag_path.exists():
+        tag = read_tag(tag_path)
+        imu, notes = read_raw_imu(path, tag)
+        return imu, [f"IMU: {path.name} via {tag.version} time tags"] + notes
+    return read_sf_imu(path), [f"IMU: {path.name} (already on GPS time)"]
+
+
 def read_recording_folder(folder: Path) -> PostLog:
     """A folder with an RTKLIB .pos (with velocities) and an IMU CSV with its .tag (or a GPS-stamped *_sf.csv)."""
     pos = sorted(folder.glob("*.pos"))
@@ -227,12 +248,5 @@ def read_recording_folder(folder: Path) -> PostLog:
                         hint="post-processing needs accelerometer samples; copy the IMU log next to the .pos")
     gps = read_pos(pos[0])
     notes = [f"GPS: {pos[0].name}, {len(gps)} epochs"]
-    if imu_tagged:
-        tag = read_tag(imu_tagged[0].with_name(imu_tagged[0].name + ".tag"))
-        imu, imu_notes = read_raw_imu(imu_tagged[0], tag)
-        notes.append(f"IMU: {imu_tagged[0].name} via {tag.version} time tags")
-        notes += imu_notes
-    else:
-        imu = read_sf_imu(imu_sf[0])
-        notes.append(f"IMU: {imu_sf[0].name} (already on GPS time)")
-    return PostLog(folder.name, imu, gps, notes=notes, time_scale="gpst")
+    imu, imu_notes = read_tagged_or_stamped_imu(imu_tagged[0] if imu_tagged else imu_sf[0])
+    return PostLog(folder.name, imu, gps, notes=notes + imu_notes, time_scale="gpst")
