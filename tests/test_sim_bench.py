@@ -144,6 +144,10 @@ def test_cli_simulate(capsys, tmp_path):
     assert code == 0
     assert "hold-last-fix" in out and "20 s med" in out
     assert plot.stat().st_size > 10_000
+    from PIL import Image
+
+    with Image.open(plot) as image:  # three panels side by side: the run, the outage zoomed, the error curves
+        assert image.width > 2.5 * image.height
 
 
 def test_cli_simulate_user_errors(capsys):
