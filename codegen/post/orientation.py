@@ -236,6 +236,20 @@ def _window_problem(sj: np.ndarray, tj: np.ndarray, wj: np.ndarray, yaw_fixed: O
     return residual, jacobian
 
 
+def parameter_sigma(jac: np.ndarray, chi2: float) -> np.ndarray:
+    """1-sigma of least-squares parameters from the Jacobian at the solution (scaled by the fit's reduced chi-square
+    when it is above 1). A parameter the data do not fix (a singular or numerically indefinite normal matrix: its
+    inverse has a diagonal that is not positive) has an infinite 1-sigma: it is unknown, not known to be 0."""
+    n = jac.shape[1]
+    try:
+        cov = np.linalg.inv(jac.T @ jac) * max(chi2, 1.0)
+    except np.linalg.LinAlgError:
+        return np.full(n, np.inf)
+    diag = np.diag(cov)
+    good = np.isfinite(diag) & (diag > 0)
+    return np.where(good, np.sqrt(np.where(good, diag, 1.0)), np.inf)
+
+
 def wrap(angle):
     return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
 
@@ -286,11 +300,7 @@ def fit_mounting(iv: Intervals, estimate_bias: bool = True, bias_prior: float = 
     n = best.x.size
     dof = max(best.fun.size - n, 1)
     chi2 = 2 * best.cost / dof
-    try:
-        cov = np.linalg.inv(best.jac.T @ best.jac) * max(chi2, 1.0)
-        sig = np.sqrt(np.diag(cov))
-    except np.linalg.LinAlgError:
-        sig = np.full(n, np.inf)
+    sig = parameter_sigma(best.jac, chi2)
     if estimate_bias and chi2 > bias_max_chi2:
         fixed = fit_mounting(iv, False)
         fixed.bias_rejected = True
@@ -378,12 +388,7 @@ def solve_orientations(iv: Intervals, options: OrientationOptions, bias: np.ndar
         dof = max(res.fun.size - n, 1)
         chi2 = 2 * res.cost / dof
         chi2s[k] = chi2
-        try:
-            cov = np.linalg.inv(res.jac.T @ res.jac) * max(chi2, 1.0)
-            sd = np.sqrt(np.diag(cov))
-        except np.linalg.LinAlgError:
-            sd = np.full(n, np.nan)
-        sigma[k, :n] = sd
+        sigma[k, :n] = parameter_sigma(res.jac, chi2)
         if chi2 > options.poor_fit_chi2:
             flags[k].append(FLAG_POOR_FIT)
         # closed-form cross-check on the same weighted vectors

@@ -17,7 +17,7 @@ from codegen.errors import UserError
 
 MANIFEST = "post-manifest.json"
 WRITER = "deadreckon post"
-OUTPUT_NAMES = ("trajectory.csv", "trajectory.gpx", "angles.csv", "report.txt", "report.json",
+OUTPUT_NAMES = ("trajectory.csv", "trajectory.gpx", "trajectory.html", "angles.csv", "report.txt", "report.json",
                 "angles.png", "velocity.png", "trajectory.png", "delay.png")
 
 

@@ -67,12 +67,12 @@ class PostResult:
     @property
     def velocity_residual_rms(self) -> float:
         r = self.velocity_residual[np.isfinite(self.velocity_residual).all(axis=1)]
-        return float(np.sqrt(np.mean(r**2)))
+        return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
 
     @property
     def imu_velocity_residual_rms(self) -> float:
         r = self.imu_velocity_residual[np.isfinite(self.imu_velocity_residual).all(axis=1)]
-        return float(np.sqrt(np.mean(r**2)))
+        return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
 
 
 def check_log(log: PostLog) -> None:
