@@ -83,6 +83,8 @@ class Span:
     gyro: bool  # orientation from the gyro (else Slerp)
     rotation: Optional[Callable[[np.ndarray], Rotation]] = None
     end_sigma: Optional[np.ndarray] = None  # (3,) rad, roll/pitch/yaw 1-sigma at the ends (else the model's)
+    aligned: str = "both"  # which ends the gyro's integral is aligned at: "both", "before" or "after" (a stand)
+    bridged: float = 0.0  # s between the solved intervals around the gap itself (a and b before reaching over stands)
 
 
 @dataclass
@@ -125,7 +127,10 @@ class GapModel:
                 tilt[sel] = np.hypot(span.end_sigma[0], span.end_sigma[1])
             d0, d1 = t[sel] - span.a, span.b - t[sel]
             if span.gyro:
-                grow = np.sqrt(d0 * d1 / (span.b - span.a))  # Brownian bridge of the rate noise, sqrt(s)
+                # Brownian bridge of the rate noise between two aligned ends, sqrt(s); a random walk from the one
+                # aligned end when the other is a stand (its yaw is not solved)
+                grow = {"both": np.sqrt(d0 * d1 / (span.b - span.a)), "before": np.sqrt(d0),
+                        "after": np.sqrt(d1)}[span.aligned]
                 yaw[sel] = np.hypot(yaw[sel], GYRO_NOISE_DENSITY * grow)
                 tilt[sel] = np.hypot(tilt[sel], GYRO_NOISE_DENSITY * grow)
             else:
@@ -147,7 +152,7 @@ class GapModel:
         out = np.zeros(len(t))
         for span in self.spans:
             sel = (t > span.a) & (t < span.b)
-            out[sel] = CORRELATION_FRACTION * (span.b - span.a)
+            out[sel] = CORRELATION_FRACTION * (span.bridged or (span.b - span.a))  # a stand adds no GPS-less motion
         return out
 
     def rotate(self, t: np.ndarray, acc: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -213,14 +218,17 @@ def _align(offsets: Rotation) -> tuple[Rotation, np.ndarray]:
     return mean, sigma
 
 
-def _gyro_span(t: np.ndarray, gyro: np.ndarray, slerp: Callable[[np.ndarray], Rotation], solved_t: np.ndarray,
-               a: float, b: float) -> tuple[Callable[[np.ndarray], Rotation], np.ndarray]:
-    """Sensor->ENU rotation on [a, b] from the gyro, and the 1-sigma (roll, pitch, yaw, rad) of its alignment.
+def _gyro_span(t: np.ndarray, gyro: np.ndarray, slerp: Callable[[np.ndarray], Rotation], align_t: np.ndarray,
+               a: float, b: float) -> tuple[Callable[[np.ndarray], Rotation], np.ndarray, str]:
+    """Sensor->ENU rotation on [a, b] from the gyro, the 1-sigma (roll, pitch, yaw, rad) of its alignment, and
+    which ends it was aligned at.
 
-    The gyro's integral G(t) is set against the solved orientations S of the intervals within `ALIGN_WINDOW` before a
-    and after b: the mean offset S G^-1 on each side (a single solved interval's angles are noisy, their mean over
-    a few seconds is not), then Slerp from the one before to the one after across the span, so the gyro's drift
-    over the span is taken out in proportion to the time elapsed."""
+    The gyro's integral G(t) is set against the solved orientations S of the intervals `align_t` within
+    `ALIGN_WINDOW` before a and after b: the mean offset S G^-1 on each side (a single solved interval's angles are
+    noisy, their mean over a few seconds is not), then Slerp from the one before to the one after across the span,
+    so the gyro's drift over the span is taken out in proportion to the time elapsed. Where one side has no interval
+    to align to (a stand: its yaw is held, not solved), the other side's offset holds across the whole span: the
+    heading through a stand is the one the motion on the other side established, turned by the gyro."""
     lo, hi = a - ALIGN_WINDOW, b + ALIGN_WINDOW
     times, rates, integral = _integrate(t, gyro, lo, hi)
 
@@ -228,17 +236,26 @@ def _gyro_span(t: np.ndarray, gyro: np.ndarray, slerp: Callable[[np.ndarray], Ro
         k = np.clip(np.searchsorted(times, tt, side="right") - 1, 0, len(times) - 2)
         return integral[k] * Rotation.from_rotvec(rates[k] * (tt - times[k])[:, None])
 
-    before = solved_t[(solved_t >= lo) & (solved_t <= a)]
-    after = solved_t[(solved_t >= b) & (solved_t <= hi)]
-    left, s_left = _align(slerp(before) * gyro_at(before).inv())
-    right, s_right = _align(slerp(after) * gyro_at(after).inv())
-    offsets = Rotation.concatenate([left, right])
-    across = Slerp([a, b], offsets)
+    before = align_t[(align_t >= lo) & (align_t <= a + 1e-9)]
+    after = align_t[(align_t >= b - 1e-9) & (align_t <= hi)]
+    sides = []
+    if len(before):
+        left, s_left = _align(slerp(before) * gyro_at(before).inv())
+        sides.append((left, s_left))
+    if len(after):
+        right, s_right = _align(slerp(after) * gyro_at(after).inv())
+        sides.append((right, s_right))
+    aligned = "both" if len(before) and len(after) else "before" if len(before) else "after"
+    if aligned == "both":
+        across = Slerp([a, b], Rotation.concatenate([left, right]))
+    else:
+        offset = sides[0][0]
+        across = lambda tt: Rotation.concatenate([offset] * len(np.atleast_1d(tt)))  # noqa: E731
 
     def rotation(tt: np.ndarray) -> Rotation:
         return across(np.clip(tt, a, b)) * gyro_at(tt)
 
-    return rotation, np.maximum(s_left, s_right)
+    return rotation, np.max([sigma for _, sigma in sides], axis=0), aligned
 
 
 def estimate_gyro_bias(t: np.ndarray, gyro: np.ndarray, slerp: Callable[[np.ndarray], Rotation],
@@ -268,9 +285,14 @@ def estimate_gyro_bias(t: np.ndarray, gyro: np.ndarray, slerp: Callable[[np.ndar
 
 def gap_model(slerp: Callable[[np.ndarray], Rotation], solved_t: np.ndarray, solved_euler: np.ndarray,
               solved_sigma: np.ndarray, gps_t: np.ndarray, imu_t: np.ndarray, gyro: Optional[np.ndarray],
-              bias_sigma: float = 0.0) -> GapModel:
+              bias_sigma: float = 0.0, standing: Optional[np.ndarray] = None) -> GapModel:
     """The spans of the gaps in `gps_t` between the solved intervals (midpoints `solved_t`, Euler roll/pitch/yaw)
-    around them; their orientation from the gyro where there is one; the rates their angle errors grow at."""
+    around them; their orientation from the gyro where there is one; the rates their angle errors grow at.
+
+    `standing` (bool per solved interval): the device stood, so its yaw was held, not solved. With a gyro, a span
+    reaches over the stands next to its gap to the nearest interval whose yaw was solved (or to the end of the log),
+    and is aligned only to such intervals: a held yaw is not a solved one, and a vehicle does not turn while it
+    stands."""
     gaps = find_gaps(gps_t)
     yaw_rate, tilt_rate = _angle_rates(solved_t, solved_euler)
     end_sigma = np.zeros(3)
@@ -287,15 +309,26 @@ def gap_model(slerp: Callable[[np.ndarray], Rotation], solved_t: np.ndarray, sol
         model.gyro_bias = estimate_gyro_bias(imu_t, gyro, slerp, covered)
         if model.gyro_bias is None:
             model.notes.append("gyro bias: too little GPS-covered time to estimate it; the gyro is used as logged")
+    standing = np.zeros(len(solved_t), dtype=bool) if standing is None else np.asarray(standing, dtype=bool)
+    solved_yaw_t = solved_t[~standing]
     for gap in gaps:
         before = solved_t[solved_t <= gap.t0 + 1e-9]
         after = solved_t[solved_t >= gap.t1 - 1e-9]
         a = float(before[-1]) if len(before) else gap.t0
         b = float(after[0]) if len(after) else gap.t1
-        span = Span(gap, a, b, gyro=gyro is not None)
+        span = Span(gap, a, b, gyro=gyro is not None, bridged=b - a)
         if gyro is not None and len(before) and len(after):
-            g = gyro - (model.gyro_bias if model.gyro_bias is not None else 0.0)
-            span.rotation, span.end_sigma = _gyro_span(imu_t, g, slerp, solved_t, a, b)
+            yaw_before = solved_yaw_t[solved_yaw_t <= gap.t0 + 1e-9]
+            yaw_after = solved_yaw_t[solved_yaw_t >= gap.t1 - 1e-9]
+            if len(yaw_before) or len(yaw_after):
+                # over the stands next to the gap to the solved yaw beyond them (or the log's end)
+                span.a = float(yaw_before[-1]) if len(yaw_before) else min(a, float(imu_t[0]))
+                span.b = float(yaw_after[0]) if len(yaw_after) else max(b, float(imu_t[-1]))
+                g = gyro - (model.gyro_bias if model.gyro_bias is not None else 0.0)
+                span.rotation, span.end_sigma, span.aligned = _gyro_span(imu_t, g, slerp, solved_yaw_t, span.a,
+                                                                         span.b)
+            else:
+                span.gyro = False
         else:
             span.gyro = False
         model.spans.append(span)

@@ -15,6 +15,7 @@ from codegen.post.delay import DelayEstimate, estimate_delay
 from codegen.post.geodesy import geodetic_to_enu
 from codegen.post.model import Calibration, PostLog
 from codegen.post.orientation import (
+    FLAG_YAW_HELD,
     GPS_GAP_FACTOR,
     Intervals,
     OrientationOptions,
@@ -29,10 +30,12 @@ from codegen.post.orientation import (
     turn_compensated_means,
 )
 from codegen.post.smoother import SmootherOptions, SmootherResult, smooth
+from codegen.post.stands import STILL_GPS_SPEED, learn_stillness
 
 Progress = Optional[Callable[[str, float], None]]
 MIN_IMU_SAMPLES = 10
 MIN_GPS_INTERVALS = 3
+UNSOLVED_YAW_SIGMA = np.radians(30.0)  # a yaw this uncertain is not solved (nothing to align a gyro bridge to)
 
 
 @dataclass
@@ -187,6 +190,47 @@ def _bias_sigma(orientation: OrientationResult, options: OrientationOptions, par
     return float(min(options.bias_prior, np.sqrt(np.mean(found**2))))
 
 
+STAND_BRIDGE_SPEED = 0.5  # m/s: a node is a stand only where the bridge without stands is surely slower than this
+
+
+def _stands_in_gaps(t: np.ndarray, acc: np.ndarray, gyro: Optional[np.ndarray], gps, gaps: GapModel,
+                    bridge: SmootherResult):
+    """(zero_velocity(nodes) -> 1-sigma or NaN, seconds stood) for the smoother, or (None, 0) where the device did
+    not stand inside any gap. A node stands when the IMU's window there is as quiet as the run's own stands
+    (codegen.post.stands), and either the bridge without stands is slower than `STAND_BRIDGE_SPEED` there by more
+    than its 1-sigma (a smooth cruise can be as quiet as a stand; it is not as slow), or the whole gap is a stand:
+    GPS stood at both ends and the IMU is quiet all through it (without a gyro the bridge's speed says little)."""
+    if not gaps.spans:
+        return None, 0.0
+    stillness = learn_stillness(t, acc, gyro, gps.t, gps.vel)
+    nodes = bridge.t
+    speed = np.hypot(bridge.vel[:, 0], bridge.vel[:, 1])
+    speed_sigma = np.hypot(bridge.sigma_vel[:, 0], bridge.sigma_vel[:, 1])
+    gps_speed = np.hypot(gps.vel[:, 0], gps.vel[:, 1])
+    stands = np.zeros(len(nodes), dtype=bool)
+    for span in gaps.spans:
+        inside = np.flatnonzero((nodes > span.gap.t0) & (nodes < span.gap.t1))
+        if not len(inside):
+            continue
+        quiet = stillness.still(t, acc, gyro, nodes[inside])
+        ends_still = gps_speed[span.gap.index] < STILL_GPS_SPEED and gps_speed[span.gap.index + 1] < STILL_GPS_SPEED
+        if ends_still and quiet.all():
+            stands[inside] = True
+        else:
+            stands[inside] = quiet & (speed[inside] + speed_sigma[inside] < STAND_BRIDGE_SPEED)
+    if not stands.any():
+        return None, 0.0
+    stand_t = nodes[stands]
+    sigma = stillness.velocity_sigma
+
+    def zero_velocity(at: np.ndarray) -> np.ndarray:
+        hit = np.isin(np.round(at, 9), np.round(stand_t, 9))
+        return np.where(hit, sigma, np.nan)
+
+    step = np.median(np.diff(nodes)) if len(nodes) > 1 else 0.0
+    return zero_velocity, float(stands.sum() * step)
+
+
 def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progress = None) -> PostResult:
     check_log(log)
     notes = list(log.notes)
@@ -268,8 +312,11 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     orientation, iv = _orient(t, acc, log, options.orientation, track, progress)
     # 3. across GPS gaps: the orientation from the gyro (where logged) or Slerp, and how uncertain it is there
     ok = orientation.valid
+    # a stand: the yaw was held (or, at the first interval, left all but free) while the track had no direction
+    free = ~(orientation.sigma[:, 2] < UNSOLVED_YAW_SIGMA)
+    standing = (np.array([FLAG_YAW_HELD in f for f in orientation.flags]) | free) & ~iv.moving
     gaps = gap_model(orientation.slerp(), orientation.t[ok], orientation.euler[ok], orientation.sigma[ok], gps.t, t,
-                     log.imu.gyro, _bias_sigma(orientation, options.orientation, parts))
+                     log.imu.gyro, _bias_sigma(orientation, options.orientation, parts), standing=standing[ok])
     notes += gaps.notes
     a_enu, a_noise = gaps.rotate(t, acc, orientation.bias)
     # where GPS covers the run, how far the IMU's velocity change over an interval misses the GPS's: beyond what the
@@ -283,6 +330,14 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     # 4. final smoothing: one pass over the whole log, so position and velocity carry across every GPS gap
     result = smooth(t, a_enu, gps.t, gps.vel, gps.sigma_vel, gps_enu, gps.sigma_pos, options.smoother,
                     progress=progress, extra_accel_noise=gap_noise)
+    # 5. where the device stood inside a gap (the IMU as quiet as the run's stands, and the bridge slow there):
+    #    again, with zero-velocity measurements at those nodes
+    zero_velocity, stood = _stands_in_gaps(t, acc, log.imu.gyro, gps, gaps, result)
+    if zero_velocity is not None:
+        notes.append(f"stood still inside GPS gaps for {stood:.1f} s (the IMU as quiet as the run's stands): "
+                     "zero-velocity measurements there")
+        result = smooth(t, a_enu, gps.t, gps.vel, gps.sigma_vel, gps_enu, gps.sigma_pos, options.smoother,
+                        progress=progress, extra_accel_noise=gap_noise, zero_velocity=zero_velocity)
     residual = np.full((len(gps), 3), np.nan)
     ok = result.gps_index >= 0
     residual[ok] = gps.vel[ok] - result.vel[result.gps_index[ok]]

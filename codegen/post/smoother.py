@@ -40,6 +40,8 @@ class SmootherResult:
     sigma_vel: np.ndarray  # (T,3)
     gps_index: np.ndarray  # (M,) node index of each GPS epoch used (-1 when outside)
     filtered_vel: np.ndarray  # (T,3) forward-filter velocity (before smoothing)
+    covariance: Optional[np.ndarray] = None  # (T,3,3,3) per node and axis: smoothed covariance of (p, v, b)
+    filtered_covariance: Optional[np.ndarray] = None  # (T,3,3,3): the forward filter's, after the node's updates
 
 
 def _transition(dt: float) -> tuple[np.ndarray, None]:
@@ -74,16 +76,20 @@ def node_times(start: float, end: float, rate: float, epochs: np.ndarray) -> np.
 
 def smooth(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gps_vel: np.ndarray, gps_sigma_vel: np.ndarray,
            gps_pos: Optional[np.ndarray], gps_sigma_pos: Optional[np.ndarray], options: SmootherOptions = SmootherOptions(),
-           progress=None, extra_accel_noise: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> SmootherResult:
+           progress=None, extra_accel_noise: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+           zero_velocity: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> SmootherResult:
     """One KF + RTS pass from the first to the last GPS epoch inside the IMU span. Between epochs (a gap of any
     length included) the state is carried by the IMU alone; `extra_accel_noise(t)` gives, per node, an added
     acceleration noise (m/s^2/sqrt(Hz), per axis) for the step that ends there: where the ENU accelerations are less
-    certain than `accel_noise` says (orientation interpolated across a GPS gap), the 1-sigma grows with it."""
+    certain than `accel_noise` says (orientation interpolated across a GPS gap), the 1-sigma grows with it.
+    `zero_velocity(t)` gives, per node, the 1-sigma (m/s) of a zero-velocity pseudo-measurement there (NaN: none):
+    where the device stood inside a gap (codegen.post.stands)."""
     start, end = max(imu_t[0], gps_t[0]), min(imu_t[-1], gps_t[-1])
     inside = (gps_t >= start) & (gps_t <= end)
     nodes = node_times(start, end, options.rate, gps_t[inside])
     n = len(nodes)
     extra = np.zeros((n, 3)) if extra_accel_noise is None else np.broadcast_to(extra_accel_noise(nodes), (n, 3))
+    still_sigma = np.full(n, np.nan) if zero_velocity is None else np.asarray(zero_velocity(nodes), dtype=float)
     # exact ZOH increments of the IMU input between consecutive nodes
     edges = sample_edges(imu_t)
     cum_v, cum_p = integrate_zoh(acc_enu, np.diff(edges), np.zeros(3))
@@ -140,6 +146,8 @@ def smooth(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gps_vel: n
             x, p = _update(x, p, 1, gps_vel[m], gps_sigma_vel[m])
             if use_pos:
                 x, p = _update(x, p, 0, gps_pos[m], gps_sigma_pos[m])
+        if np.isfinite(still_sigma[i]):
+            x, p = _update(x, p, 1, np.zeros(3), np.full(3, still_sigma[i]))
         xs_f[i], ps_f[i] = x, p
         if progress and i % report_every == 0:
             progress("filter", i / n)
@@ -155,7 +163,8 @@ def smooth(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gps_vel: n
     if progress:
         progress("smoother", 1.0)
     sd = np.sqrt(np.maximum(np.diagonal(ps, axis1=2, axis2=3), 0.0))
-    return SmootherResult(nodes, xs[:, :, 0], xs[:, :, 1], xs[:, :, 2], sd[:, :, 0], sd[:, :, 1], gps_index, xs_f[:, :, 1])
+    return SmootherResult(nodes, xs[:, :, 0], xs[:, :, 1], xs[:, :, 2], sd[:, :, 0], sd[:, :, 1], gps_index,
+                          xs_f[:, :, 1], ps, ps_f)
 
 
 def _update(x, p, state: int, z: np.ndarray, sigma: np.ndarray):

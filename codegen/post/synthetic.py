@@ -23,6 +23,7 @@ MPU6050_NOISE_DENSITY = 400e-6 * STANDARD_GRAVITY  # m/s^2/sqrt(Hz), datasheet 4
 MPU6050_GYRO_NOISE_DENSITY = np.radians(0.005)  # rad/s/sqrt(Hz), datasheet 0.005 deg/s/sqrt(Hz)
 MPU6050_GYRO_LSB_PER_DPS = 131.0  # +-250 deg/s range
 ORIGIN = (47.3769, 8.5417, 408.0)  # lat, lon, h of the start
+STOP_RAMP = 6.0  # s, the vehicle slows to a stop (and pulls away) over this long
 
 
 @dataclass
@@ -38,6 +39,7 @@ class Scenario:
     quantise: bool = True
     seed: int = 1
     gyro_bias_dps: tuple[float, float, float] = (0.4, -0.7, 0.3)  # deg/s, left after a calibration at rest
+    stops: tuple[tuple[float, float], ...] = ()  # (start, end) s where the vehicle stands (speed ramps to 0 before)
 
 
 @dataclass
@@ -45,13 +47,52 @@ class Truth:
     scenario: Scenario
     mounting: Rotation
 
+    def _stopped(self, t):
+        """(w, dw): the factor on the speed (1 moving, 0 standing; a raised-cosine ramp of `STOP_RAMP` before and
+        after each stop) and its time derivative."""
+        t = np.asarray(t, dtype=float)
+        w, dw = np.ones_like(t), np.zeros_like(t)
+        for t0, t1 in self.scenario.stops:
+            for edge, sign in ((t0, -1.0), (t1, 1.0)):
+                # down over [t0 - ramp, t0], up over [t1, t1 + ramp]
+                u = (t - (edge - STOP_RAMP if sign < 0 else edge)) / STOP_RAMP
+                inside = (u > 0.0) & (u < 1.0)
+                ramp = 0.5 - 0.5 * sign * np.cos(np.pi * u)  # sign<0: 1 -> 0, sign>0: 0 -> 1
+                d = 0.5 * sign * np.pi / STOP_RAMP * np.sin(np.pi * u)
+                dw = np.where(inside, dw * ramp + w * d, dw)
+                w = np.where(inside, w * ramp, w)
+            standing = (t >= t0) & (t <= t1)
+            w, dw = np.where(standing, 0.0, w), np.where(standing, 0.0, dw)
+        return w, dw
+
     def _speed(self, t):
+        if self.scenario.stops:
+            s, ds = self._moving_speed(t)
+            w, dw = self._stopped(t)
+            return s * w, ds * w + s * dw
+        return self._moving_speed(t)
+
+    def _heading(self, t):
+        """Heading (rad from East) and its rate: a vehicle does not turn while it stands, so with stops the heading is
+        the integral of the moving rate times the speed factor."""
+        if not self.scenario.stops:
+            return self._moving_heading(t)
+        t = np.asarray(t, dtype=float)
+        fine = np.arange(0.0, self.scenario.duration + 2.0, 1e-3)
+        _, dy_fine = self._moving_heading(fine)
+        rate = dy_fine * self._stopped(fine)[0]
+        y_fine = self._moving_heading(np.zeros(1))[0][0] + np.concatenate(
+            [[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * 1e-3)])
+        _, dy = self._moving_heading(t)
+        return np.interp(t, fine, y_fine), dy * self._stopped(t)[0]
+
+    def _moving_speed(self, t):
         s = 10.0 + 3.0 * np.sin(2 * np.pi * t / 23.0) + 2.0 * np.sin(2 * np.pi * t / 9.0 + 1.0) + 0.6 * np.sin(2 * np.pi * t / 4.1)
         ds = (3.0 * 2 * np.pi / 23.0 * np.cos(2 * np.pi * t / 23.0) + 2.0 * 2 * np.pi / 9.0 * np.cos(2 * np.pi * t / 9.0 + 1.0)
               + 0.6 * 2 * np.pi / 4.1 * np.cos(2 * np.pi * t / 4.1))
         return s, ds
 
-    def _heading(self, t):
+    def _moving_heading(self, t):
         y = 1.2 * np.sin(2 * np.pi * t / 37.0) + 0.8 * np.sin(2 * np.pi * t / 13.0 + 0.5) + 0.02 * t
         dy = 1.2 * 2 * np.pi / 37.0 * np.cos(2 * np.pi * t / 37.0) + 0.8 * 2 * np.pi / 13.0 * np.cos(2 * np.pi * t / 13.0 + 0.5) + 0.02
         return y, dy
