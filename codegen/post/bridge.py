@@ -289,7 +289,8 @@ def gap_model(slerp: Callable[[np.ndarray], Rotation], solved_t: np.ndarray, sol
     """The spans of the gaps in `gps_t` between the solved intervals (midpoints `solved_t`, Euler roll/pitch/yaw)
     around them; their orientation from the gyro where there is one; the rates their angle errors grow at.
 
-    `standing` (bool per solved interval): the device stood, so its yaw was held, not solved. With a gyro, a span
+    `standing` (bool per solved interval): the device stood, so the track had no direction and its yaw was held, or
+    solved against a track direction held from before, not solved from motion. With a gyro, a span
     reaches over the stands next to its gap to the nearest interval whose yaw was solved (or to the end of the log),
     and is aligned only to such intervals: a held yaw is not a solved one, and a vehicle does not turn while it
     stands."""

@@ -15,7 +15,6 @@ from codegen.post.delay import DelayEstimate, estimate_delay
 from codegen.post.geodesy import geodetic_to_enu
 from codegen.post.model import Calibration, PostLog
 from codegen.post.orientation import (
-    FLAG_YAW_HELD,
     GPS_GAP_FACTOR,
     Intervals,
     OrientationOptions,
@@ -35,7 +34,6 @@ from codegen.post.stands import STILL_GPS_SPEED, learn_stillness
 Progress = Optional[Callable[[str, float], None]]
 MIN_IMU_SAMPLES = 10
 MIN_GPS_INTERVALS = 3
-UNSOLVED_YAW_SIGMA = np.radians(30.0)  # a yaw this uncertain is not solved (nothing to align a gyro bridge to)
 
 
 @dataclass
@@ -312,9 +310,9 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     orientation, iv = _orient(t, acc, log, options.orientation, track, progress)
     # 3. across GPS gaps: the orientation from the gyro (where logged) or Slerp, and how uncertain it is there
     ok = orientation.valid
-    # a stand: the yaw was held (or, at the first interval, left all but free) while the track had no direction
-    free = ~(orientation.sigma[:, 2] < UNSOLVED_YAW_SIGMA)
-    standing = (np.array([FLAG_YAW_HELD in f for f in orientation.flags]) | free) & ~iv.moving
+    # a stand: the track had no direction, so the yaw was held, or solved against a track direction held from the
+    # motion before (wrong by however far the device turned in a gap since): neither is a solved yaw
+    standing = ~iv.moving
     gaps = gap_model(orientation.slerp(), orientation.t[ok], orientation.euler[ok], orientation.sigma[ok], gps.t, t,
                      log.imu.gyro, _bias_sigma(orientation, options.orientation, parts), standing=standing[ok])
     notes += gaps.notes
