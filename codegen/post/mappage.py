@@ -137,7 +137,10 @@ def _leaflet_data(layers: MapLayers) -> str:
 _SCRIPT = """
 (function () {
   var note = document.getElementById("basemap-note");
-  if (typeof L === "undefined") { note.textContent = "basemap: not loaded (no network); the track above is the map"; return; }
+  if (typeof L === "undefined") {
+    note.textContent = "basemap: not loaded (no network); the track above is the map";
+    return;
+  }
   var d = JSON.parse(document.getElementById("layers").textContent), c = d.colours;
   var box = document.getElementById("basemap");
   box.style.height = "520px";
@@ -146,9 +149,11 @@ _SCRIPT = """
               {maxZoom: 21, maxNativeZoom: 19, attribution: "&copy; OpenStreetMap contributors"}).addTo(map);
   d.bands.forEach(function (b) { b[0].forEach(function (p, i) {
     L.circle(p, {radius: b[1][i], stroke: false, fillColor: c.band, fillOpacity: 0.5}).addTo(map); }); });
-  d.fixes.forEach(function (p) { L.circleMarker(p, {radius: 2, stroke: false, fillColor: c.fix, fillOpacity: 1}).addTo(map); });
+  d.fixes.forEach(function (p) {
+    L.circleMarker(p, {radius: 2, stroke: false, fillColor: c.fix, fillOpacity: 1}).addTo(map); });
   var line = L.polyline(d.path, {color: c.path, weight: 2}).addTo(map);
-  d.flagged.forEach(function (f) { L.polyline(f[0], {color: c.flagged, weight: 5, opacity: 0.6}).bindTooltip(f[1]).addTo(map); });
+  d.flagged.forEach(function (f) {
+    L.polyline(f[0], {color: c.flagged, weight: 5, opacity: 0.6}).bindTooltip(f[1]).addTo(map); });
   d.gaps.forEach(function (g) { L.polyline(g, {color: c.gap, weight: 4}).addTo(map); });
   map.fitBounds(line.getBounds());
   note.textContent = "basemap: OpenStreetMap tiles";

@@ -354,9 +354,9 @@ def report_text(result: PostResult) -> str:
         lines.append(f"acc bias   x {b[0]:+.1f} mg, y {b[1]:+.1f} mg, z {b[2]:+.1f} mg (sensor frame, removed)")
     if s["mounting_relative_to_track_deg"] is not None:
         m, ms = s["mounting_relative_to_track_deg"], s["mounting_sigma_deg"]
-        lines.append(f"mounting   roll {m[0]:+.2f}+-{_f(ms[0], '.2f')}, pitch {m[1]:+.2f}+-{_f(ms[1], '.2f')}, yaw vs track "
-                     f"{m[2]:+.2f}+-{_f(ms[2], '.2f')} deg (fit chi2 {_f(s['mounting_fit_chi2'], '.2f')}; >>1: the device "
-                     "turns on its own)")
+        lines.append(f"mounting   roll {m[0]:+.2f}+-{_f(ms[0], '.2f')}, pitch {m[1]:+.2f}+-{_f(ms[1], '.2f')}, "
+                     f"yaw vs track {m[2]:+.2f}+-{_f(ms[2], '.2f')} deg (fit chi2 "
+                     f"{_f(s['mounting_fit_chi2'], '.2f')}; >>1: the device turns on its own)")
     if s["angles_median_deg"] is not None:
         med, lo, hi, sd = s["angles_median_deg"], s["angles_min_deg"], s["angles_max_deg"], s["angle_sigma_median_deg"]
         for i, name in enumerate(("roll", "pitch", "yaw")):
