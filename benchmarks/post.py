@@ -6,6 +6,7 @@
     python3 benchmarks/post.py gaps       # GPS gaps of 1/5/20/60 s: bridge vs Hermite, 1-sigma coverage
     python3 benchmarks/post.py stands     # gaps cut at the walk's stands (ending at, starting at, inside one)
     python3 benchmarks/post.py stops      # synthetic runs with a stop, gaps placed at it, per gap kind
+    python3 benchmarks/post.py device     # the emulated board's own device log: post's delay against the truth
 
 Synthetic: a vehicle with the device at a known mounting, 0.1 m/s Doppler noise per ENU component, a 50 mg
 accelerometer bias, MPU-6050 noise and int16 quantisation, and an injected IMU delay. Walk: rtklibexplorer's handheld
@@ -299,6 +300,44 @@ def synthetic_stops() -> None:
     print()
 
 
+def emulated_device_logs() -> None:
+    """`post` on the log the generated app writes on the emulated T-Beam (codegen/sim/onmicropython.py): the delay it
+    finds against the truth. The truth: each logged IMU row's six counts are found among the MPU-6050 model's
+    samples (index k: truth time k / rate after the run's start), and the fixes' UTC is the NEO-6M model's epoch plus
+    the run's time, so a row's true UTC is known and its lateness in post's input is the true delay."""
+    import tempfile
+
+    from codegen.board.loader import load_board
+    from codegen.post.devicelog import parse_device_log, read_device_log
+    from codegen.sim.neo6m import DEFAULT_EPOCH
+    from codegen.sim.onmicropython import run_on_micropython
+
+    loaded = load_board(ROOT / "board_configs" / "ttgo-tbeam-v1.1.yaml")
+    rate = loaded.board.imu.sample_rate_hz
+    print("## post on the emulated board's own device log (T-Beam v1.1 board file, seed 0, one 10 s outage)")
+    print()
+    print("| scenario | log file | IMU rows | fixes | true delay [ms] | post delay [ms] | post 1-sigma [ms] | at edge |")
+    print("|---|---|---|---|---|---|---|---|")
+    for scenario, t_loss in (("walk", None), ("car", 150.0)):
+        work = Path(tempfile.mkdtemp(prefix=f"post-bench-{scenario}-"))
+        with open(work / "table.txt", "w") as stream:
+            run_on_micropython(loaded, scenario, 10.0, [1.0, 5.0, 10.0], seed=0, work=work, stream=stream,
+                               t_loss=t_loss)
+        counts = np.fromfile(work / "imu.bin", dtype="<i2").reshape(-1, 6)
+        index = {tuple(row): k for k, row in enumerate(counts)}
+        for path in sorted((work / "fs").glob("dr*.bin")):
+            rows = np.array(parse_device_log(path).imu)
+            k = np.array([index.get(tuple(r[1:7].astype(int)), -1) for r in rows])
+            log = read_device_log(path)
+            found = k >= 0
+            true_delay = float(np.median(log.imu.t[found] - (DEFAULT_EPOCH.timestamp() + k[found] / rate)))
+            r = process(log, PostOptions(plots=False))
+            est = r.delay_estimate
+            print(f"| {scenario} | {path.name} | {len(log.imu)} | {len(log.gps)} | {true_delay * 1e3:+.1f} | "
+                  f"{r.delay * 1e3:+.1f} | {est.sigma * 1e3:.1f} | {est.at_edge} |")
+    print()
+
+
 if __name__ == "__main__":
     which = sys.argv[1:] or ["synthetic", "walk", "gaps", "stands", "stops"]
     if "synthetic" in which:
@@ -311,3 +350,5 @@ if __name__ == "__main__":
         stands()
     if "stops" in which:
         synthetic_stops()
+    if "device" in which:
+        emulated_device_logs()
