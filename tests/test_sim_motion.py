@@ -85,7 +85,7 @@ def test_town_car_creeps_with_a_small_high_frequency_share(real_car, town):
     assert all(len(w.speed) >= 10 for w in slow)  # car parks and queues in every drive
     share_slow = np.median(np.concatenate([w.high_share for w in slow]))
     share_fast = np.median(np.concatenate([w.speeds(8.0, 20.0).high_share for *_, w in town]))
-    assert share_slow < 0.8 * share_fast < 0.8 * np.median(real.high_share) * 1.2
+    assert share_slow < 0.8 * share_fast, (share_slow, share_fast)
     # by the fused method's own statistic on a 100 Hz stream (how issue 26 measured its car park: 0.02-0.04)
     real_stat = features.fused_statistic_share(car.t, car.accel)[car.t > 3.0]
     stats = []
