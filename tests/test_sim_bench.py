@@ -184,3 +184,61 @@ def test_on_micropython_the_app_follows_the_reference(capsys, tmp_path):
     lag_s = board.display.refresh_ms / 1000 + 0.3
     assert abs(app[-1] - ref[-1]) < 1.6 * lag_s + 0.1, (app, ref)
     assert abs(app[0] - rows["hold-last-fix (reference)"][0]) < 1.6 * lag_s + 0.1, app
+
+
+def test_replay_car(board):
+    """The real car as the device would see it: the board's IMU rate, 1 Hz fixes on whole UTC seconds, the pose as
+    truth; the baselines land where a car at 8-20 m/s puts them."""
+    from codegen.sim.run import REAL_CAR
+
+    folder = require_shared_data("car-comma2k19", "processed_log").parent
+    run = build_run(REAL_CAR, board, seed=0, car_dir=folder)
+    assert run.counts.dtype == np.int16
+    np.testing.assert_allclose(np.median(np.diff(run.t_us)), 1e6 / board.imu.sample_rate_hz, rtol=1e-3)
+    assert 55 <= len(run.gps.t) <= 61 and np.all(np.abs(np.diff(run.gps.t) - 1.0) < 0.2)
+    # a level car, forward-left-up: gravity on the board's +z
+    f = run.counts[:2000, :3].mean(axis=0)
+    assert f[2] > 0.95 * np.linalg.norm(f)
+    result = evaluate(run, (10.0,), methods={m: methods_mod.METHODS[m] for m in ("hold-last-fix", "const-velocity")},
+                      step=5.0)
+    hold, cv = (np.nanmedian(result.errors[m][:, 1]) for m in ("hold-last-fix", "const-velocity"))
+    assert 100.0 < hold < 230.0 and cv < 40.0, (hold, cv)
+
+
+def test_table_ci_gives_mean_and_worst(walk_run):
+    from codegen.sim.run import format_table_ci
+
+    result = evaluate(walk_run, horizons=(10.0, 30.0),
+                      methods={m: methods_mod.METHODS[m] for m in ("hold-last-fix", "const-velocity")})
+    text = format_table_ci([result], resamples=50)
+    rows = [line.split() for line in text.splitlines()]
+    worst = [r for r in rows if r and r[0] == "worst"]
+    mean = [r for r in rows if r and r[0] == "mean"]
+    assert len(worst) == len(mean) == 2
+    for row, name in zip(worst, ("hold-last-fix", "const-velocity")):
+        assert float(row[1]) == pytest.approx(np.nanmax(result.errors[name][:, 1]), abs=0.05)
+        assert float(row[4]) == pytest.approx(np.nanmax(result.errors[name][:, 2]), abs=0.05)
+    for row, name in zip(mean, ("hold-last-fix", "const-velocity")):
+        assert float(row[1]) == pytest.approx(np.nanmean(result.errors[name][:, 1]), abs=0.05)
+
+
+def test_benchmark_forces_each_platform(board):
+    """benchmarks/accuracy.py runs fused with fused_platform forced beside the board's own: each variant runs the
+    fused pass with that platform, and a pedestrian's model of a car is not the vehicle's."""
+    import sys
+
+    from codegen.kernel import fused
+    from codegen.kernel.layout import FUSED
+    from codegen.sim.run import REAL_CAR
+    from conftest import ROOT
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import accuracy
+
+    run = build_run(REAL_CAR, board, seed=0, car_dir=require_shared_data("car-comma2k19", "processed_log").parent)
+    chosen = {m: accuracy.benchmark_methods()[m] for m in ("fused", "fused-vehicle", "fused-pedestrian")}
+    result = evaluate(run, (10.0,), methods=chosen, step=5.0)
+    platforms = sorted(int(key[1].platform) for key in run.cache if key[0] == "fused_pass" and key[1] is not None)
+    assert platforms == sorted(FUSED.param("platform").code(p) for p in accuracy.PLATFORMS)
+    assert fused.FusedConfig.from_board(board).platform == FUSED.param("platform").code("auto")
+    assert not np.allclose(result.errors["fused-pedestrian"], result.errors["fused-vehicle"])

@@ -206,8 +206,13 @@ def push(count: int = 12, rest_s: float = 12.0, seed: int = 0, rate: float = TRU
 CARRIES = ("hand", "pocket", "backpack")
 
 
+HAND_TREMOR_MG = (11.0, 27.0)  # |f| shaking of a hand holding a device still: issue 26's 22 hand-held walks
+HAND_TREMOR_HZ = (1.5, 12.0)  # the arm's postural sway up to physiological tremor (8-12 Hz)
+HAND_BOB_M = 0.006  # the step bob a holding arm passes on: gnss-imu-walk's |f| shaking while walking (~65 mg)
+
+
 def walk(duration: float = 300.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ,
-         carry: str = "hand") -> Trajectory:
+         carry: str = "hand", stands: bool = False) -> Trajectory:
     """A pedestrian: ~1.4 m/s with steps at ~1.9 Hz (vertical bob, forward surge, sideways sway), turns of
     30..120 degrees, stops at crossings. Where the device is (`carry`):
 
@@ -220,18 +225,24 @@ def walk(duration: float = 300.0, rest_s: float = 12.0, seed: int = 0, rate: flo
       vertical and rolls at the stride rate, bobs and pitches with each step, ~15 cm behind and 45 cm above the
       hips.
 
-    events: "carry", "mount" (the rotation board -> carrier).
+    With `stands` (a hand only) the walker stops at half the legs' ends for 10-60 s, holding the device, and the
+    hand trembles (HAND_TREMOR_MG of |f| shaking, drawn per seed, in HAND_TREMOR_HZ) from the moment it picks the
+    device up. events: "carry", "mount" (the rotation board -> carrier); with stands "stands" ((start s, end s) of
+    each, the speed command's) and "tremor_mg".
     """
     from scipy.spatial.transform import Rotation
 
     if carry not in CARRIES:
         raise ValueError(f"unknown carry {carry!r}; choose from {', '.join(CARRIES)}")
+    if stands and carry != "hand":
+        raise ValueError("stands are modelled for a device held in a hand only")
     rng = np.random.default_rng(seed)
     n = int(round(duration * rate)) + 1
     t = np.arange(n) / rate
     start = int(rest_s * rate)
     # speed: walk / stop segments
     script_v, script_w = [], []
+    standing = []
     elapsed = rest_s
     while elapsed < duration:
         leg = rng.uniform(15.0, 40.0)
@@ -240,8 +251,9 @@ def walk(duration: float = 300.0, rest_s: float = 12.0, seed: int = 0, rate: flo
         turn_s = rng.uniform(1.5, 3.0)
         script_w += [(leg - turn_s, rng.normal(0.0, 0.01)), (turn_s, turn / turn_s)]
         elapsed += leg
-        if rng.random() < 0.35:
-            stop = rng.uniform(3.0, 8.0)
+        if rng.random() < (0.5 if stands else 0.35):
+            stop = rng.uniform(10.0, 60.0) if stands else rng.uniform(3.0, 8.0)
+            standing.append((elapsed, elapsed + stop))
             script_v.append((stop, 0.0))
             script_w.append((stop, 0.0))
             elapsed += stop
@@ -253,7 +265,8 @@ def walk(duration: float = 300.0, rest_s: float = 12.0, seed: int = 0, rate: flo
     step_hz = 1.9 + 0.1 * rng.standard_normal()
     phase = 2 * np.pi * step_hz * (t - rest_s)
     speed = v_cmd + 0.15 * moving * np.sin(phase)
-    climb = 0.025 * 2 * np.pi * step_hz * moving * np.cos(phase)  # ~2.5 cm vertical bob
+    bob = HAND_BOB_M if stands else 0.025  # m: the body's ~2.5 cm vertical bob, or what a holding arm passes on
+    climb = bob * 2 * np.pi * step_hz * moving * np.cos(phase)
     sway = 0.08 * moving * np.sin(phase / 2)  # sideways, half the step rate
     extra = np.stack([sway * np.cos(course), -sway * np.sin(course), np.zeros(n)], axis=-1)
     heading = np.pi / 2 - course
@@ -267,7 +280,17 @@ def walk(duration: float = 300.0, rest_s: float = 12.0, seed: int = 0, rate: flo
         pitch = settle * (np.radians(-25) + np.radians(5) * wander[:, 1] + np.radians(2) * moving * np.sin(phase))
         yaw = heading + np.radians(10) * settle * wander[:, 2]
         attitude = np.stack([roll, pitch, yaw], axis=-1)
-        return _assemble("walk", rate, rest_s, speed, course, climb, extra, attitude, events)
+        if not stands:
+            return _assemble("walk", rate, rest_s, speed, course, climb, extra, attitude, events)
+        # the hand's tremor: a displacement whose acceleration has HAND_TREMOR_MG rms on every axis (|f| sees the
+        # vertical one), faded in as the device is picked up
+        tremor_mg = rng.uniform(*HAND_TREMOR_MG)
+        shake = np.stack([_band_noise(rng, n, rate, *HAND_TREMOR_HZ) for _ in range(3)], axis=-1)
+        accel = np.gradient(np.gradient(shake, 1.0 / rate, axis=0), 1.0 / rate, axis=0)
+        shake *= tremor_mg * 1e-3 * STANDARD_GRAVITY / accel.std(axis=0)
+        extra = extra + np.gradient(shake * settle[:, None], 1.0 / rate, axis=0, edge_order=2)
+        events.update(stands=standing, tremor_mg=tremor_mg)
+        return _assemble("walk-stand", rate, rest_s, speed, course, climb, extra, attitude, events)
     stride = phase / 2 + rng.uniform(0, 2 * np.pi)  # one leg, or the trunk's left-right cycle
     if carry == "pocket":
         thigh = np.radians(5.0) + np.radians(rng.uniform(20.0, 24.0)) * moving * np.sin(stride)
@@ -457,14 +480,185 @@ def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: floa
     return _assemble("car", rate, rest_s, speed, course, climb, extra, attitude, events, mount=rotation)
 
 
+def _town_script(rng, n: int, rate: float, start: int, duration: float):
+    """A drive in town as exact sample counts: (samples, along-track acceleration m/s^2, turn rate rad/s, kind) per
+    segment, kind "park" (creeping in a car park), "queue" (stop-and-go), "road" (an ordinary street), "stand" (the
+    engine idling). Each speed change integrates exactly to its target on the sample grid."""
+    segments = []
+    v = 0.0
+    k = start
+
+    def add(seconds, accel, turn, kind):
+        nonlocal k
+        m = max(1, int(round(seconds * rate)))
+        segments.append((m, accel, turn, kind))
+        k += m
+
+    def reach(target, accel, kind, turn=0.0):
+        nonlocal v
+        if abs(target - v) > 1e-9:
+            m = max(1, int(round(abs(target - v) / accel * rate)))
+            add(m / rate, (target - v) * rate / m, turn, kind)
+        v = target
+
+    while k < n:
+        kind = rng.choice(["park", "queue", "road", "stand"], p=[0.3, 0.3, 0.25, 0.15])
+        if kind == "park":  # aisles at 2-4 m/s, a 90 degree turn at the end of each
+            for _ in range(int(rng.integers(2, 5))):
+                reach(rng.uniform(2.0, 4.0), rng.uniform(0.4, 1.0), kind)
+                add(rng.uniform(4.0, 12.0), 0.0, 0.0, kind)
+                seconds = rng.uniform(4.0, 7.0)
+                add(seconds, 0.0, np.radians(90.0) * rng.choice([-1, 1]) / seconds, kind)
+            reach(0.0, rng.uniform(0.8, 1.5), kind)
+            add(rng.uniform(2.0, 8.0), 0.0, 0.0, "stand")
+        elif kind == "queue":  # creeping traffic: up to 2-7 m/s, brake, wait, again
+            for _ in range(int(rng.integers(3, 7))):
+                reach(rng.uniform(2.0, 7.0), rng.uniform(0.5, 1.2), kind)
+                add(rng.uniform(1.0, 6.0), 0.0, 0.0, kind)
+                reach(0.0, rng.uniform(0.8, 1.5), kind)
+                add(rng.uniform(2.0, 10.0), 0.0, 0.0, "stand")
+        elif kind == "road":  # a street at 8-14 m/s, then a junction: a stop or a turn at 5 m/s
+            reach(rng.uniform(8.0, 14.0), rng.uniform(1.0, 2.0), kind)
+            add(rng.uniform(10.0, 25.0), 0.0, 0.0, kind)
+            if rng.random() < 0.5:
+                reach(5.0, rng.uniform(1.5, 2.5), kind)
+                seconds = rng.uniform(4.0, 6.0)
+                add(seconds, 0.0, np.radians(rng.uniform(60, 100)) * rng.choice([-1, 1]) / seconds, kind)
+            reach(0.0, rng.uniform(1.5, 2.5), kind)
+            add(rng.uniform(2.0, 6.0), 0.0, 0.0, "stand")
+        else:  # a long stop: lights, a barrier, a drop-off
+            reach(0.0, rng.uniform(1.0, 2.0), kind)
+            add(rng.uniform(10.0, 60.0), 0.0, 0.0, "stand")
+    return segments
+
+
+def _band_noise(rng, n: int, rate: float, low_hz: float, high_hz: float) -> np.ndarray:
+    """Gaussian noise of unit rms with a flat spectrum between low_hz and high_hz (FFT-shaped), (n,)."""
+    spectrum = np.fft.rfft(rng.standard_normal(n))
+    hz = np.fft.rfftfreq(n, 1.0 / rate)
+    spectrum[(hz < low_hz) | (hz > high_hz)] = 0.0
+    x = np.fft.irfft(spectrum, n)
+    return x / max(float(np.std(x)), 1e-12)
+
+
+def _body_pitch_mode(a_long: np.ndarray, rate: float, hz: float = 1.3, damping: float = 0.3) -> np.ndarray:
+    """The along-track acceleration as the body's pitch follows it: through its pitch mode (second order, unit
+    static gain), so a sudden change of the pedals rocks the body before it settles."""
+    from scipy.signal import bilinear, lfilter, lfilter_zi
+
+    w = 2 * np.pi * hz
+    b, a = bilinear([w * w], [1.0, 2 * damping * w, w * w], fs=rate)
+    out, _ = lfilter(b, a, a_long, zi=lfilter_zi(b, a) * a_long[0])
+    return out
+
+
+# Calibration of car_town's shaking (docs/simulator.md: what each figure came from, the command that prints it)
+TOWN_HARSHNESS = 0.2  # the wheels' motion reaching the cabin past the springs: car-comma2k19's share above 8 Hz
+TOWN_STAND_MG = (10.0, 20.0)  # an idling engine's |f| shaking at a stand, mg: issue 26's real car waited at 14.5 mg
+TOWN_BUMP_M = (0.05, 0.08)  # speed bumps' height (m) over 2.5-4 m; one in every other car park aisle
+TOWN_PARK_GD = (256e-6, 1024e-6)  # m^3: car park lanes, ISO 8608 class C..D
+TOWN_PEDAL_MS2 = 0.8  # m/s^2 rms, a creeping driver's surge: issue 26's car park share (0.02-0.04, fused's statistic)
+TOWN_ROAD_GD = (16e-6, 64e-6)  # m^3: streets, ISO 8608 class A..B (car-comma2k19's shaking at 8-20 m/s)
+
+
+def car_town(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ) -> Trajectory:
+    """A car in town, the device anywhere in the cabin (any orientation, as car's mount="any"): car parks crept
+    through at 2-4 m/s with 90 degree turns and speed bumps, queues of stop-and-go traffic at 2-7 m/s, streets at
+    8-14 m/s, stands of 2-60 s with the engine idling, the engine started 2-4 s before the car moves.
+
+    The shaking is car's (ISO 8608 road through the quarter-car, the engine) with three calibrations: part of the
+    wheels' own motion reaches the cabin (TOWN_HARSHNESS), the engine's linear shake is vertical with its idle |f|
+    shaking drawn in TOWN_STAND_MG, and car parks are rough and bumpy, so slow driving shakes mostly below 8 Hz.
+    events: "engine_on_s", "mount", "lever_m", "segments" ((start s, end s, kind) per script segment).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from codegen.sim import vibration as vib
+
+    rng = np.random.default_rng(seed)
+    n = int(round(duration * rate)) + 1
+    t = np.arange(n) / rate
+    start = int(rest_s * rate)
+    script = _town_script(rng, n, rate, start, duration)
+    a_cmd, w_cmd = np.zeros(n), np.zeros(n)
+    spans = []
+    k = start
+    for m, accel, turn, kind in script:
+        a_cmd[k : k + m] = accel
+        w_cmd[k : k + m] = turn
+        if k < n:
+            spans.append((k / rate, min(k + m, n - 1) / rate, str(kind)))
+        k += m
+    a_cmd = gaussian_filter1d(a_cmd, 0.3 * rate, mode="nearest")
+    w_cmd = gaussian_filter1d(w_cmd, 0.5 * rate, mode="nearest")
+    # creeping (a car park, a queue), the driver plays the pedals: a zero-mean surge of TOWN_PEDAL_MS2 rms at
+    # 0.2-1.5 Hz on top of the steady speed, which the body answers by pitching on its springs
+    creep = np.zeros(n)
+    for begin, end, kind in spans:
+        if kind in ("park", "queue") and end - begin > 2.0:
+            creep[int(begin * rate) : int(end * rate)] = 1.0
+    creep = gaussian_filter1d(creep, 0.5 * rate, mode="nearest")
+    surge = _band_noise(rng, n, rate, 0.2, 1.5) * TOWN_PEDAL_MS2
+    moving = np.cumsum(a_cmd) / rate > 1.0
+    a_cmd = a_cmd + creep * moving * (surge - np.mean(surge))
+    speed = np.maximum(np.cumsum(a_cmd) / rate, 0.0)
+    speed[speed < 1e-6] = 0.0
+    course = rng.uniform(0, 2 * np.pi) + np.cumsum(w_cmd) / rate
+    distance = np.cumsum(speed) / rate
+    a_long = np.gradient(speed, 1.0 / rate)
+    a_lat = speed * np.gradient(course, 1.0 / rate)
+    roll = np.radians(0.5) * a_lat
+    pitch = -np.radians(0.4) * _body_pitch_mode(a_long, rate)
+    engine_on = rest_s - rng.uniform(2.0, 4.0)
+    # car parks: a bump across every other aisle, and a rough surface (a second, rougher profile felt where the car
+    # creeps through a car park)
+    bumps = []
+    park = np.zeros(n, dtype=bool)
+    for begin, end, kind in spans:
+        if kind != "park":
+            continue
+        i, j = int(begin * rate), min(int(end * rate), n - 1)
+        park[i:j] = True
+        if distance[j] - distance[i] > 5.0 and rng.random() < 0.5:
+            bumps.append((rng.uniform(distance[i] + 2.0, distance[j] - 2.0), rng.uniform(*TOWN_BUMP_M),
+                          rng.uniform(2.5, 4.0)))
+    body_model = vib.VehicleBody(harshness=TOWN_HARSHNESS)
+    road = vib.Road(gd_n0=float(np.exp(rng.uniform(*np.log(TOWN_ROAD_GD)))))
+    heave, pitch_v, roll_v = vib.road_shake(distance, rate, body_model, road, rng, bumps=bumps)
+    lot = vib.Road(gd_n0=float(np.exp(rng.uniform(*np.log(TOWN_PARK_GD)))), potholes_per_km=10.0)
+    lot_heave, lot_pitch, lot_roll = vib.road_shake(distance, rate, body_model, lot, rng)
+    blend = gaussian_filter1d(park.astype(float), 1.0 * rate, mode="nearest")
+    heave += blend * lot_heave
+    roll = roll + roll_v + blend * lot_roll
+    pitch = pitch + pitch_v + blend * lot_pitch
+    stand_mg = rng.uniform(*TOWN_STAND_MG)
+    # an idling inline four shakes vertically at its firing frequency; the DLPF and the harmonics take a little:
+    # the linear amplitude is the idle |f| shaking drawn, in m/s^2 rms
+    engine = vib.Engine(accel_rms_ms2=stand_mg * 1e-3 * STANDARD_GRAVITY, vertical=True)
+    angles, _, _, engine_vel = vib.engine_shake(t, engine.rpm(speed), t >= engine_on, engine, rng)
+    extra = np.zeros((n, 3))
+    extra[:, 2] += np.gradient(heave - heave[0], 1.0 / rate, edge_order=2)
+    extra += engine_vel
+    rotation = Rotation.random(random_state=rng).as_matrix()
+    lever = np.array([rng.uniform(-1.0, 1.5), rng.uniform(-0.7, 0.7), rng.uniform(0.0, 0.8)])
+    body = np.stack([roll, pitch, np.pi / 2 - course], axis=-1)
+    arm = euler_to_matrix(body) @ lever
+    extra += np.gradient(arm - arm[0], 1.0 / rate, axis=0, edge_order=2)
+    events = {"engine_on_s": engine_on, "mount": rotation, "lever_m": lever, "segments": spans,
+              "stand_mg": stand_mg}
+    return _assemble("car-town", rate, rest_s, speed, course, np.zeros(n), extra, body + angles, events,
+                     mount=rotation)
+
+
 def make_scenario(name: str, seed: int = 0, duration: float | None = None) -> Trajectory:
     """One of SCENARIOS by name; `duration` overrides the default length where the scenario has one."""
     kwargs = {"seed": seed}
     if duration is not None and name != "push":
         kwargs["duration"] = duration
-    builders = {"static": static, "push": push, "walk": walk, "car": car, "bike": bike,
+    builders = {"static": static, "push": push, "walk": walk, "car": car, "bike": bike, "car-town": car_town,
                 "walk-pocket": lambda **kw: walk(carry="pocket", **kw),
-                "walk-backpack": lambda **kw: walk(carry="backpack", **kw)}
+                "walk-backpack": lambda **kw: walk(carry="backpack", **kw),
+                "walk-stand": lambda **kw: walk(stands=True, **kw)}
     if name not in builders:
         raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")
     return builders[name](**kwargs)

@@ -95,9 +95,11 @@ class Road:
     contact_m: float = 0.15  # m, the tyre's contact length: it bridges shorter bumps (the tyre's enveloping)
 
 
-def road_profile(length_m: float, road: Road, rng: np.random.Generator, tracks: int = 2, dx: float = 0.02):
-    """Heights (m) of `tracks` wheel tracks every dx metres over length_m, with potholes, as a tyre feels them
-    (averaged over its contact length); returns (x, (K, tracks))."""
+def road_profile(length_m: float, road: Road, rng: np.random.Generator, tracks: int = 2, dx: float = 0.02,
+                 bumps=()):
+    """Heights (m) of `tracks` wheel tracks every dx metres over length_m, with potholes and `bumps` (speed bumps
+    across the whole road: (centre m, height m, length m) each, a raised cosine), as a tyre feels them (averaged
+    over its contact length); returns (x, (K, tracks))."""
     k = int(np.ceil(length_m / dx)) + 2
     x = np.arange(k) * dx
     # a white slope of one-sided PSD (2 pi n0)^2 Gd(n0) gives heights with Gd(n) = Gd(n0) (n / n0)^-2
@@ -115,6 +117,9 @@ def road_profile(length_m: float, road: Road, rng: np.random.Generator, tracks: 
         span = rng.uniform(*road.pothole_length_m)
         inside = np.abs(x - where) < span / 2
         heights[inside, track] -= depth * 0.5 * (1 + np.cos(2 * np.pi * (x[inside] - where) / span))
+    for where, height, span in bumps:
+        inside = np.abs(x - where) < span / 2
+        heights[inside] += (height * 0.5 * (1 + np.cos(2 * np.pi * (x[inside] - where) / span)))[:, None]
     m = max(1, int(round(road.contact_m / dx)))  # the tyre bridges bumps shorter than its contact length
     padded = np.concatenate([np.repeat(heights[:1], m, axis=0), heights], axis=0)
     total = np.cumsum(padded, axis=0)
@@ -133,6 +138,8 @@ class Engine:
     rate_rms_dps: float = 0.95  # angular rate at idle, rms, degree/s, before the DLPF (the real drive: 0.7-1.0 after)
     accel_rms_ms2: float = 0.1  # linear acceleration at idle, rms, m/s^2
     harmonics: tuple[float, ...] = (1.0, 0.35, 0.15)  # relative amplitudes of the 1st, 2nd, 3rd firing orders
+    vertical: bool = False  # the linear shake along Up (an inline four's free force at the firing frequency is
+    # vertical), instead of a random direction per order
 
     def rpm(self, speed: np.ndarray) -> np.ndarray:
         """Crankshaft speed for a road speed (m/s): the highest gear that keeps the engine above 1.6 x idle (a
@@ -165,7 +172,7 @@ def engine_shake(t: np.ndarray, rpm: np.ndarray, running: np.ndarray, engine: En
         axis_w = rng.normal(size=3)
         axis_w /= np.linalg.norm(axis_w)
         axis_a = rng.normal(size=3)
-        axis_a /= np.linalg.norm(axis_a)
+        axis_a = np.array([0.0, 0.0, 1.0]) if engine.vertical else axis_a / np.linalg.norm(axis_a)
         offset = rng.uniform(0, 2 * np.pi)
         omega = 2 * np.pi * firing_hz * order  # rad/s
         wave, dwave = np.sin(order * phase + offset), np.cos(order * phase + offset)
@@ -184,17 +191,23 @@ class VehicleBody:
     wheelbase_m: float = 2.6
     track_m: float = 1.5
     corner: QuarterCar = QuarterCar()
+    harshness: float = 0.0  # share of the wheels' own motion that reaches the cabin past the spring and damper
+    # (through the suspension's rubber bushings and top mounts: the wheel hop a real cabin feels)
 
 
-def road_shake(distance: np.ndarray, rate_hz: float, body: VehicleBody, road: Road, rng: np.random.Generator):
+def road_shake(distance: np.ndarray, rate_hz: float, body: VehicleBody, road: Road, rng: np.random.Generator,
+               bumps=()):
     """Heave (m), pitch and roll (rad, in the sense of trajectory.euler_to_matrix for a vehicle whose x axis points
     forwards and y left: pitch positive nose down, roll positive right side down) of the body for the distance
-    travelled at each truth sample (m, non-decreasing), from both tracks (left, right) under front and rear wheels."""
-    x, heights = road_profile(float(distance[-1]) + body.wheelbase_m + 1.0, road, rng, tracks=2)
+    travelled at each truth sample (m, non-decreasing), from both tracks (left, right) under front and rear wheels;
+    `bumps` as road_profile's."""
+    x, heights = road_profile(float(distance[-1]) + body.wheelbase_m + 1.0, road, rng, tracks=2, bumps=bumps)
     front = distance + body.wheelbase_m
     corners = np.stack([np.interp(front, x, heights[:, 0]), np.interp(front, x, heights[:, 1]),
                         np.interp(distance, x, heights[:, 0]), np.interp(distance, x, heights[:, 1])], axis=-1)
     z = body.corner.body_height(corners, rate_hz)  # (n, 4): front-left, front-right, rear-left, rear-right
+    if body.harshness > 0.0:
+        z = z + body.harshness * (body.corner.wheel_height(corners, rate_hz) - z)  # the bushings' deflection
     heave = z.mean(axis=1)
     pitch = ((z[:, 2] + z[:, 3]) - (z[:, 0] + z[:, 1])) / (2 * body.wheelbase_m)
     roll = ((z[:, 0] + z[:, 2]) - (z[:, 1] + z[:, 3])) / (2 * body.track_m)
