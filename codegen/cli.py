@@ -24,10 +24,12 @@ def cmd_validate(args: argparse.Namespace) -> int:
     from codegen.board.diagnostics import sort_key
     from codegen.board.loader import load_board_report
     from codegen.deploy.capacity import fit_diagnostics
+    from codegen.generate import app_contents, render_tree
 
     report = load_board_report(args.board)
     if report.loaded is not None and not report.failed():  # the rendered app against the board's filesystem
-        report.diagnostics = sorted(report.diagnostics + fit_diagnostics(report.loaded), key=sort_key)
+        fits = fit_diagnostics(report.loaded, app_contents(render_tree(report.loaded)))
+        report.diagnostics = sorted(report.diagnostics + fits, key=sort_key)
     report.print(sys.stderr, strict=args.strict)
     if report.failed(strict=args.strict):
         return 2
