@@ -105,6 +105,14 @@ def cmd_upload(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from codegen.deploy.monitor import monitor
+    from codegen.deploy.ports import choose_port
+
+    monitor(choose_port(args.port), raw=args.raw)
+    return 0
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from codegen.board.loader import load_board
     from codegen.sim.simulate import simulate
@@ -180,6 +188,15 @@ def build_parser() -> argparse.ArgumentParser:
                                        "/media/$USER/CIRCUITPY")
     p.add_argument("--force", action="store_true", help="send every file, even those already on the board")
     p.set_defaults(func=cmd_upload)
+
+    for name in ("monitor", "logs"):
+        p = sub.add_parser(name, help="the board's console decoded into a live status (mode, fix, position, speed, "
+                                      "drops, heap, kernel, warnings); Ctrl-] quits" if name == "monitor" else
+                           "the same as monitor")
+        p.add_argument("--port", help="serial port or pyserial URL (default: the one board plugged in, found by its "
+                                      "USB id)")
+        p.add_argument("--raw", action="store_true", help="print the bytes as they come, nothing decoded")
+        p.set_defaults(func=cmd_monitor)
 
     p = sub.add_parser("simulate", help="simulated sensors through the board's pipeline; outage metrics and plots")
     _board_arg(p)

@@ -592,10 +592,12 @@ class App:
             self.drops_logged = self.samples_dropped
             self.longest_gap_us = 0
         p = self.nmea
+        fix = self.gps_fix
         print("DIAG rate=%.1fHz samples=%d dropped=%d window_us=%d mode=%s fixes=%d nmea_ok=%d bad_checksum=%d "
-              "bad_lines=%d log_blocks=%d heap_free=%d" % (self.rate_hz, self.samples_total,
+              "bad_lines=%d log_blocks=%d heap_free=%d sats=%d gps_speed=%.2f" % (self.rate_hz, self.samples_total,
               self.samples_dropped, self.window_us, MODE_NAMES[self.mode], p.fixes, p.sentences, p.bad_checksum,
-              p.bad_lines, self.log.blocks_written, gc.mem_free()))
+              p.bad_lines, self.log.blocks_written, gc.mem_free(), fix.sats if fix is not None else p.sats,
+              (fix.speed_ms or 0.0) if fix is not None else 0.0))
 
     # ---------------------------------------------------------------- the loop
 
