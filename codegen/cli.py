@@ -113,6 +113,19 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_pull(args: argparse.Namespace) -> int:
+    from codegen.deploy.ports import choose_port
+    from codegen.deploy.pull import post_pulled, pull
+
+    output = Path(args.output)
+    result = pull(choose_port(args.port), output, folder=args.folder, delete=args.delete)
+    if args.post:
+        posted = post_pulled(output, result.copied)
+        if len(posted) < len(result.copied):
+            return 1
+    return 0
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from codegen.board.loader import load_board
     from codegen.sim.simulate import simulate
@@ -197,6 +210,15 @@ def build_parser() -> argparse.ArgumentParser:
                                       "USB id)")
         p.add_argument("--raw", action="store_true", help="print the bytes as they come, nothing decoded")
         p.set_defaults(func=cmd_monitor)
+
+    p = sub.add_parser("pull", help="copy the board's logs to this computer, each checked by SHA-256; resumes "
+                                    "after a drop, never overwrites a different local file")
+    p.add_argument("--port", help="serial port or pyserial URL (default: the one board plugged in)")
+    p.add_argument("-o", "--output", default="logs", help="local folder (default: logs)")
+    p.add_argument("--folder", default="/logs", help="the board's log folder (logging.directory; default /logs)")
+    p.add_argument("--delete", action="store_true", help="remove each log from the board once its copy is verified")
+    p.add_argument("--post", action="store_true", help="run `deadreckon post` on each log copied (into NAME-post/)")
+    p.set_defaults(func=cmd_pull)
 
     p = sub.add_parser("simulate", help="simulated sensors through the board's pipeline; outage metrics and plots")
     _board_arg(p)

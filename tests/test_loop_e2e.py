@@ -132,3 +132,32 @@ def test_monitor_follows_the_board_through_a_dropped_port(drive, capsys):
     assert (status.mode, status.sats, status.lat_e7, status.lon_e7, status.windows, status.kernel) == \
         (expected.mode, expected.sats, expected.lat_e7, expected.lon_e7, expected.windows, expected.kernel)
     assert run.console("MODE")[0] in text and "WIN " not in text  # events printed, windows only in the status
+
+
+def test_the_drive_pulled_off_the_board_and_posted(drive, tmp_path, capsys):
+    """The logs the app wrote, on a raw-REPL board (the peer holds the emulated board's filesystem), pulled with
+    --post through the CLI: the copies are the app's bytes and post reads the drive (flat, pushed East)."""
+    from codegen.cli import main
+    from codegen.post import load_log
+    from conftest import require
+    from peers.repl_peer import ReplPeer, missing_reason
+
+    reason = missing_reason()
+    require(reason is None, reason or "")
+    _, work = drive
+    written = {p.name: p.read_bytes() for p in sorted((work / "fs").glob("dr*.bin"))}
+    assert written
+    root = tmp_path / "board"
+    (root / "logs").mkdir(parents=True)
+    for name, data in written.items():
+        (root / "logs" / name).write_bytes(data)
+    out = tmp_path / "pulled"
+    with ReplPeer(root) as board:
+        assert main(["pull", "--port", board.url, "-o", str(out), "--post"]) == 0
+    printed = capsys.readouterr().out
+    assert f"pulled {len(written)} log(s)" in printed
+    assert {name: (out / name).read_bytes() for name in written} == written
+    last = sorted(written)[-1]
+    assert (out / (last[:-4] + "-post")).is_dir() and f"post {last} ->" in printed
+    log = load_log(out / last)
+    assert log.time_scale == "utc" and len(log.gps) >= 15
