@@ -10,6 +10,7 @@ import os
 import sys
 from pathlib import Path
 
+from codegen import __version__
 from codegen.errors import UserError
 from codegen.sim import SCENARIOS
 
@@ -51,10 +52,14 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_boards(args: argparse.Namespace) -> int:
-    from codegen.board.loader import bundled_boards
+    import shutil
 
-    for name, path, description in bundled_boards():
-        print(f"{name:24s} {description}")
+    from codegen.board.loader import bundled_boards
+    from codegen.board.listing import board_table
+
+    width = shutil.get_terminal_size((80, 24)).columns
+    for line in board_table([(name, description) for name, _, description in bundled_boards()], width):
+        print(line)
     return 0
 
 
@@ -82,6 +87,12 @@ def cmd_build(args: argparse.Namespace) -> int:
 
     result = build(Path(args.out))
     print(f"built {len(result.files)} files into {result.app_dir}" + (f" and {result.image}" if result.image else ""))
+    if args.require_native and result.native is None:
+        why = result.native_note or f"{result.tree.board.name} runs CircuitPython, which loads no native module"
+        print(f"error: --require-native: no native module was built: {why}", file=sys.stderr)
+        print("  hint: install the board's compiler (docs/cli.md lists them), or drop --require-native to use the "
+              "pure-Python fallback (about 170x slower)", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -154,6 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="deadreckon",
         description="Generate, build and flash a GPS + IMU dead-reckoning device from one board YAML.",
     )
+    parser.add_argument("--version", action="version", version=f"deadreckon {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -182,6 +194,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("build", help="compile a generated tree for its board: .mpy files and a filesystem image "
                                      "(CircuitPython: checked .py files for its drive)")
     p.add_argument("out", help="the generated tree (from `deadreckon generate`)")
+    p.add_argument("--require-native", action="store_true",
+                   help="exit 1 when the native module cannot be built (instead of falling back to pure Python)")
     p.set_defaults(func=cmd_build)
 
     p = sub.add_parser("flash", help="write the firmware (optional) and the app's filesystem image with esptool")
@@ -239,7 +253,19 @@ def build_parser() -> argparse.ArgumentParser:
     _post_arguments(p)
     p.set_defaults(func=cmd_post)
 
+    p = sub.add_parser("completion", help="print a shell completion script: "
+                                          "`source <(deadreckon completion bash)` in ~/.bashrc")
+    p.add_argument("shell", choices=("bash",))
+    p.set_defaults(func=cmd_completion)
+
     return parser
+
+
+def cmd_completion(args: argparse.Namespace) -> int:
+    from codegen.completion import bash_script
+
+    print(bash_script(build_parser()), end="")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
