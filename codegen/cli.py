@@ -137,6 +137,19 @@ def cmd_pull(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_run(args: argparse.Namespace) -> int:
+    from codegen.deploy.run import run_device
+
+    done = run_device(args.board, Path(args.output), port=args.port,
+                      firmware=Path(args.firmware) if args.firmware else None,
+                      drive=Path(args.drive) if args.drive else None, force=args.force)
+    if done.port is not None and not args.no_monitor:
+        from codegen.deploy.monitor import monitor
+
+        monitor(done.port, raw=args.raw, wait_s=10.0)
+    return 0
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from codegen.board.loader import load_board
     from codegen.sim.simulate import simulate
@@ -215,6 +228,18 @@ def build_parser() -> argparse.ArgumentParser:
                                        "/media/$USER/CIRCUITPY")
     p.add_argument("--force", action="store_true", help="send every file, even those already on the board")
     p.set_defaults(func=cmd_upload)
+
+    p = sub.add_parser("run", help="generate, build, flash (--firmware) or upload the app, then monitor the board")
+    _board_arg(p)
+    p.add_argument("-o", "--output", default="out", help="the generated tree's folder (default: out)")
+    p.add_argument("--port", help="serial port or pyserial URL (default: the one board plugged in, found by its "
+                                  "USB id)")
+    p.add_argument("--firmware", help="MicroPython .bin to flash with the app (a blank board needs it)")
+    p.add_argument("--drive", help="a CircuitPython board's CIRCUITPY drive")
+    p.add_argument("--force", action="store_true", help="regenerate over edited files; send every file")
+    p.add_argument("--no-monitor", action="store_true", help="stop once the app is on the board")
+    p.add_argument("--raw", action="store_true", help="monitor the bytes as they come, nothing decoded")
+    p.set_defaults(func=cmd_run)
 
     for name in ("monitor", "logs"):
         p = sub.add_parser(name, help="the board's console decoded into a live status (mode, fix, position, speed, "

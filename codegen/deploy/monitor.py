@@ -93,9 +93,10 @@ class _Printer:
 
 def monitor(port: str, raw: bool = False, out: TextIO = sys.stdout, keys: Optional[TextIO] = sys.stdin,
             colour: Optional[bool] = None, until: Optional[Callable[[ConsoleStatus], bool]] = None,
-            timeout: Optional[float] = None, reconnect: bool = True) -> ConsoleStatus:
+            timeout: Optional[float] = None, reconnect: bool = True, wait_s: float = 0.0) -> ConsoleStatus:
     """Show the console of the board on `port` until Ctrl-], `until(status)` is true, or `timeout` seconds passed;
-    return what was decoded. A lost port is reopened (unless reconnect=False: then a UserError)."""
+    return what was decoded. A lost port is reopened (unless reconnect=False: then a UserError). `wait_s`: how long
+    a port that is not there yet is waited for (a board with native USB comes back a moment after a flash)."""
     import serial
 
     live = bool(getattr(out, "isatty", lambda: False)())
@@ -105,7 +106,7 @@ def monitor(port: str, raw: bool = False, out: TextIO = sys.stdout, keys: Option
     started = time.monotonic()
     key_reader = _Keys(keys)
     pending = b""
-    handle = open_port(port)
+    handle = _open_waiting(port, wait_s)
     printer.line(f"monitoring {port} (quit: Ctrl-])")
 
     def take(line: bytes) -> None:
@@ -178,6 +179,17 @@ def _reopen(port, key_reader, until, status, started, timeout):
         try:
             return open_port(port)
         except UserError:
+            time.sleep(RECONNECT_EVERY_S)
+
+
+def _open_waiting(port: str, wait_s: float):
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return open_port(port)
+        except UserError:
+            if time.monotonic() >= deadline:
+                raise
             time.sleep(RECONNECT_EVERY_S)
 
 
