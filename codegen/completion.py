@@ -35,11 +35,13 @@ def bash_script(parser: argparse.ArgumentParser) -> str:
     cases = []
     for name, sub in commands.items():
         flags, choices = _options(sub)
-        value_cases = "".join(f"            {shlex.quote(flag)}) COMPREPLY=($(compgen -W {shlex.quote(' '.join(values))} "
-                              f'-- "$cur")); return;;\n' for flag, values in choices.items())
+        value_cases = "".join(f"            {shlex.quote(flag)}) COMPREPLY=($(compgen -W "
+                              f"{shlex.quote(' '.join(values))} -- \"$cur\")); return;;\n"
+                              for flag, values in choices.items())
         ports = "|".join(flag for flag in PORT_OPTIONS if flag in flags)
         if ports:
-            value_cases += f'            {ports}) COMPREPLY=($(compgen -W "$(ls /dev/ttyUSB* /dev/ttyACM* 2>/dev/null)" -- "$cur")); return;;\n'
+            value_cases += (f"            {ports}) COMPREPLY=($(compgen -W "
+                            '"$(ls /dev/ttyUSB* /dev/ttyACM* 2>/dev/null)" -- "$cur")); return;;\n')
         positional = [a for a in sub._actions if not a.option_strings and a.choices]
         words = " ".join(str(c) for a in positional for c in a.choices)
         cases.append(

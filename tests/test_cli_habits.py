@@ -49,7 +49,8 @@ def complete(words: list[str]) -> list[str]:
     require(shutil.which("bash") is not None, "bash is not installed")
     script = bash_script(build_parser())
     quoted = " ".join("'" + w + "'" for w in words)
-    program = f'{script}\nCOMP_WORDS=({quoted}); COMP_CWORD={len(words) - 1}; _deadreckon; printf "%s\\n" "${{COMPREPLY[@]}}"'
+    program = (f"{script}\nCOMP_WORDS=({quoted}); COMP_CWORD={len(words) - 1}; _deadreckon; "
+               'printf "%s\\n" "${COMPREPLY[@]}"')
     done = subprocess.run(["bash", "--norc", "-c", program], capture_output=True, text=True, timeout=30)
     assert done.returncode == 0, done.stderr
     return [line for line in done.stdout.splitlines() if line]

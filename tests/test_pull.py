@@ -46,7 +46,8 @@ def test_pull_copies_each_log_verified(board, tmp_path):
     again = pull(board.url, out, progress=quiet)
     assert again.copied == [] and sorted(again.unchanged) == sorted(LOGS)
     board.wait_idle()
-    assert {k: v for k, v in board.files().items() if k.startswith("logs/")} == {f"logs/{k}": v for k, v in LOGS.items()}
+    on_board = {k: v for k, v in board.files().items() if k.startswith("logs/")}
+    assert on_board == {f"logs/{k}": v for k, v in LOGS.items()}
 
 
 def test_a_differing_local_file_is_never_overwritten(board, tmp_path):

@@ -26,6 +26,7 @@ from typing import Callable, Optional
 
 from codegen.deploy.ports import close_quietly, open_port
 from codegen.deploy.upload import RawRepl, ReplError
+from codegen.deploy.watchdog import hold_watchdog
 from codegen.errors import UserError
 
 Progress = Callable[[str], None]
@@ -136,6 +137,7 @@ class _Session:
             repl = RawRepl(self.handle, use_raw_paste=self.use_raw_paste,
                            paced=not self.port.startswith("socket://"))
             repl.enter()
+            hold_watchdog(repl)  # the app's watchdog fed from a timer while the logs come over
             repl.exec(_HELPERS, timeout=10.0)
             self.repl = repl
             self.opened += 1

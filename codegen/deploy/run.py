@@ -29,16 +29,19 @@ class RunResult:
 
 
 def runs_micropython(port: str) -> bool:
-    """Whether the board on `port` answers as MicroPython's raw REPL (its app interrupted; it is left in the raw
-    REPL, which the upload enters again)."""
+    """Whether the board on `port` answers as MicroPython's raw REPL (its app interrupted, its watchdog held by a
+    timer: codegen/deploy/watchdog.py; it is left in the raw REPL, which the upload enters again)."""
     import serial
 
     from codegen.deploy.ports import close_quietly, open_port
     from codegen.deploy.upload import RawRepl, ReplError
+    from codegen.deploy.watchdog import hold_watchdog
 
     handle = open_port(port)
     try:
-        RawRepl(handle).enter()
+        repl = RawRepl(handle)
+        repl.enter()
+        hold_watchdog(repl)
         return True
     except (ReplError, serial.SerialException, OSError):
         return False

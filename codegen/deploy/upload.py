@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from codegen.deploy.ports import PORT_TIMEOUT_S, WRITE_TIMEOUT_S, close_quietly, open_port
+from codegen.deploy.watchdog import hold_watchdog
 from codegen.errors import UserError
 
 Progress = Callable[[str], None]
@@ -343,6 +344,7 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
         repl = RawRepl(handle, use_raw_paste=use_raw_paste, paced=not port.startswith("socket://"))
         try:
             repl.enter()
+            hold_watchdog(repl)  # the app's watchdog fed from a timer while the files go over
             others = sorted({s for s in map(shadows, files) if s and s not in files})
             on_board = device_hashes(repl, sorted(files) + others)
             stale = [p for p in others if on_board.get(p, "-") != "-"]
