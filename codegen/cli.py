@@ -110,9 +110,10 @@ def cmd_upload(args: argparse.Namespace) -> int:
 
         upload_drive(Path(args.out), Path(args.drive), force=args.force)
         return 0
+    from codegen.deploy.ports import choose_port
     from codegen.deploy.upload import upload
 
-    upload(Path(args.out), args.port, force=args.force)
+    upload(Path(args.out), choose_port(args.port), force=args.force)
     return 0
 
 
@@ -222,8 +223,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("upload", help="copy the built app onto a running board: its raw REPL (--port) or a "
                                       "CircuitPython board's CIRCUITPY drive (--drive)")
     p.add_argument("out", help="the built tree (from `deadreckon build`)")
-    where = p.add_mutually_exclusive_group(required=True)
-    where.add_argument("--port", help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--port", help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...); default: "
+                                      "the one board plugged in, found by its USB id")
     where.add_argument("--drive", help="where the computer mounts a CircuitPython board's CIRCUITPY drive, e.g. "
                                        "/media/$USER/CIRCUITPY")
     p.add_argument("--force", action="store_true", help="send every file, even those already on the board")

@@ -51,3 +51,12 @@ def test_no_board_lists_the_other_ports():
 def test_known_bridges_sort_first():
     found = list_serial_ports([port("/dev/ttyS0"), port("/dev/ttyUSB0", 0x10C4, 0xEA60)])
     assert [p.device for p in found] == ["/dev/ttyUSB0", "/dev/ttyS0"]
+
+
+def test_upload_without_a_port_looks_for_the_board(tmp_path, capsys, monkeypatch):
+    from codegen.cli import main
+
+    monkeypatch.setattr("serial.tools.list_ports.comports", lambda: [port("/dev/ttyS0")])
+    assert main(["upload", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: no board found") and "/dev/ttyS0" in err and "Traceback" not in err
