@@ -17,10 +17,13 @@ from codegen.deploy.pull import pull
 from codegen.deploy.upload import upload
 from codegen.errors import UserError
 from conftest import require
+from peers.flaky_link import FlakyLink
 from peers.repl_peer import ReplPeer, missing_reason
 from peers.trees import default_board, make_tree
 
 TIMEOUT_MS = 400  # the peer's watchdog: short, so a transfer of a few seconds is many timeouts long
+SLOW_S = 0.03  # each reply of the board waits this long on the link, so a transfer of n commands takes at least
+# n * SLOW_S (upload: 32 chunks and 10 more commands; pull: 48 chunks and 4 more), whatever the machine's speed
 
 
 def quiet(_line: str) -> None:
@@ -48,7 +51,7 @@ def peer_ok():
 def built(tmp_path):
     tree = make_tree(tmp_path / "out")
     result = build(tree, board=default_board(), progress=quiet, image=False)
-    (result.app_dir / "data.bin").write_bytes(os.urandom(96 * 1024))  # a transfer of several seconds
+    (result.app_dir / "data.bin").write_bytes(os.urandom(64 * 1024))  # a transfer of several seconds
     return tree, result
 
 
@@ -57,12 +60,14 @@ def test_upload_lives_through_the_watchdog(peer_ok, tmp_path, built, delay_s):
     tree, result = built
     with ReplPeer(board_root(tmp_path), watchdog_ms=TIMEOUT_MS) as board:
         time.sleep(delay_s)  # the Ctrl-C lands at another moment of the app's run
-        started = time.monotonic()
-        upload(tree, board.url, progress=quiet)
-        took = time.monotonic() - started
+        with FlakyLink(board.port, delay_s=SLOW_S) as link:
+            started = time.monotonic()
+            upload(tree, link.url, progress=quiet)
+            took = time.monotonic() - started
         board.wait_idle()
         assert board.watchdog_resets() == 0
         files = board.files()
+    print(f"upload: {took:.2f} s against a {TIMEOUT_MS} ms watchdog")
     assert took > 3 * TIMEOUT_MS / 1000, f"the upload took only {took:.1f} s: no proof"
     assert all(files[rel] == (result.app_dir / rel).read_bytes() for rel in result.files)
     assert files["data.bin"] == (result.app_dir / "data.bin").read_bytes()
@@ -79,13 +84,15 @@ def test_without_the_hosts_timer_the_watchdog_cuts_the_upload(peer_ok, tmp_path,
 
 @pytest.mark.parametrize("delay_s", [0.1, 0.3])
 def test_pull_lives_through_the_watchdog(peer_ok, tmp_path, delay_s):
-    logs = [(f"dr0000{i}.bin", os.urandom(4096 * 6)) for i in range(1, 4)]
+    logs = [(f"dr0000{i}.bin", os.urandom(4096 * 9)) for i in range(1, 5)]
     with ReplPeer(board_root(tmp_path, logs=logs), watchdog_ms=TIMEOUT_MS) as board:
         time.sleep(delay_s)
-        started = time.monotonic()
-        result = pull(board.url, tmp_path / "pulled", progress=quiet)
-        took = time.monotonic() - started
+        with FlakyLink(board.port, delay_s=SLOW_S) as link:
+            started = time.monotonic()
+            result = pull(link.url, tmp_path / "pulled", progress=quiet)
+            took = time.monotonic() - started
         assert board.watchdog_resets() == 0
+    print(f"pull: {took:.2f} s against a {TIMEOUT_MS} ms watchdog")
     assert took > 3 * TIMEOUT_MS / 1000, f"the pull took only {took:.1f} s: no proof"
     assert result.reconnects == 0 and sorted(result.copied) == [name for name, _ in logs]
     assert all((tmp_path / "pulled" / name).read_bytes() == data for name, data in logs)
@@ -103,14 +110,13 @@ def test_run_lives_through_the_boards_own_watchdog(peer_ok, tmp_path, capsys):
     capsys.readouterr()
     with ReplPeer(board_root(tmp_path, watchdog_ms=1000), watchdog_ms=1000) as board:
         time.sleep(0.3)
-        started = time.monotonic()
-        assert main(["run", str(yaml), "-o", str(out), "--port", board.url, "--no-monitor", "--force"]) == 0
-        printed = capsys.readouterr().out
-        took = time.monotonic() - started
+        with FlakyLink(board.port, delay_s=SLOW_S) as link:  # 11 files, at least 4 commands each
+            assert main(["run", str(yaml), "-o", str(out), "--port", link.url, "--no-monitor", "--force"]) == 0
+            printed = capsys.readouterr().out
         board.wait_idle()
         assert board.watchdog_resets() == 0
         files = board.files()
     app = out / "build" / "app"
     assert all(files[p.relative_to(app).as_posix()] == p.read_bytes() for p in app.rglob("*") if p.is_file())
     upload_s = float(printed.split("uploaded")[-1].split(" in ")[1].split(" s")[0])
-    assert upload_s > 1.0, f"the upload took only {upload_s} s against a 1 s watchdog"
+    assert upload_s > 1.2, f"the upload took only {upload_s} s against a 1 s watchdog"

@@ -1,6 +1,8 @@
 """A TCP link in front of the REPL peer that fails on purpose: after given numbers of bytes from the board it cuts
 the client's connection (a cable pulled, a USB bridge gone) and, for a reset, first soft-resets the board (what a
-watchdog or a brown-out does to a transfer). The link to the peer stays up; the client reconnects to `url`."""
+watchdog or a brown-out does to a transfer). The link to the peer stays up; the client reconnects to `url`. With
+`delay_s`, every piece the board sends waits that long first: a slow link, so a transfer takes at least its number
+of replies times `delay_s`, however fast the machine running the test."""
 
 from __future__ import annotations
 
@@ -9,7 +11,8 @@ import threading
 
 
 class FlakyLink:
-    def __init__(self, peer_port: int, cuts: list[int] = (), resets: list[int] = ()):
+    def __init__(self, peer_port: int, cuts: list[int] = (), resets: list[int] = (), delay_s: float = 0.0):
+        self.delay_s = delay_s
         self.upstream = socket.create_connection(("127.0.0.1", peer_port))
         self.upstream.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.events = sorted([(n, "cut") for n in cuts] + [(n, "reset") for n in resets])
@@ -55,6 +58,10 @@ class FlakyLink:
                 return
             if not data:
                 return
+            if self.delay_s:
+                import time
+
+                time.sleep(self.delay_s)
             with self.lock:
                 self.from_board += len(data)
                 if self.client is not None:
@@ -78,6 +85,10 @@ class FlakyLink:
         with self.lock:
             if self.client is not None:
                 self.client.close()
+        try:
+            self.upstream.shutdown(socket.SHUT_RDWR)  # the peer sees its client go (another thread is in recv)
+        except OSError:
+            pass
         self.upstream.close()
 
     def __enter__(self):
