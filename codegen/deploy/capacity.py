@@ -9,30 +9,24 @@ module. With logging on, the app needs `logging.min_free_kb` plus one log block 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING
 
 from codegen.board.diagnostics import Diagnostic, error
 
 if TYPE_CHECKING:
     from codegen.board.loader import LoadedBoard
-    from codegen.generate import RenderedFile
-
-APP_FOLDER = "app/"
 
 
-def fit_diagnostics(loaded: "LoadedBoard", files: Optional[dict[str, "RenderedFile"]] = None) -> list[Diagnostic]:
-    """An error located at micropython.filesystem.size when the app (rendered here unless given) does not fit
-    the board's filesystem with the room its log needs; no findings when it does."""
+def fit_diagnostics(loaded: "LoadedBoard", app: dict[str, bytes]) -> list[Diagnostic]:
+    """An error located at micropython.filesystem.size when the app (its files' contents by their path on the
+    board, `codegen.generate.app_contents`) does not fit the board's filesystem with the room its log needs; no
+    findings when it does."""
     from codegen.deploy.fsimage import free_after
-    from codegen.generate import render_tree
 
     board = loaded.board
     if board.target == "circuitpython":
         return []  # its CIRCUITPY drive is the firmware's (FAT, its size per build): `upload --drive` checks the room
     fs = board.micropython.filesystem
-    if files is None:
-        files = render_tree(loaded)
-    app = {rel[len(APP_FOLDER):]: rendered.content for rel, rendered in files.items() if rel.startswith(APP_FOLDER)}
     app_bytes = sum(map(len, app.values()))
     log_room = (board.logging.min_free_kb * 1024 + board.logging.block_bytes) if board.logging.enabled else 0
     free = free_after(app, fs.size, fs.block_size)

@@ -28,7 +28,7 @@ from typing import Callable, Optional
 from codegen.board.chips import CHIPS
 from codegen.board.flashlayout import FlashLayout
 from codegen.board.model import Board
-from codegen.deploy.upload import rfc2217_refused
+from codegen.deploy.ports import BUSY_HINT, DIALOUT_HINT, check_port, is_url, ports_hint, rfc2217_refused
 from codegen.errors import UserError
 
 FAST_BAUD = 460800
@@ -61,10 +61,6 @@ class FlashResult:
     seconds: float
     output: str = ""
     attempts: list[str] = field(default_factory=list)
-
-
-def is_url(port: str) -> bool:
-    return "://" in port
 
 
 def plan_regions(board: Board, image: Path, firmware: Optional[Path] = None) -> list[Region]:
@@ -258,57 +254,6 @@ def esptool_command(board: Board, port: str, regions: list[Region], baud: int, s
     return command
 
 
-def check_port(port: str) -> None:
-    """Fail early, with the fix, when a port URL is malformed, or a local serial device is missing, not ours to
-    open, or busy."""
-    from codegen.deploy.upload import check_port_path, check_port_url, not_a_port
-
-    if is_url(port):
-        check_port_url(port)
-        return
-    check_port_path(port)
-    if not os.path.exists(port):
-        raise UserError(f"no such port {port}", hint=_ports_hint())
-    if not os.access(port, os.R_OK | os.W_OK):
-        raise UserError(
-            f"permission denied on {port}",
-            hint="add yourself to the port's group (`sudo usermod -aG dialout $USER`, then log in again)",
-        )
-    try:
-        import serial
-
-        handle = serial.Serial()
-        handle.port = port
-        handle.exclusive = True
-        handle.dtr = False  # do not reset the board just by looking
-        handle.rts = False
-        handle.open()
-        handle.close()
-    except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException, OSError, ValueError
-        text = str(exc)
-        if "busy" in text.lower() or "lock" in text.lower():
-            raise UserError(f"port {port} is busy", hint=_busy_hint())
-        if "inappropriate ioctl" in text.lower():
-            raise not_a_port(port) from None
-        raise UserError(f"cannot open {port}: {text}")
-
-
-def _ports_hint() -> str:
-    try:
-        from serial.tools import list_ports
-
-        names = [p.device for p in list_ports.comports()]
-    except Exception:  # noqa: BLE001
-        names = []
-    if names:
-        return "serial ports here: " + ", ".join(names)
-    return "no serial ports found: is the board plugged in with a data (not charge-only) cable?"
-
-
-def _busy_hint() -> str:
-    return "another program holds it (a serial monitor, mpremote, screen, an IDE): close it and try again"
-
-
 def classify(output: str, port: str, board: Board, regions: list[Region]) -> Optional[UserError]:
     """Turn esptool's output into a UserError that says what happened and what to do; None if unknown."""
     text = output
@@ -342,16 +287,13 @@ def classify(output: str, port: str, board: Board, regions: list[Region]) -> Opt
             hint="download the MicroPython firmware for this chip (ESP32_GENERIC for an ESP32)",
         )
     if "permission denied" in lower:
-        return UserError(
-            f"permission denied on {port}",
-            hint="add yourself to the port's group (`sudo usermod -aG dialout $USER`, then log in again)",
-        )
+        return UserError(f"permission denied on {port}", hint=DIALOUT_HINT)
     if "could not exclusively lock" in lower or "resource busy" in lower:
-        return UserError(f"port {port} is busy", hint=_busy_hint())
+        return UserError(f"port {port} is busy", hint=BUSY_HINT)
     if "does not seem to support rfc2217" in lower:
         return rfc2217_refused(port)
     if "connection refused" in lower or "no such file or directory" in lower and "could not open port" in lower:
-        hint = "is the server at that address running?" if is_url(port) else _ports_hint()
+        hint = "is the server at that address running?" if is_url(port) else ports_hint()
         return UserError(f"no such port {port} (nothing answers there)", hint=hint)
     if "md5 of file does not match" in lower or "write failed" in lower:
         return UserError(

@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import base64
 import hashlib
-import os
-import stat
 import struct
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
+from codegen.deploy.ports import PORT_TIMEOUT_S, WRITE_TIMEOUT_S, close_quietly, open_port
+from codegen.deploy.watchdog import hold_watchdog
 from codegen.errors import UserError
 
 Progress = Callable[[str], None]
@@ -38,12 +38,11 @@ PACED_WRITE = 256  # bytes per write in standard raw mode, with a pause, so a bo
 PACE_SECONDS = 0.01
 KEEP_AS_SOURCE = ("main.py", "boot.py")
 # Every wait has an end. A board that keeps talking extends a wait for an answer, but never past twice its timeout;
-# a reply is at most 1 MiB (our commands print a few KB); a write the port does not take within 10 s is a dead port;
-# the quiet wait before entering the raw REPL and the discarding of old input stop after a second.
-PORT_TIMEOUT_S = 0.05  # one read waits this long for a byte
+# a reply is at most 1 MiB (our commands print a few KB); a write the port does not take within WRITE_TIMEOUT_S
+# (codegen.deploy.ports) is a dead port; the quiet wait before entering the raw REPL and the discarding of old input
+# stop after a second.
 TALKING_GRACE_FACTOR = 2.0
 MAX_REPLY_BYTES = 1024 * 1024
-WRITE_TIMEOUT_S = 10.0
 QUIET_LIMIT_S = 1.0
 CHATTER_BYTES = 2048  # more than this arriving while we try to enter the raw REPL: the device talks on its own
 
@@ -59,112 +58,6 @@ class UploadResult:
     removed: list[str] = field(default_factory=list)
     raw_paste: bool = False
     seconds: float = 0.0
-
-
-def open_port(port: str, baud: int = 115200):
-    """Open a serial port or pyserial URL without resetting the board; UserError with the fix if it fails."""
-    import serial
-
-    if "://" in port:
-        check_port_url(port)
-    else:
-        check_port_path(port)
-    try:
-        if "://" in port:
-            # pyserial's rfc2217 refuses write_timeout; its socket has a 5 s timeout of its own on every send
-            write_timeout = None if port.lower().startswith("rfc2217://") else WRITE_TIMEOUT_S
-            handle = serial.serial_for_url(port, baudrate=baud, timeout=PORT_TIMEOUT_S, write_timeout=write_timeout,
-                                           do_not_open=True)
-        else:
-            handle = serial.Serial(baudrate=baud, timeout=PORT_TIMEOUT_S, write_timeout=WRITE_TIMEOUT_S)
-            handle.port = port
-            handle.exclusive = True
-        handle.dtr = False  # with auto-reset circuits, DTR/RTS would reset or hold the ESP32 in its bootloader
-        handle.rts = False
-        handle.open()
-        sock = getattr(handle, "_socket", None)  # socket:// ports: no Nagle delay on our small REPL writes
-        if sock is not None:
-            import socket
-
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        return handle
-    except (serial.SerialException, OSError, ValueError) as exc:
-        from codegen.deploy.flash import _busy_hint, _ports_hint
-
-        text = str(exc)
-        lower = text.lower()
-        if "no such file" in lower or "could not open port" in lower and "errno 2]" in lower:
-            raise UserError(f"no such port {port}", hint=_ports_hint())
-        if "permission denied" in lower or "errno 13]" in lower:
-            raise UserError(
-                f"permission denied on {port}",
-                hint="add yourself to the port's group (`sudo usermod -aG dialout $USER`, then log in again)",
-            )
-        if "busy" in lower or "lock" in lower:
-            raise UserError(f"port {port} is busy", hint=_busy_hint())
-        if "refused" in lower:
-            raise UserError(f"nothing answers at {port}", hint="is the bridge or telnet server running?")
-        if "inappropriate ioctl" in lower:  # termios on /dev/null, /dev/zero and other non-terminals
-            raise not_a_port(port)
-        if "does not seem to support rfc2217" in lower:
-            raise rfc2217_refused(port)
-        raise UserError(f"cannot open {port}: {text}")
-
-
-def check_port_path(port: str) -> None:
-    """A local port must be a terminal device: refuse a regular file, a folder, a FIFO or a device that is not a
-    tty (/dev/null, /dev/zero) with a message about ports, before pyserial tries to configure it."""
-    try:
-        mode = os.stat(port).st_mode
-    except FileNotFoundError:
-        return  # the caller says "no such port" with the ports it can see
-    except OSError:
-        return
-    if stat.S_ISCHR(mode):
-        return  # a character device: pyserial finds out whether it is a terminal (see not_a_port)
-    kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else
-            "a regular file" if stat.S_ISREG(mode) else "a socket" if stat.S_ISSOCK(mode) else "a block device")
-    raise not_a_port(port, kind)
-
-
-def rfc2217_refused(port: str) -> UserError:
-    return UserError(f"the server at {port} does not speak RFC 2217 (it did not negotiate the serial options)",
-                     hint="a plain TCP serial bridge is socket://HOST:PORT; rfc2217:// needs ser2net in telnet mode "
-                          "or esp_rfc2217_server")
-
-
-def not_a_port(port: str, kind: str = "a device that is not a terminal") -> UserError:
-    return UserError(f"{port} is not a serial port: it is {kind}",
-                     hint="a board's port is a terminal device (/dev/ttyUSB0, /dev/ttyACM0, COM3) or a URL "
-                          "(socket://HOST:PORT)")
-
-
-def check_port_url(port: str) -> None:
-    """A pyserial URL that pyserial can open (socket://host:port, rfc2217://host:port, ...), or a UserError."""
-    if "://" not in port:
-        return
-    import urllib.parse
-
-    import serial
-
-    scheme = port.split("://", 1)[0]
-    try:
-        serial.serial_for_url(port, do_not_open=True)  # checks the scheme (hwgrep:// also looks for the port)
-    except (ValueError, serial.SerialException) as exc:
-        if "not known" not in str(exc):
-            raise UserError(f"cannot use port {port}: {exc}") from None
-        raise UserError(f"unknown port URL scheme {scheme + '://'!r} in {port}",
-                        hint="ports are device paths (/dev/ttyUSB0, COM3) or pyserial URLs: socket://HOST:PORT, "
-                             "rfc2217://HOST:PORT") from None
-    if scheme.lower() in ("socket", "rfc2217"):
-        parts = urllib.parse.urlsplit(port)
-        try:
-            number = parts.port
-        except ValueError:
-            number = None
-        if not parts.hostname or not number:
-            raise UserError(f"bad port URL {port}: it needs a host and a port number 1-65535",
-                            hint=f"write it as {scheme}://HOST:PORT, e.g. {scheme}://192.168.4.1:23")
 
 
 class RawRepl:
@@ -451,6 +344,7 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
         repl = RawRepl(handle, use_raw_paste=use_raw_paste, paced=not port.startswith("socket://"))
         try:
             repl.enter()
+            hold_watchdog(repl)  # the app's watchdog fed from a timer while the files go over
             others = sorted({s for s in map(shadows, files) if s and s not in files})
             on_board = device_hashes(repl, sorted(files) + others)
             stale = [p for p in others if on_board.get(p, "-") != "-"]
@@ -500,10 +394,7 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
                             hint="check the cable and run the same command again; files arrive whole or not at "
                                  "all (each is renamed into place)") from None
     finally:
-        try:
-            handle.close()
-        except (serial.SerialException, OSError):
-            pass  # the port is gone already
+        close_quietly(handle)
     result.seconds = time.monotonic() - started
     progress(f"uploaded {len(result.sent)} file(s), {len(result.unchanged)} unchanged, in {result.seconds:.1f} s"
              f"{' (raw-paste)' if result.raw_paste else ''}")

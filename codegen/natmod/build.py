@@ -25,7 +25,7 @@ from typing import Callable
 from codegen.errors import UserError
 from codegen.natmod import abi, linkmap, mpyfile, verify, xtensa_llvm
 from codegen.natmod.sources import micropython_source
-from codegen.tools import find_tool, tool_env
+from codegen.tools import find_mpy_cross, find_tool, mpy_format, tool_env
 
 GNU_PREFIXES = {"xtensawin": "xtensa-esp32-elf-", "armv6m": "arm-none-eabi-", "armv7m": "arm-none-eabi-",
                 "armv7emsp": "arm-none-eabi-", "x64": ""}
@@ -97,7 +97,6 @@ def build_module(native_dir: Path, work: Path, arch: str, release: str, progress
         shutil.rmtree(work)
     shutil.copytree(native_dir, work)
     progress(f"  native module for {arch}: {route.name}, MicroPython tree {tree_from}")
-    from codegen.deploy.build import find_mpy_cross, mpy_format
 
     command = ["make", "-C", str(work), "V=1", f"MPY_DIR={tree}", f"ARCH={arch}", f"CROSS={route.cross}",
                f"MPY_CROSS={find_mpy_cross(release)}", f"PYTHON={sys.executable}"]

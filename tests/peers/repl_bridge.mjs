@@ -2,7 +2,7 @@
 // @micropython/micropython-webassembly-pyscript) behind its own raw REPL, for mpremote and deadreckon's uploader
 // (`socket://127.0.0.1:PORT`).
 //
-//   node repl_bridge.mjs [--port N] [--root DIR] [--raw-paste]
+//   node repl_bridge.mjs [--port N] [--root DIR] [--raw-paste] [--watchdog-ms N]
 //
 // Prints "LISTENING <port>" when ready. --root DIR is the board's filesystem: loaded into the instance at start,
 // written back (mirrored) at every soft reset and when a client disconnects ("SYNCED <files>"; "IDLE" after a
@@ -14,6 +14,13 @@
 //   --raw-paste it speaks the protocol itself (window, \x01 flow control, \x04 ack) and feeds the code in raw mode.
 // - file errors carry Emscripten errno numbers (44 for ENOENT); tracebacks get MicroPython's usual ones.
 // - boot.py/main.py are not run at soft reset (the app needs the board's hardware); the banner says so.
+// - --watchdog-ms N: the board's watchdog. With a main.py on the board, the app is taken to run from every boot
+//   with the watchdog started and fed by its loop, until the first Ctrl-C stops it (an app that does not hand the
+//   watchdog over: the worst case). From then on the watchdog must be fed within N ms through the `machine` module
+//   the bridge provides (WDT.feed(), or a machine.Timer's callback, run while the board waits for input as
+//   MicroPython's soft timers are), else the board resets ("rst:0x10 (RTCWDT_RTC_RESET)", "WATCHDOG RESET" on
+//   stdout): a new instance with the same files, in the friendly REPL, the app running again. A soft reset stops
+//   the timers and keeps the watchdog running, as on the ESP32.
 
 import fs from "node:fs";
 import net from "node:net";
@@ -28,8 +35,9 @@ const option = (name, fallback) => {
 const listenPort = parseInt(option("--port", "0"), 10);
 const root = option("--root", null);
 const offerRawPaste = args.includes("--raw-paste");
+const watchdogMs = parseInt(option("--watchdog-ms", "0"), 10);
 
-const SYSTEM_DIRS = new Set(["tmp", "home", "dev", "proc"]);
+const SYSTEM_DIRS = new Set(["tmp", "home", "dev", "proc", "peer"]);
 const PASTE_WINDOW = 128; // bytes per raw-paste window increment
 // Emscripten errno -> MicroPython's (py/mperrno.h) numbers and names
 const ERRNO = {
@@ -42,9 +50,73 @@ let output = [];
 let rawMode = false;
 let client = null;
 
-async function boot(files) {
+// the watchdog (--watchdog-ms) and the timers that may feed it
+const watchdog = { running: false, timeoutMs: watchdogMs, last: Date.now(), appFeeding: false, resets: 0 };
+let timers = []; // {id, period, next, once, fn}
+let timerIds = 0;
+globalThis.peerMachine = {
+  wdtStart: (timeout) => {
+    watchdog.running = true;
+    watchdog.timeoutMs = timeout;
+    watchdog.last = Date.now();
+  },
+  wdtFeed: () => {
+    watchdog.last = Date.now();
+  },
+  timerStart: (period, once, fn) => {
+    const id = ++timerIds;
+    timers.push({ id, period, next: Date.now() + period, once, fn });
+    return id;
+  },
+  timerStop: (id) => {
+    timers = timers.filter((t) => t.id !== id);
+  },
+};
+const MACHINE_PY = `import js
+class WDT:
+    def __init__(self, id=0, timeout=5000):
+        js.peerMachine.wdtStart(timeout)
+    def feed(self):
+        js.peerMachine.wdtFeed()
+class Timer:
+    ONE_SHOT = 0
+    PERIODIC = 1
+    def __init__(self, id=-1, **kw):
+        self.id = id
+        self.handle = 0
+        if kw:
+            self.init(**kw)
+    def init(self, mode=1, period=-1, callback=None, freq=None):
+        if freq:
+            period = 1000 // freq
+        if period <= 0 or callback is None:
+            raise ValueError("period and callback are needed")
+        self.deinit()
+        self.callback = callback
+        self.handle = js.peerMachine.timerStart(period, mode == 0, self._fire)
+    def _fire(self):
+        self.callback(self)
+    def deinit(self):
+        if self.handle:
+            js.peerMachine.timerStop(self.handle)
+            self.handle = 0
+`;
+
+async function boot(files, runsApp = true) {
   output = [];
   mp = await loadMicroPython({ stdout: (d) => output.push(...d), linebuffer: false, heapsize: 2 * 1024 * 1024 });
+  timers = [];
+  if (watchdogMs > 0) {
+    mp.FS.mkdir("/peer");
+    mp.FS.writeFile("/peer/machine.py", MACHINE_PY);
+    mp.runPython("import sys\nsys.path.append('/peer')");
+    if (runsApp && files.some(([rel, data]) => rel === "main.py" && data !== null)) {
+      watchdog.running = true; // the app starts it and feeds it from its loop
+      watchdog.appFeeding = true;
+      watchdog.timeoutMs = watchdogMs;
+    }
+    watchdog.last = Date.now();
+  }
   for (const [rel, data] of files) {
     const parts = rel.split("/");
     for (let i = 1; i < parts.length; i++) {
@@ -140,7 +212,7 @@ async function softReset() {
   const files = snapshot();
   syncRoot();
   const wasRaw = rawMode;
-  await boot(files);
+  await boot(files, !wasRaw); // from the raw REPL MicroPython's soft reset does not run main.py
   if (wasRaw) mp.replProcessChar(0x01);
   output = [];
   if (wasRaw) send("MPY: soft reboot\r\nraw REPL; CTRL-B to exit\r\n>");
@@ -198,7 +270,53 @@ async function feed(byte) {
   await process1(byte);
 }
 
+async function watchdogReset() {
+  flush();
+  const files = snapshot();
+  syncRoot();
+  watchdog.running = false; // a reset stops it; the app starts it again
+  watchdog.appFeeding = false;
+  watchdog.resets += 1;
+  rawMode = false;
+  pending = [];
+  paste = null;
+  rawLineEmpty = true;
+  await boot(files);
+  output = [];
+  console.log("WATCHDOG RESET");
+  send("\r\nets Jul 29 2019 12:21:46\r\n\r\nrst:0x10 (RTCWDT_RTC_RESET),boot:0x13 (SPI_FAST_FLASH_BOOT)\r\n" +
+       "(boot.py/main.py not run on this peer)\r\nMicroPython v1.27.0 (wasm peer)\r\n>>> ");
+}
+
+// every 10 ms, while the board waits for input: the timers due run (MicroPython's soft timers), then the watchdog
+// is checked
+if (watchdogMs > 0) {
+  setInterval(() => {
+    queue = queue.then(async () => {
+      const now = Date.now();
+      for (const t of timers.slice()) {
+        if (now < t.next) continue;
+        t.next = now + t.period;
+        if (t.once) timers = timers.filter((x) => x !== t);
+        try {
+          t.fn();
+        } catch (e) {
+          console.log(`TIMER ERROR ${e}`);
+        }
+      }
+      output = []; // a callback's prints are not part of a REPL reply here
+      if (watchdog.running && !watchdog.appFeeding && Date.now() - watchdog.last > watchdog.timeoutMs) {
+        await watchdogReset();
+      }
+    });
+  }, 10);
+}
+
 async function process1(byte) {
+  if (byte === 0x03 && watchdog.appFeeding) {
+    watchdog.appFeeding = false; // Ctrl-C stops the app: its loop fed the watchdog a moment ago, and no more
+    watchdog.last = Date.now();
+  }
   if (byte === 0x01) rawMode = true;
   else if (byte === 0x02) rawMode = false;
   if (rawMode && byte === 0x04 && rawLineEmpty) {

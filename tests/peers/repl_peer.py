@@ -26,15 +26,18 @@ def missing_reason() -> Optional[str]:
 class ReplPeer:
     """Start with a folder as the board's filesystem; `url` for clients; files mirror back into `root`."""
 
-    def __init__(self, root: Path, raw_paste: bool = False):
+    def __init__(self, root: Path, raw_paste: bool = False, watchdog_ms: int = 0):
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
         command = ["node", str(HERE / "repl_bridge.mjs"), "--root", str(self.root)]
         if raw_paste:
             command.append("--raw-paste")
+        if watchdog_ms:
+            command += ["--watchdog-ms", str(watchdog_ms)]  # the board's watchdog (repl_bridge.mjs)
         self.process = subprocess.Popen(command, cwd=HERE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                         text=True)
         self.lines: "queue.Queue[str]" = queue.Queue()
+        self.printed: list[str] = []  # everything the bridge said, e.g. "WATCHDOG RESET"
         threading.Thread(target=self._read, daemon=True).start()
         line = self._next(timeout=20.0, prefix="LISTENING")
         self.port = int(line.split()[1])
@@ -43,6 +46,7 @@ class ReplPeer:
     def _read(self) -> None:
         assert self.process.stdout is not None
         for line in self.process.stdout:
+            self.printed.append(line.strip())
             self.lines.put(line.strip())
 
     def _next(self, timeout: float, prefix: str) -> str:
@@ -60,6 +64,9 @@ class ReplPeer:
     def wait_idle(self, timeout: float = 10.0) -> None:
         """Wait until the last client has gone and the bridge has mirrored its filesystem into `root`."""
         self._next(timeout, "IDLE")
+
+    def watchdog_resets(self) -> int:
+        return self.printed.count("WATCHDOG RESET")
 
     def files(self) -> dict[str, bytes]:
         return {p.relative_to(self.root).as_posix(): p.read_bytes() for p in sorted(self.root.rglob("*"))

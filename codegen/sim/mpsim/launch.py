@@ -23,6 +23,7 @@ import simworld  # noqa: E402
 
 _own = set(sys.modules)
 _scenario = simworld.scenario()
+time.interrupt_at([t * 1000000 for t in _scenario.get("interrupts_s", ())])  # Ctrl-C at these moments
 _clock = _scenario.get("clock")
 if _clock:
     simworld.at_end(lambda: simworld.trace("clock", charged=boardclock.totals()))
@@ -40,6 +41,7 @@ while True:
     # the board resets: nothing of the old app stays (its modules go, and the heap they held)
     simworld.trace("boot", cause=cause)
     time.disarm_watchdog()
+    time.clear_timers()
     time.halted = False
     for name in list(sys.modules):
         if name not in _own:

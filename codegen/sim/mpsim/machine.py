@@ -231,6 +231,38 @@ class UART:
         return len(buf)
 
 
+class Timer:
+    """machine.Timer: periodic or one-shot callbacks on virtual time, run as the clock passes their time (the
+    board's soft timers run between bytecodes). The scenario's "timers": false makes a board without timers."""
+
+    ONE_SHOT = 0
+    PERIODIC = 1
+
+    def __init__(self, id=-1, **kw):
+        if not _S.get("timers", True):
+            raise ValueError("no timer on this board")
+        self.id = id
+        if kw:
+            self.init(**kw)
+
+    def init(self, mode=PERIODIC, period=-1, callback=None, freq=None):
+        if freq is not None:
+            period = 1000 // freq
+        if period <= 0 or callback is None:
+            raise ValueError("period and callback are needed")
+        simworld.trace("timer", period_ms=period)
+        if mode == Timer.ONE_SHOT:
+            def once(t, callback=callback):
+                time.remove_timer(t)
+                callback(t)
+            time.add_timer(period * 1000, once, self)
+        else:
+            time.add_timer(period * 1000, callback, self)
+
+    def deinit(self):
+        time.remove_timer(self)
+
+
 class WDT:
     """The watchdog: not fed for `timeout` ms of virtual time, the board resets (time.Reset)."""
 

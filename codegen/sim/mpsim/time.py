@@ -42,11 +42,24 @@ def now():
 
 
 def advance(us):
+    """Move the clock on by `us`; on the way, run the timers' callbacks that fall due (as a soft IRQ runs between
+    bytecodes), raise KeyboardInterrupt at an interrupt's time (Ctrl-C), and the watchdog's reset if unfed."""
     global _now, _end, _watchdog, reset_cause
     later = _now + int(us)
-    if 0 <= _watchdog < later:  # the watchdog fires inside this wait, not after it
-        later = _watchdog + 1
-    _now = later
+    while True:
+        step = later
+        if 0 <= _watchdog < step:  # the watchdog fires inside this wait, not after it
+            step = _watchdog + 1
+        due = _next_timer()
+        if due is not None and due[0] <= step and not _in_callback:
+            _now = max(_now, due[0])
+            _run_timer(due)
+            continue
+        if _interrupts and _interrupts[0] <= step:
+            _now = max(_now, _interrupts.pop(0))
+            raise KeyboardInterrupt()
+        _now = step
+        break
     if 0 <= _end <= _now:
         _end = -1
         if _on_end is not None:
@@ -56,6 +69,45 @@ def advance(us):
         _watchdog = -1
         reset_cause = 3
         raise signal_reset("watchdog")
+
+
+# machine.Timer's periodic callbacks ([due us, period us, callback, timer]) and the moments (virtual us) a Ctrl-C
+# arrives (the scenario's "interrupts_s")
+_timers = []
+_interrupts = []
+_in_callback = False
+
+
+def _next_timer():
+    return min(_timers, key=lambda t: t[0]) if _timers else None
+
+
+def _run_timer(entry):
+    global _in_callback
+    entry[0] += entry[1]
+    _in_callback = True
+    try:
+        entry[2](entry[3])
+    finally:
+        _in_callback = False
+
+
+def add_timer(period_us, callback, timer):
+    remove_timer(timer)
+    _timers.append([_now + period_us, period_us, callback, timer])
+
+
+def remove_timer(timer):
+    _timers[:] = [t for t in _timers if t[3] is not timer]
+
+
+def clear_timers():
+    """A reset stops every timer (MicroPython deinitialises them on a soft reset too)."""
+    _timers[:] = []
+
+
+def interrupt_at(times_us):
+    _interrupts[:] = sorted(int(t) for t in times_us)
 
 
 def signal_reset(why):

@@ -592,10 +592,12 @@ class App:
             self.drops_logged = self.samples_dropped
             self.longest_gap_us = 0
         p = self.nmea
+        fix = self.gps_fix
         print("DIAG rate=%.1fHz samples=%d dropped=%d window_us=%d mode=%s fixes=%d nmea_ok=%d bad_checksum=%d "
-              "bad_lines=%d log_blocks=%d heap_free=%d" % (self.rate_hz, self.samples_total,
+              "bad_lines=%d log_blocks=%d heap_free=%d sats=%d gps_speed=%.2f" % (self.rate_hz, self.samples_total,
               self.samples_dropped, self.window_us, MODE_NAMES[self.mode], p.fixes, p.sentences, p.bad_checksum,
-              p.bad_lines, self.log.blocks_written, gc.mem_free()))
+              p.bad_lines, self.log.blocks_written, gc.mem_free(), fix.sats if fix is not None else p.sats,
+              (fix.speed_ms or 0.0) if fix is not None else 0.0))
 
     # ---------------------------------------------------------------- the loop
 
@@ -713,30 +715,77 @@ class App:
                 pass
 
 
+_wdt = None  # the watchdog the app started: a started machine.WDT cannot be stopped
+_holder = None  # the timer feeding it once the app was stopped into the REPL
+
+
+def hold_watchdog():
+    """Hand the running watchdog to a periodic timer, whose callback (a soft IRQ: MicroPython runs it between
+    bytecodes and while the REPL waits for input) feeds it, so that a host transferring files through the REPL
+    after Ctrl-C is not reset by it; a soft reset stops the timer, and the app started again feeds the watchdog
+    itself (docs/watchdog.md)."""
+    global _holder
+    wdt = _wdt
+    if wdt is None or _holder is not None:
+        return
+    wdt.feed()
+    for timer_id in (-1, 0):  # a virtual timer where the port has them (RP2040), else hardware timer 0 (ESP32)
+        try:
+            timer = machine.Timer(timer_id)
+            timer.init(mode=machine.Timer.PERIODIC, period=max(100, cfg.WATCHDOG_MS // 4),
+                       callback=lambda t: wdt.feed())
+        except (AttributeError, ValueError, OSError):
+            continue
+        _holder = timer
+        return
+    print("WARN watchdog: no timer to feed it from the REPL; the board resets in %d ms" % cfg.WATCHDOG_MS)
+
+
+def _stopped(app):
+    """Ctrl-C: the watchdog handed over first, then the log's blocks written. A second Ctrl-C may land in here
+    (hosts send two): one in the handover repeats it, one in the log's close leaves the log as it is."""
+    stage = 0
+    while stage < 2:
+        try:
+            if stage == 0:
+                hold_watchdog()
+            elif app is not None:
+                app.log.close()
+            stage += 1
+        except KeyboardInterrupt:
+            if stage:
+                stage = 2
+
+
 def main():
     """Run the app; on an error it did not handle, say it (console, log, screen) and reset the board. The
-    watchdog resets a board whose loop stopped (micropython.watchdog_s)."""
+    watchdog resets a board whose loop stopped (micropython.watchdog_s); stopped by Ctrl-C, the app hands it to a
+    timer (hold_watchdog) and ends with KeyboardInterrupt, which leaves the board in the REPL."""
+    global _wdt
     wdt = None
-    try:
-        wdt = machine.WDT(timeout=cfg.WATCHDOG_MS)
-    except (AttributeError, ValueError, OSError):
-        print("no watchdog on this port")
     app = None
     try:
+        try:
+            _wdt = wdt = machine.WDT(timeout=cfg.WATCHDOG_MS)
+        except (AttributeError, ValueError, OSError):
+            print("no watchdog on this port")
         app = App(wdt)
         app.run()
-    except KeyboardInterrupt:  # Ctrl-C at the console: stop, with the log's blocks written
-        if app is not None:
-            app.log.close()
+    except KeyboardInterrupt:  # Ctrl-C at the console: into the REPL, the watchdog held, the log written
+        _stopped(app)
         raise
     except Exception as e:  # noqa: the board's last resort
         print("FATAL")
         sys.print_exception(e)
-        if app is not None:
-            app.fatal(e)
-        until = time.ticks_add(time.ticks_ms(), _FATAL_SHOW_MS)
-        while time.ticks_diff(until, time.ticks_ms()) > 0:
-            if wdt is not None:
-                wdt.feed()
-            time.sleep_ms(100)
+        try:
+            if app is not None:
+                app.fatal(e)
+            until = time.ticks_add(time.ticks_ms(), _FATAL_SHOW_MS)
+            while time.ticks_diff(until, time.ticks_ms()) > 0:
+                if wdt is not None:
+                    wdt.feed()
+                time.sleep_ms(100)
+        except KeyboardInterrupt:  # Ctrl-C while the error is shown: the REPL, as above, instead of the reset
+            _stopped(None)
+            raise
         machine.reset()
