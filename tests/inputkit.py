@@ -30,10 +30,11 @@ def synthetic_run(duration: float = 40.0, seed: int = 3):
 
 
 def device_log(header: dict[str, str] | None = None, gps: dict[int, dict[str, int]] | None = None,
-               block: int = BLOCK) -> bytes:
-    """The run as a device log; `header` values replace HEADER's (None removes one), `gps` {record index: {field:
-    value}} replaces fields of single GPS records (the rest as the receiver gave them)."""
-    log = synthetic_run()
+               block: int = BLOCK, run=None) -> bytes:
+    """The run (default: synthetic_run()) as a device log; `header` values replace HEADER's (None removes one),
+    `gps` {record index: {field: value}} replaces fields of single GPS records (the rest as the receiver gave
+    them)."""
+    log = run if run is not None else synthetic_run()
     values = {**HEADER, **(header or {})}
     text = ";".join(f"{key}={value}" for key, value in values.items() if value is not None).encode()
     records = [struct.pack("<BBH", 0x48, 1, len(text)) + text]

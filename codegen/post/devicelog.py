@@ -117,6 +117,10 @@ def parse_device_log(path: Path, block: int | None = None) -> RawDeviceLog:
                     log.truncated = True
                     break
                 raise UserError(f"{path}: record cut short at {where}", location=Location(str(path), 1, 1)) from None
+            if t < last and last - t < (1 << 31):  # the clock wraps from near 2^32 to near 0; this went back
+                raise UserError(f"{path}: the record at {where} is {(last - t) / 1e6:.6f} s older than the one "
+                                "before it (the device's clock only goes forward)",
+                                location=Location(str(path), 1, 1), hint="the log is damaged there")
             t_hi += (1 << 32) if t < last else 0
             last = t
             stamp = t + t_hi
