@@ -89,9 +89,6 @@ def _mutate_text(text: str, rng: random.Random, separators: str) -> str:
         choice = rng.randrange(8)
         at = rng.randrange(len(lines))
         if choice <= 2:  # a field (after a separator) replaced
-            parts = [lines[at]]
-            for separator in separators:
-                parts = [piece for part in parts for piece in part.split(separator)] if separator in lines[at] else parts
             positions = [i for i, ch in enumerate(lines[at]) if ch in separators]
             if positions:
                 start = rng.choice(positions) + 1

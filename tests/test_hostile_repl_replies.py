@@ -13,7 +13,8 @@ from hostilekit import PORT_BOUND_S, assert_refused, run_cli, snapshot, user_fil
 from peers.bad_ports import BadPort
 
 HIGH_BYTES = bytes(range(0x80, 0x100))
-ENOSPC = b"Traceback (most recent call last):\r\n  File \"<stdin>\", line 2, in <module>\r\nOSError: [Errno 28] ENOSPC\r\n"
+ENOSPC = (b"Traceback (most recent call last):\r\n  File \"<stdin>\", line 2, in <module>\r\n"
+          b"OSError: [Errno 28] ENOSPC\r\n")
 
 
 class ReplyPort(BadPort):

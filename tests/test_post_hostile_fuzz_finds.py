@@ -22,7 +22,8 @@ def test_an_acceleration_of_1e308_g(tmp_path):
     lines = _absolute_imu().split("\n")
     t, ax, ay, rest = lines[40].split(",", 3)
     lines[40] = ",".join((t, ax, "1e308", rest))
-    _post(tmp_path, "\n".join(lines), _gpx(), "gps.gpx", "imu.csv:41:1: error: IMU log: ay is 1e+308 g, outside -64..64")
+    _post(tmp_path, "\n".join(lines), _gpx(), "gps.gpx",
+          "imu.csv:41:1: error: IMU log: ay is 1e+308 g, outside -64..64")
 
 
 def test_a_track_point_at_latitude_nan(tmp_path):

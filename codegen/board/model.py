@@ -156,7 +156,8 @@ def pin_number(pin: PinSpec) -> int:
 
 
 class Partitions(Part):
-    bootloader: int = Field(0x1000, ge=0, le=0xFFFFFF, description="bootloader offset: 0x1000 on the ESP32, 0x0 on the ESP32-S3")
+    bootloader: int = Field(
+        0x1000, ge=0, le=0xFFFFFF, description="bootloader offset: 0x1000 on the ESP32, 0x0 on the ESP32-S3")
     partition_table: int = Field(0x8000, ge=0, le=0xFFFFFF, description="partition table offset")
     app: int = Field(0x10000, ge=0, le=0xFFFFFF, description="MicroPython firmware (app) offset")
     table: Optional[str] = Field(
@@ -297,7 +298,8 @@ class Gps(Part):
     uart: str = Field(description="name of an entry under uart:")
     rate_hz: float = Field(1.0, gt=0, le=10)
     power: str = Field("always_on", description="'always_on' or the name of a power rail under power.rails")
-    fix_timeout_s: float = Field(3.0, ge=0.1, le=3600, description="the fix counts as lost after this long without a valid one")
+    fix_timeout_s: float = Field(
+        3.0, ge=0.1, le=3600, description="the fix counts as lost after this long without a valid one")
 
     @property
     def fix_timeout_ms(self) -> int:
