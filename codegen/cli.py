@@ -153,8 +153,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from codegen.board.loader import load_board
-    from codegen.sim.simulate import simulate
+    from codegen.sim.simulate import check_options, simulate
 
+    check_options(args.outage, args.seed, args.step, Path(args.plot) if args.plot else None)
     loaded = load_board(args.board)
     if args.on_micropython:
         from codegen.sim.onmicropython import run_on_micropython

@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
@@ -44,6 +45,10 @@ from codegen.safeio import read_bounded, regular_file_sha256, write_atomically
 MANIFEST = "MANIFEST.json"
 GENERATOR = "deadreckon"
 SEAL = "seal"
+UNFINISHED = "unfinished"  # a manifest written as a claim, before the files it lists
+EARLIER = "was"  # in a claim's entry: the SHA-256s the file had before, deadreckon's (not yet rewritten)
+# what safeio.write_atomically leaves of a file when the process dies before its rename: .NAME.XXXXXXXX.tmp
+LEFTOVER = re.compile(r"^\.(?P<name>.+)\.[a-z0-9_]{8}\.tmp$")
 MAX_MANIFEST_BYTES = 1024 * 1024  # a manifest lists a few dozen files: tens of KB
 TEMPLATE_OUTPUTS = {"micropython": "app", "native": "native"}
 # The MicroPython app's templates a CircuitPython app renders too (into app/lib/): everything but main.py, which
@@ -278,9 +283,11 @@ def safe_relative(relative: object) -> Optional[PurePosixPath]:
     return path if path.parts[0] in TEMPLATE_OUTPUTS.values() and len(path.parts) > 1 else None
 
 
-def read_manifest(root: Path) -> dict:
+def read_manifest(root: Path, unfinished_too: bool = False) -> dict:
     """The sealed manifest of a folder deadreckon generated, or a UserError saying the folder is not one (no
-    manifest, a link, not a regular file, too large, not JSON, no valid seal, a path that leaves the folder)."""
+    manifest, a link, not a regular file, too large, not JSON, no valid seal, a path that leaves the folder).
+    A generate's claim (written before its files, see `generate`) is the manifest of an unfinished tree: refused
+    unless `unfinished_too` (generate itself, which finishes the folder)."""
     path = root / MANIFEST
     try:
         status = path.lstat()
@@ -309,17 +316,52 @@ def read_manifest(root: Path) -> dict:
     unsafe = [relative for relative in files if safe_relative(relative) is None]
     if unsafe:
         raise _foreign(path, f"it names {unsafe[0]!r}, outside app/ and native/ of the folder")
+    if manifest.get(UNFINISHED) and not unfinished_too:
+        raise UserError(f"{root} is a tree whose `deadreckon generate` was interrupted before it finished",
+                        hint=f"run the same `deadreckon generate ... -o {root}` again: it finishes the folder")
     return manifest
 
 
-def _edited_files(root: Path, manifest: dict) -> list[str]:
-    """Files of the old manifest that are no longer what deadreckon wrote (edited, replaced by a link, ...)."""
+def _edited_files(root: Path, manifest: dict, files: dict[str, RenderedFile]) -> list[str]:
+    """Files of the old manifest that are no longer what deadreckon wrote (edited, replaced by a link, ...): neither
+    what the manifest says nor what this run writes there (which an interrupted run of it may have written)."""
     edited = []
     for relative, entry in manifest["files"].items():
         path = root / relative
-        if os.path.lexists(path) and regular_file_sha256(path) != entry.get("sha256"):
+        if not os.path.lexists(path):
+            continue
+        digest = regular_file_sha256(path)
+        written = {entry.get("sha256"), *_earlier(entry)}  # a claim's file may still hold what it held before
+        if digest not in written and (relative not in files
+                                      or digest != hashlib.sha256(files[relative].content).hexdigest()):
             edited.append(relative)
     return edited
+
+
+def _earlier(entry: dict) -> list[str]:
+    """The SHA-256s a claim's entry says its file had before the interrupted run (see `generate`)."""
+    earlier = entry.get(EARLIER)
+    return [digest for digest in earlier if isinstance(digest, str)] if isinstance(earlier, list) else []
+
+
+def _leftovers(root: Path, names: list[str]) -> list[Path]:
+    """The temporary files an interrupted run left beside the files it writes (`names`, relative to root): regular
+    files named .NAME.XXXXXXXX.tmp for one of those NAMEs in the same folder, never a link or anything else."""
+    wanted: dict[Path, set[str]] = {}
+    for relative in names:
+        path = root / relative
+        wanted.setdefault(path.parent, set()).add(path.name)
+    found = []
+    for folder, own in wanted.items():
+        try:
+            entries = list(os.scandir(folder))
+        except OSError:
+            continue
+        for entry in entries:
+            match = LEFTOVER.match(entry.name)
+            if match and match.group("name") in own and entry.is_file(follow_symlinks=False):
+                found.append(Path(entry.path))
+    return found
 
 
 def _check_inside(root: Path, relative: str) -> Path:
@@ -359,26 +401,40 @@ def generate(loaded: LoadedBoard, root: Path, force: bool = False) -> GenerateRe
     if os.path.lexists(root) and not root.is_dir():
         raise UserError(f"{root} exists and is not a folder")
     old_files: dict[str, dict] = {}
-    if root.exists() and any(root.iterdir()):
-        if not os.path.lexists(root / MANIFEST):
+    if root.exists() and not os.path.lexists(root / MANIFEST):
+        # killed while writing its claim, a run leaves only the claim's temporary file: the folder is still empty
+        foreign = [entry for entry in root.iterdir() if entry not in _leftovers(root, [MANIFEST])]
+        if foreign:
             raise UserError(
                 f"{root} is not empty and was not generated by deadreckon; refusing to write into it",
                 hint="choose a new or empty folder with -o",
             )
-        old_files = read_manifest(root)["files"]
-        edited = _edited_files(root, {"files": old_files})
-        if edited and not force:
-            raise UserError(
-                f"{len(edited)} generated file(s) in {root} were edited since: {', '.join(edited[:5])}",
-                hint="keep your edits elsewhere, or pass --force to overwrite them",
-            )
-    else:
-        edited = []
+    elif root.exists():
+        old_files = read_manifest(root, unfinished_too=True)["files"]
+    edited = _edited_files(root, {"files": old_files}, files)
+    if edited and not force:
+        raise UserError(
+            f"{len(edited)} generated file(s) in {root} were edited since: {', '.join(edited[:5])}",
+            hint="keep your edits elsewhere, or pass --force to overwrite them",
+        )
     targets = {relative: _check_inside(root, relative) for relative in files}
     stale = [relative for relative in old_files if relative not in files]
     for relative in stale:
         _check_inside(root, relative)
     kept = [relative for relative in stale if relative in edited]
+    # The claim first: a sealed manifest of every file this run writes or may remove, marked unfinished. Killed at
+    # any point after it, the folder is recognisably this run's and the next generate finishes it; killed before
+    # it, the folder is as it was (or empty but for the claim's own temporary file).
+    claim = manifest_for(loaded, files, root)
+    entries = {rel: old_files[rel] for rel in stale if rel not in kept}
+    for rel, entry in claim["files"].items():
+        old = old_files.get(rel)
+        earlier = [old.get("sha256"), *_earlier(old)] if old is not None and rel not in edited else []
+        entries[rel] = {**entry, EARLIER: [d for d in earlier if isinstance(d, str)]} if earlier else entry
+    claim = seal({**claim, UNFINISHED: True, "files": entries})
+    write_atomically(root / MANIFEST, (json.dumps(claim, indent=2, sort_keys=True) + "\n").encode("utf-8"))
+    for leftover in _leftovers(root, [*files, *stale, MANIFEST]):
+        leftover.unlink()
     for relative, rendered in files.items():
         write_atomically(targets[relative], rendered.content)
     for relative in stale:

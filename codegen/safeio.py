@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
 import stat
@@ -65,21 +66,39 @@ def read_bounded(path: Path, name: str, limit: int, what: str, typical: str = "a
     return raw
 
 
+def write_failed(target: Path, error: OSError) -> UserError:
+    """The UserError for a write to `target` the file system refused (full, read-only, gone), naming the file;
+    the caller has left `target` as it was (each file is renamed into place whole)."""
+    reason = error.strerror or str(error)
+    if error.errno == errno.ENOSPC or error.errno == errno.EDQUOT:
+        hint = f"free some space on the disk holding {target.parent} and run the same command again"
+    elif error.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+        hint = f"choose a folder you may write to, or make {target.parent} writable"
+    else:
+        hint = "check the disk, then run the same command again"
+    return UserError(f"writing {target} failed: {reason}; it is as it was before", hint=hint)
+
+
 def write_atomically(target: Path, content: bytes) -> None:
     """Write `content` to a new temporary file beside `target` (created exclusively, so never through a link),
     then rename it over `target`: a reader sees the old or the new file, never half of one, and a link or a hard
-    link at `target` is replaced, not written through."""
+    link at `target` is replaced, not written through. A refused write is a UserError naming `target`."""
     target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
+    except OSError as error:
+        raise write_failed(target, error) from None
     try:
         with os.fdopen(descriptor, "wb") as handle:
             handle.write(content)
         os.chmod(temporary, FILE_MODE)
         os.replace(temporary, target)
-    except BaseException:
+    except BaseException as error:
         if os.path.lexists(temporary):
             os.unlink(temporary)
+        if isinstance(error, OSError):
+            raise write_failed(target, error) from None
         raise
 
 

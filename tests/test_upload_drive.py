@@ -81,20 +81,29 @@ def test_upload_writes_the_app_and_then_only_what_changed(built, tmp_path):
         _app_files(built["second"])
 
 
+def _tree_with_extra_modules(built, name: str) -> Path:
+    """A copy of the first build (beside the board file its manifest names) whose built app also has two modules an
+    older deadreckon wrote, as a tree that once uploaded them and then no longer does."""
+    out = built["first"].parent / name
+    shutil.copytree(built["first"], out, symlinks=True)
+    for module in ("old_module.py", "edited_module.py"):
+        (out / "build" / "app" / "lib" / module).write_text(f"# {module}\n")
+    return out
+
+
 def test_files_deadreckon_no_longer_writes_go_the_users_stay(built, tmp_path):
+    out = _tree_with_extra_modules(built, "older")
     drive = _drive(tmp_path)
-    upload_drive(built["first"], drive, progress=_quiet)
-    record = (drive / RECORD).read_text()
-    (drive / "lib" / "old_module.py").write_text("x = 1\n")
-    (drive / "lib" / "edited_module.py").write_text("x = 2\n")
+    upload_drive(out, drive, progress=_quiet)
+    assert (drive / "lib" / "old_module.py").is_file()
+    (drive / "lib" / "edited_module.py").write_text("x = 2  # the user's edit\n")
     (drive / "lib" / "mine.py").write_text("mine = True\n")
-    digest = {name: hashlib.sha256((drive / "lib" / name).read_bytes()).hexdigest()
-              for name in ("old_module.py", "edited_module.py")}
-    (drive / RECORD).write_text(record.replace('"files": {', '"files": {\n "lib/old_module.py": "%s",\n '
-                                               '"lib/edited_module.py": "%s",' % (digest["old_module.py"], "0" * 64)))
-    result = upload_drive(built["first"], drive, progress=_quiet)
+    for module in ("old_module.py", "edited_module.py"):
+        (out / "build" / "app" / "lib" / module).unlink()
+    result = upload_drive(out, drive, progress=_quiet)
     assert result.removed == ["lib/old_module.py"]
     assert (drive / "lib" / "mine.py").exists() and (drive / "lib" / "edited_module.py").exists()
+    assert (drive / "settings.toml").exists()
 
 
 @pytest.mark.parametrize("case, message", [

@@ -11,8 +11,10 @@ base's value (so the default applies).
 from __future__ import annotations
 
 import difflib
+import errno
 import hashlib
 import os
+import re
 import sys
 import typing
 from dataclasses import dataclass, field
@@ -43,6 +45,9 @@ from codegen.errors import Location, UserError
 from codegen.paths import board_configs_dir, default_board_path
 
 MAX_EXTENDS_DEPTH = 8
+MAX_BUNDLED_NAME = 64
+BUNDLED_NAME = re.compile(rf"[A-Za-z0-9][A-Za-z0-9._-]{{0,{MAX_BUNDLED_NAME - 1}}}")
+BOUND_KINDS = {"greater_than", "greater_than_equal", "less_than", "less_than_equal"}
 
 
 @dataclass
@@ -149,14 +154,28 @@ def _merge(base: Any, override: Any, path: KeyPath, source: SourceMap) -> Any:
     return override
 
 
+def _real_path(path: Path, via: Optional[Location]) -> str:
+    """The file a path names once links are followed; a loop of links is a located error, not a traceback."""
+    try:
+        return os.path.realpath(path, strict=True)
+    except FileNotFoundError:
+        return os.path.realpath(path)  # read_yaml says it is missing, with the place
+    except OSError as problem:
+        hint = {errno.ELOOP: "a link that points back at itself (directly or through others) names no file; "
+                             "point it at the board YAML",
+                errno.ENAMETOOLONG: "the file system takes names of at most 255 bytes; give the file a shorter "
+                                    "name"}.get(problem.errno, "is the name right, and is the file readable?")
+        raise UserError(f"{display_name(path)[:300]}: {problem.strerror}", location=via, hint=hint) from None
+
+
 def _read_chain(path: Path, lines_by_file: dict[str, list[str]]) -> tuple[dict, SourceMap, list[Path]]:
     chain: list[Path] = []
     documents = []
     current: Optional[Path] = path
     via: Optional[Location] = None
     while current is not None:
-        resolved = current.resolve()
-        if resolved in [p.resolve() for p in chain]:
+        resolved = _real_path(current, via)
+        if resolved in [_real_path(p, via) for p in chain]:
             raise UserError("`extends:` forms a cycle", location=via, hint=" -> ".join(map(display_name, chain)))
         if len(chain) >= MAX_EXTENDS_DEPTH:
             raise UserError(f"`extends:` chain deeper than {MAX_EXTENDS_DEPTH} files", location=via)
@@ -165,6 +184,10 @@ def _read_chain(path: Path, lines_by_file: dict[str, list[str]]) -> tuple[dict, 
         except YamlError as problem:
             if problem.lines:  # the message shows the offending line and a caret, as every other error does
                 lines_by_file[display_name(current)] = problem.lines
+            if via and problem.location is None:
+                problem.location = via
+            raise
+        except UserError as problem:  # unreadable (a folder, a device, a name too long): say which extends: named it
             if via and problem.location is None:
                 problem.location = via
             raise
@@ -177,8 +200,19 @@ def _read_chain(path: Path, lines_by_file: dict[str, list[str]]) -> tuple[dict, 
             current = None
         elif not isinstance(parent, str):
             raise UserError("`extends:` names a bundled board or a path to a board YAML", location=via)
+        elif "\0" in parent:
+            raise UserError("`extends:` contains a NUL character, which no file name can hold", location=via,
+                            hint="write the bundled board's name or the path of a .yaml file")
         else:
             candidate = (current.parent / parent) if parent.endswith((".yaml", ".yml")) else None
+            if candidate is None and not BUNDLED_NAME.fullmatch(parent):
+                raise UserError(
+                    f"`extends: {parent[:60]}{'...' if len(parent) > 60 else ''}` is neither a bundled board's name "
+                    f"(letters, digits, '.', '_', '-', at most {MAX_BUNDLED_NAME} characters) nor a .yaml file",
+                    location=via,
+                    hint="`deadreckon boards` lists the bundled boards; a file of your own is named with its "
+                         ".yaml ending, relative to this file (extends: ./base.yaml)",
+                )
             if candidate is None:
                 candidate = board_configs_dir() / f"{parent}.yaml"
                 if not candidate.exists():
@@ -274,6 +308,10 @@ def _schema_diagnostics(exc: ValidationError, data: dict, source: SourceMap) -> 
             elif message.startswith("Value error, "):
                 message = message[len("Value error, "):]
             hint = (item.get("ctx") or {}).get("hint", hint)
+            if hint is None and kind == "finite_number":
+                hint = "YAML's .inf and .nan are not values a board can run with; write a finite number"
+            if hint is None and kind in BOUND_KINDS:
+                hint = "`deadreckon schema` states every key's range"
             got = item.get("input")
             shown = "" if isinstance(got, (dict, list)) or kind == "missing" else f" (got {got!r})"
             diagnostic = error(f"{_dotted(path)}: {message}{shown}", source.value(path), hint)

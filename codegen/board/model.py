@@ -36,11 +36,30 @@ DLPF_BANDWIDTH_HZ = {0: 260, 1: 184, 2: 94, 3: 44, 4: 21, 5: 10, 6: 5}
 
 AXIS_NAMES = ("x", "y", "z", "-x", "-y", "-z")
 
+# Every number a board file gives is finite (YAML's .inf and .nan are refused) and bounded: a field without a
+# physical upper limit of its own takes at most NUMBER_MAX, and a nonzero real number is at least NUMBER_TINY in
+# size, so that what the app computes from it (a reciprocal, a square times a sensitivity of 16384 counts/g, a
+# period in ms) stays finite in the device's float32 (largest 3.4e38, smallest normal 1.2e-38).
+NUMBER_MAX = 1.0e6
+NUMBER_TINY = 1.0e-6
+INT32_MAX = 2**31 - 1
+
 
 class Part(BaseModel):
     """Base of every schema part: unknown keys are errors, values are not coerced between kinds silently."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+    @field_validator("*")
+    @classmethod
+    def _not_vanishing(cls, value: object) -> object:
+        if isinstance(value, float) and 0.0 < abs(value) < NUMBER_TINY:
+            raise PydanticCustomError(
+                "number_tiny", "too small to mean anything here (a nonzero number is at least {tiny})",
+                {"tiny": NUMBER_TINY, "hint": f"write 0 where 0 is allowed, or a value of at least "
+                                                               f"{NUMBER_TINY:g}"},
+            )
+        return value
 
 
 class PinSpec(Part):
@@ -118,7 +137,8 @@ Pin = Annotated[
                 {"type": "string", "pattern": r"^(board\.)?[A-Z][A-Z0-9_]*$"},
                 {
                     "type": "object",
-                    "properties": {"pin": {"anyOf": [{"type": "integer"}, {"type": "string"}]},
+                    "properties": {"pin": {"anyOf": [{"type": "integer", "minimum": 0, "maximum": 63},
+                                                     {"type": "string"}]},
                                    "strapping_by_design": {"type": "boolean"}},
                     "required": ["pin"],
                     "additionalProperties": False,
@@ -136,9 +156,10 @@ def pin_number(pin: PinSpec) -> int:
 
 
 class Partitions(Part):
-    bootloader: int = Field(0x1000, ge=0, description="bootloader offset: 0x1000 on the ESP32, 0x0 on the ESP32-S3")
-    partition_table: int = Field(0x8000, ge=0, description="partition table offset")
-    app: int = Field(0x10000, ge=0, description="MicroPython firmware (app) offset")
+    bootloader: int = Field(
+        0x1000, ge=0, le=0xFFFFFF, description="bootloader offset: 0x1000 on the ESP32, 0x0 on the ESP32-S3")
+    partition_table: int = Field(0x8000, ge=0, le=0xFFFFFF, description="partition table offset")
+    app: int = Field(0x10000, ge=0, le=0xFFFFFF, description="MicroPython firmware (app) offset")
     table: Optional[str] = Field(
         None,
         pattern=r"^[^\x00]+\.csv$",
@@ -148,9 +169,9 @@ class Partitions(Part):
 
 
 class Filesystem(Part):
-    offset: int = Field(0x200000, ge=0, description="vfs partition offset, bytes")
-    size: int = Field(0x200000, gt=0, description="vfs partition size, bytes")
-    block_size: int = Field(4096, gt=0, description="LittleFS block size, bytes (the flash erase size)")
+    offset: int = Field(0x200000, ge=0, le=0xFFFFFF, description="vfs partition offset, bytes")
+    size: int = Field(0x200000, gt=0, le=0x1000000, description="vfs partition size, bytes")
+    block_size: int = Field(4096, gt=0, le=65536, description="LittleFS block size, bytes (the flash erase size)")
 
     @field_validator("offset", "size")
     @classmethod
@@ -223,7 +244,7 @@ class Imu(I2CDevice):
     accel_range_g: Literal[2, 4, 8, 16] = 2
     gyro_range_dps: Literal[250, 500, 1000, 2000] = 250
     dlpf: int = Field(3, ge=0, le=6, description="DLPF_CFG, register 0x1A")
-    sample_rate_hz: float = Field(200.0, gt=0, description="sample rate the app runs the IMU at")
+    sample_rate_hz: float = Field(200.0, gt=0, le=8000, description="sample rate the app runs the IMU at")
     axes: list[str] = Field(
         ["x", "y", "z"],
         min_length=3,
@@ -277,7 +298,8 @@ class Gps(Part):
     uart: str = Field(description="name of an entry under uart:")
     rate_hz: float = Field(1.0, gt=0, le=10)
     power: str = Field("always_on", description="'always_on' or the name of a power rail under power.rails")
-    fix_timeout_s: float = Field(3.0, gt=0, description="the fix counts as lost after this long without a valid one")
+    fix_timeout_s: float = Field(
+        3.0, ge=0.1, le=3600, description="the fix counts as lost after this long without a valid one")
 
     @property
     def fix_timeout_ms(self) -> int:
@@ -289,7 +311,7 @@ class Display(I2CDevice):
     address: int = Field(0x3C, ge=0, le=0xFF)
     width: Literal[64, 72, 128] = 128
     height: Literal[32, 48, 64] = 64
-    refresh_ms: int = Field(500, ge=50, description="screen refresh period")
+    refresh_ms: int = Field(500, ge=50, le=60000, description="screen refresh period")
 
 
 class Rail(Part):
@@ -337,24 +359,28 @@ class _AlgorithmKeys(Part):
         "gravity, rest detection, heading and speed from GPS (issue 8; beats the seed and both baselines on the "
         "walk, car and real-walk benchmarks)",
     )
-    block: int = Field(16, ge=1, description="b: samples per block median")
+    block: int = Field(16, ge=1, le=4096, description="b: samples per block median")
     window: int = Field(512, ge=1, le=4096, description="n: samples per processing window")
-    deadband_g: float = Field(0.03125, ge=0, description="l: |a| below this (in g) becomes 0")
+    deadband_g: float = Field(0.03125, ge=0, le=16, description="l: |a| below this (in g) becomes 0")
     calibration_s: float = Field(10.0, gt=0, le=120, description="seconds at rest for calibration")
     motion_threshold_g: float = Field(
-        0.02, gt=0, description="accel standard deviation above this during calibration means 'moved'"
+        0.02, gt=0, le=16, description="accel standard deviation above this during calibration means 'moved'"
     )
 
 
 def algorithm_model(kernel=FUSED) -> type:
     """The `algorithm` section: the seed's keys, and for mode "fused" (codegen/kernel/fused.py, native_ext/dr_fused.c)
     one key `fused_<name>` per parameter of the kernel's declaration (codegen/kernel/layout.py), with its default,
-    unit and limits from there."""
+    unit and limits from there; a limit the kernel does not declare is the board's (NUMBER_MAX, INT32_MAX)."""
     keys = {}
     for p in kernel.params:
         kind = Literal[p.choices] if p.kind == "choice" else {"float": float, "int": int, "bool": bool}[p.kind]
         description = f"{p.unit}: {p.doc}" if p.unit else p.doc
-        keys[kernel.board_key(p)] = (kind, Field(p.default, gt=p.gt, ge=p.ge, le=p.le, description=description))
+        limits = {}
+        if p.kind in ("float", "int"):
+            limits["le"] = p.le if p.le is not None else (NUMBER_MAX if p.kind == "float" else INT32_MAX)
+        keys[kernel.board_key(p)] = (kind, Field(p.default, gt=p.gt, ge=p.ge, description=description,
+                                                 **(limits or {"le": p.le})))
     return create_model("Algorithm", __base__=_AlgorithmKeys, __module__=__name__, **keys)
 
 
@@ -363,11 +389,11 @@ Algorithm = algorithm_model()
 
 class Logging(Part):
     enabled: bool = True
-    imu_rate_hz: float = Field(50.0, gt=0)
+    imu_rate_hz: float = Field(50.0, ge=0.01, le=1000, description="Hz: IMU samples logged per second")
     directory: str = Field("/logs", pattern=r"^/[A-Za-z0-9_./-]*$")
     block_bytes: int = Field(4096, ge=256, le=65536)
     max_files: int = Field(20, ge=1, le=1000)
-    min_free_kb: int = Field(256, ge=16)
+    min_free_kb: int = Field(256, ge=16, le=16384)
 
 
 Chip = Literal["esp32", "esp32s3", "rp2040"]
@@ -397,7 +423,8 @@ class Board(Part):
     display: Optional[Display] = None
     buttons: Buttons = Buttons()
     led: Optional[Led] = None
-    reserved: dict[str, list[int]] = Field(default_factory=dict, description="pins taken by parts we do not drive")
+    reserved: dict[str, list[Annotated[int, Field(ge=0, le=63)]]] = Field(
+        default_factory=dict, description="GPIO numbers taken by parts we do not drive")
     algorithm: Algorithm = Algorithm()
     logging: Logging = Logging()
 

@@ -25,7 +25,8 @@ from codegen.errors import UserError
 from codegen.safeio import write_atomically
 
 RECORD = "BUILD.json"
-BUILD_ENTRIES = {"app", "native", "fs.img", RECORD}  # everything `build` puts into OUT/build/
+UPLOAD_RECORD = "UPLOADED.json"  # what `upload --drive` last sent from this tree (codegen/deploy/drive.py)
+BUILD_ENTRIES = {"app", "native", "fs.img", RECORD, UPLOAD_RECORD}  # everything OUT/build/ holds
 MAX_RECORD_BYTES = 1024 * 1024
 
 

@@ -14,8 +14,11 @@ next upload. lib/ goes first and code.py last, because CircuitPython restarts co
 until the last file is in, the old code.py keeps running (or restarts into modules that are already new).
 
 Files an earlier upload wrote and the tree no longer has are removed, and only those, and only while unchanged
-since: the drive keeps a record of what deadreckon put there (`.deadreckon-upload.json`). Everything else on the
-drive (the logs, the user's own files, settings.toml) is never touched.
+since. The drive's word is never enough: anyone can write a file onto a USB drive. A file is removed only when
+both records name it with the SHA-256 it still has: the drive's (`.deadreckon-upload.json`) and the tree's own
+(OUT/build/UPLOADED.json: the app's file list this tree last uploaded), each sealed as generate's MANIFEST.json is;
+and only when its path stays on the drive without passing through a link. Everything else on the drive (the logs,
+the user's own files, settings.toml, a file that happens to have the hash a record names) is never touched.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import hashlib
 import json
 import os
 import shutil
+import stat
 import time
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
@@ -32,12 +36,13 @@ from typing import Callable
 
 from codegen.board.circuitpython import MIN_CIRCUITPYTHON
 from codegen.errors import UserError
-from codegen.safeio import read_bounded, regular_file_sha256
+from codegen.safeio import read_bounded, regular_file_sha256, write_atomically
 
 Progress = Callable[[str], None]
 
 BOOT_OUT = "boot_out.txt"
 RECORD = ".deadreckon-upload.json"
+RECORD_GENERATOR = "deadreckon upload"
 PART_SUFFIX = ".deadreckon-part"
 MAX_BOOT_OUT_BYTES = 64 * 1024
 MAX_RECORD_BYTES = 1024 * 1024
@@ -159,19 +164,52 @@ def _check_inside(drive: Path, rel: str) -> Path:
     return target
 
 
-def _read_record(drive: Path) -> dict[str, str]:
-    path = drive / RECORD
-    if not path.is_file() or path.is_symlink():
-        return {}
+def read_upload_record(path: Path) -> dict[str, str]:
+    """{path on the drive: SHA-256} of a sealed upload record at `path` (a regular file, not a link); {} for
+    anything else: no record, a link, unreadable, not JSON, not deadreckon's, a seal that does not match."""
+    from codegen.generate import is_sealed
+
     try:
+        if not stat.S_ISREG(path.lstat().st_mode):
+            return {}
         record = json.loads(read_bounded(path, str(path), MAX_RECORD_BYTES, what="upload record").decode())
-    except (UserError, ValueError, RecursionError):
+    except (OSError, UserError, ValueError, RecursionError):
         return {}
-    files = record.get("files") if isinstance(record, dict) else None
+    if not is_sealed(record) or record.get("generator") != RECORD_GENERATOR:
+        return {}
+    files = record.get("files")
     if not isinstance(files, dict):
         return {}
-    return {rel: digest for rel, digest in files.items() if isinstance(rel, str) and isinstance(digest, str)
-            and not rel.startswith("/") and ".." not in PurePosixPath(rel).parts}
+    return {rel: digest for rel, digest in files.items() if _drive_relative(rel) and isinstance(digest, str)}
+
+
+def upload_record(files: dict[str, str]) -> bytes:
+    """The sealed record of an upload of `files` ({path: SHA-256})."""
+    from codegen.generate import seal
+
+    return (json.dumps(seal({"generator": RECORD_GENERATOR, "files": files}), indent=1, sort_keys=True)
+            + "\n").encode()
+
+
+def _drive_relative(rel: object) -> bool:
+    """Whether `rel` is a path as the app's files are named: relative, '/'-separated, no '.', '..' or empty part."""
+    if not isinstance(rel, str) or not rel or "\\" in rel or "\0" in rel or rel.startswith("/"):
+        return False
+    return all(part not in ("", ".", "..") for part in rel.split("/"))
+
+
+def _removable(drive: Path, rel: str, digest: str) -> bool:
+    """Whether drive/rel is a regular file with SHA-256 `digest` reached through real folders only (no link on the
+    way, nothing outside the drive)."""
+    current = drive
+    for part in PurePosixPath(rel).parts[:-1]:
+        current = current / part
+        try:
+            if not stat.S_ISDIR(current.lstat().st_mode):
+                return False
+        except OSError:
+            return False
+    return regular_file_sha256(drive / rel) == digest  # None for a link, a folder, a device or nothing
 
 
 def _drive_failed(drive: Path, rel: str, problem: OSError, done: list[str]) -> UserError:
@@ -193,9 +231,10 @@ def _drive_failed(drive: Path, rel: str, problem: OSError, done: list[str]) -> U
     )
 
 
-def upload_to_drive(app_dir: Path, drive: Path, board_id: str, force: bool = False,
+def upload_to_drive(app_dir: Path, drive: Path, board_id: str, tree_record: Path, force: bool = False,
                     progress: Progress = print) -> DriveResult:
-    """Make DRIVE hold every file of APP_DIR (a built CircuitPython app); send only what differs."""
+    """Make DRIVE hold every file of APP_DIR (a built CircuitPython app); send only what differs. TREE_RECORD is
+    the tree's own sealed record of its last upload (read, then rewritten): with the drive's, what may be removed."""
     started = time.monotonic()
     drive = Path(drive)
     if not drive.exists():
@@ -219,8 +258,10 @@ def upload_to_drive(app_dir: Path, drive: Path, board_id: str, force: bool = Fal
     wanted = {rel: hashlib.sha256(data).hexdigest() for rel, data in files.items()}
     on_drive = {rel: regular_file_sha256(target) for rel, target in targets.items()}
     changed = [rel for rel in files if force or on_drive[rel] != wanted[rel]]
-    old = _read_record(drive)
-    stale = [rel for rel in old if rel not in files and regular_file_sha256(drive / rel) == old[rel]]
+    on_drive_record = read_upload_record(drive / RECORD)
+    ours = read_upload_record(tree_record)
+    stale = [rel for rel, digest in sorted(ours.items()) if rel not in files and on_drive_record.get(rel) == digest
+             and _removable(drive, rel, digest)]
     need = sum(len(files[rel]) - (targets[rel].stat().st_size if on_drive[rel] else 0) for rel in changed)
     free = shutil.disk_usage(drive).free
     if need > free:
@@ -251,11 +292,11 @@ def upload_to_drive(app_dir: Path, drive: Path, board_id: str, force: bool = Fal
             raise _drive_failed(drive, rel, problem, result.sent) from None
         result.removed.append(rel)
         progress(f"  removed   {rel} (no longer part of the app)")
-    record = json.dumps({"generator": "deadreckon upload", "files": wanted}, indent=1, sort_keys=True) + "\n"
     try:
-        write_whole(drive / RECORD, record.encode())
+        write_whole(drive / RECORD, upload_record(wanted))
     except OSError as problem:
         raise _drive_failed(drive, RECORD, problem, result.sent) from None
+    write_atomically(tree_record, upload_record(wanted))
     result.seconds = time.monotonic() - started
     progress(f"uploaded {len(result.sent)} file(s), {len(result.unchanged)} unchanged, {len(result.removed)} removed, "
              f"in {result.seconds:.1f} s; CircuitPython restarts code.py by itself")
@@ -265,7 +306,7 @@ def upload_to_drive(app_dir: Path, drive: Path, board_id: str, force: bool = Fal
 def upload_drive(out: Path, drive: Path, force: bool = False, progress: Progress = print) -> DriveResult:
     """Upload OUT/build/app (from `deadreckon build OUT`, a CircuitPython tree) to the CIRCUITPY drive at DRIVE."""
     from codegen.deploy.build import BUILD_DIR, load_tree
-    from codegen.deploy.buildrecord import check_build_current
+    from codegen.deploy.buildrecord import UPLOAD_RECORD, check_build_current
 
     tree = load_tree(Path(out))
     if tree.board.target != "circuitpython":
@@ -275,4 +316,5 @@ def upload_drive(out: Path, drive: Path, force: bool = False, progress: Progress
     if not app_dir.is_dir():
         raise UserError(f"{app_dir} does not exist", hint=f"run `deadreckon build {out}` first")
     check_build_current(Path(out))
-    return upload_to_drive(app_dir, Path(drive), tree.board.circuitpython.board, force=force, progress=progress)
+    return upload_to_drive(app_dir, Path(drive), tree.board.circuitpython.board, Path(out) / BUILD_DIR / UPLOAD_RECORD,
+                           force=force, progress=progress)

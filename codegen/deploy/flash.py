@@ -327,7 +327,10 @@ def classify(output: str, port: str, board: Board, regions: list[Region]) -> Opt
 
 
 def _last_error_line(output: str) -> str:
-    lines = [line.strip() for line in output.splitlines() if line.strip()]
+    """esptool's last line that says what went wrong: a line naming an error, else its last line; never a line
+    of a Python traceback (its frames and source lines are indented), which says where, not what."""
+    lines = [line.strip() for line in output.splitlines() if line.strip() and not line.startswith(
+        (" ", "\t", "Traceback", "During handling", "The above exception"))]
     for line in reversed(lines):
         if "error" in line.lower():
             return line

@@ -132,6 +132,10 @@ def check_port_url(port: str) -> None:
     import serial
 
     scheme = port.split("://", 1)[0]
+    if scheme.lower() == "loop":
+        raise UserError(f"--port {port} is pyserial's loopback, which answers with what it is sent: no board is "
+                        "behind it", hint="give the board's port (/dev/ttyUSB0, /dev/ttyACM0, COM3) or a bridge's URL "
+                                          "(socket://HOST:PORT)")
     try:
         serial.serial_for_url(port, do_not_open=True)  # checks the scheme (hwgrep:// also looks for the port)
     except (ValueError, serial.SerialException) as exc:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import re
 import struct
 import time
 from dataclasses import dataclass, field
@@ -256,12 +257,12 @@ for _p in {paths!r}:
 
 def device_hashes(repl: RawRepl, paths: list[str]) -> dict[str, str]:
     """SHA-256 hex of each path on the board: '-' where absent, '?' where the board has no hashlib."""
-    out = repl.exec(HASH_SCRIPT.format(paths=list(paths)), timeout=30.0).decode()
+    out = repl.exec(HASH_SCRIPT.format(paths=list(paths)), timeout=30.0).decode("utf-8", "replace")
     found = {}
     for line in out.splitlines():
         name, _, digest = line.strip().rpartition(" ")
-        if name:
-            found[name] = digest
+        if name and (digest in ("-", "?") or re.fullmatch(r"[0-9a-f]{64}", digest)):
+            found[name] = digest  # anything else (noise, another program's output) proves nothing: sent again
     return found
 
 
@@ -367,7 +368,7 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
                 expected = {rel: hashlib.sha256(files[rel]).hexdigest() for rel in result.sent}
                 bad = [rel for rel in result.sent if check.get(rel) not in (expected[rel], "?")]
                 if bad:
-                    raise UserError(f"the board's copy of {', '.join(bad)} differs from what was sent",
+                    raise UserError(f"the board's copy of {', '.join(bad)} differs from what was sent to {port}",
                                     hint="run the upload again; check the board's filesystem has room (os.statvfs('/'))")
             result.raw_paste = repl.raw_paste_used
             if reset:
@@ -375,8 +376,8 @@ def upload_folder(app_dir: Path, port: str, force: bool = False, use_raw_paste: 
         except ReplError as exc:
             text = str(exc)
             if "ENOSPC" in text or "28]" in text:
-                raise UserError("the board's filesystem is full", hint="remove files from the board, or flash a "
-                                "fresh filesystem image with `deadreckon flash`")
+                raise UserError(f"the filesystem of the board on {port} is full", hint="remove files from the board, "
+                                "or flash a fresh filesystem image with `deadreckon flash`")
             if "EROFS" in text or "30]" in text:  # CircuitPython: the drive is the computer's until boot.py takes it
                 raise UserError("the board's filesystem is read-only to programs: a CircuitPython board gives its "
                                 "CIRCUITPY drive to the computer unless boot.py remounts it",

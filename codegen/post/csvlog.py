@@ -16,11 +16,21 @@ GYRO_COLUMNS = ("gx", "gy", "gz")  # deg/s, optional: the orientation across GPS
 GPS_COLUMNS = ("t", "lat", "lon", "sog", "cog", "climb")
 DEFAULT_DOPPLER_SIGMA = 0.1  # m/s, u-blox 6 velocity accuracy (NEO-6M datasheet: 0.1 m/s)
 DEFAULT_POSITION_SIGMA = 2.5  # m, u-blox 6 horizontal CEP
+MAX_ACCEL_G = 64.0  # g: four times the MPU-6050's widest range; beyond it a value is not a reading
+MAX_RATE_DPS = 8000.0  # deg/s: four times the MPU-6050's widest range
 
 
 def read_imu_csv(path: Path) -> tuple[ImuSeries, list[str]]:
     table = read_table(path, "IMU log", IMU_COLUMNS, optional=GYRO_COLUMNS)
     check_increasing(table, "IMU log")
+    for column in IMU_COLUMNS[1:]:
+        check_range(table, "IMU log", column, -MAX_ACCEL_G, MAX_ACCEL_G, "g",
+                    f"accelerations are in g; an MPU-6050 reads at most 16 g, a log at most {MAX_ACCEL_G:g}")
+    for column in GYRO_COLUMNS:
+        if column in table.columns:
+            check_range(table, "IMU log", column, -MAX_RATE_DPS, MAX_RATE_DPS, "deg/s",
+                        f"rates are in degrees per second; an MPU-6050 reads at most 2000, a log at most "
+                        f"{MAX_RATE_DPS:g}")
     c = table.columns
     acc = np.stack([c["ax"], c["ay"], c["az"]], axis=1) * STANDARD_GRAVITY
     gyro = np.radians(np.stack([c[k] for k in GYRO_COLUMNS], axis=1)) if all(k in c for k in GYRO_COLUMNS) else None

@@ -31,6 +31,9 @@ UNKNOWN_U32 = 0xFFFFFFFF
 DOPPLER_SIGMA = 0.1  # m/s, NEO-6M velocity accuracy
 UERE = 2.5  # m, horizontal 1-sigma per unit HDOP
 CLIMB_UNKNOWN_SIGMA = 1.0  # m/s, vertical velocity when the log has no climb rate
+BLOCK_BYTES_RANGE = (256, 65536)  # logging.block_bytes' range in the board schema
+LSB_RANGE = (1.0, 1.0e6)  # counts per g or per degree/s a header may give (the MPU-6050's: 2048..16384, 16.4..131)
+YEARS = (1980, 2200)  # a GPS fix's year (the receiver's week rollover aside, nothing else is a date it gives)
 
 
 def is_device_log(path: Path) -> bool:
@@ -66,7 +69,13 @@ def _block_size(data: bytes, path: Path) -> int:
                         location=Location(str(path), 1, 1))
     text = data[4:4 + n].decode("ascii", "replace")
     header = dict(kv.split("=", 1) for kv in text.split(";") if "=" in kv)
-    return int(header.get("block_bytes", DEFAULT_BLOCK))
+    written = header.get("block_bytes", str(DEFAULT_BLOCK))
+    low, high = BLOCK_BYTES_RANGE
+    if not (written.strip().isdigit() and low <= int(written) <= high):
+        raise UserError(f"{path}: the header's block_bytes={written[:40]} is not a block size ({low}..{high} bytes)",
+                        location=Location(str(path), 1, 1),
+                        hint="the header is damaged; a log written by the app says the board's logging.block_bytes")
+    return int(written)
 
 
 def parse_device_log(path: Path, block: int | None = None) -> RawDeviceLog:
@@ -108,6 +117,10 @@ def parse_device_log(path: Path, block: int | None = None) -> RawDeviceLog:
                     log.truncated = True
                     break
                 raise UserError(f"{path}: record cut short at {where}", location=Location(str(path), 1, 1)) from None
+            if t < last and last - t < (1 << 31):  # the clock wraps from near 2^32 to near 0; this went back
+                raise UserError(f"{path}: the record at {where} is {(last - t) / 1e6:.6f} s older than the one "
+                                "before it (the device's clock only goes forward)",
+                                location=Location(str(path), 1, 1), hint="the log is damaged there")
             t_hi += (1 << 32) if t < last else 0
             last = t
             stamp = t + t_hi
@@ -121,13 +134,41 @@ def parse_device_log(path: Path, block: int | None = None) -> RawDeviceLog:
 
 
 def _axes(spec: str) -> list[tuple[int, int]]:
-    """'+0+1+2' -> [(+1, 0), (+1, 1), (+1, 2)]: body axis k = sign * sensor axis index."""
-    out = []
-    for i in range(0, len(spec), 2):
-        out.append((-1 if spec[i] == "-" else 1, int(spec[i + 1])))
-    if len(out) != 3 or sorted(a for _, a in out) != [0, 1, 2]:
+    """'+0+1+2' -> [(+1, 0), (+1, 1), (+1, 2)]: body axis k = sign * sensor axis index; ValueError for anything
+    but three signed axis indices using each of 0, 1, 2 once."""
+    if len(spec) != 6 or any(spec[i] not in "+-" or spec[i + 1] not in "012" for i in range(0, 6, 2)):
+        raise ValueError(spec)
+    out = [(-1 if spec[i] == "-" else 1, int(spec[i + 1])) for i in range(0, 6, 2)]
+    if sorted(a for _, a in out) != [0, 1, 2]:
         raise ValueError(spec)
     return out
+
+
+def _sensitivity(header: dict[str, str], key: str, default: float) -> float:
+    """A header's counts per unit, finite and within LSB_RANGE; ValueError otherwise."""
+    value = float(header.get(key, default))
+    if not LSB_RANGE[0] <= value <= LSB_RANGE[1]:  # also false for nan
+        raise ValueError(key)
+    return value
+
+
+def _check_fixes(path: Path, year, month, day, utc_ms, lat, lon, known) -> None:
+    """Every GPS record with a UTC time holds a calendar date and a time of day, and every position is on Earth;
+    the first that is not is a UserError naming it (its place among the file's GPS records)."""
+    for index in range(len(year)):
+        if known[index] and not (YEARS[0] <= year[index] <= YEARS[1] and 1 <= month[index] <= 12
+                                 and 1 <= day[index] <= calendar.monthrange(int(year[index]), int(month[index]))[1]
+                                 and 0 <= utc_ms[index] < 86_401_000):
+            raise UserError(
+                f"{path}: GPS record {index + 1} of the log says {int(year[index])}-{int(month[index]):02d}-"
+                f"{int(day[index]):02d} {utc_ms[index] / 1000:.3f} s, which is no date and time of a fix",
+                location=Location(str(path), 1, 1), hint="the log is damaged there; a receiver's fix has a "
+                f"calendar date from {YEARS[0]} on and a time of day")
+        if not (abs(lat[index]) <= 90e7 and abs(lon[index]) <= 180e7):
+            raise UserError(
+                f"{path}: GPS record {index + 1} of the log is at latitude {lat[index] * 1e-7:.7f}, longitude "
+                f"{lon[index] * 1e-7:.7f}, which is not on Earth (latitude -90..90, longitude -180..180)",
+                location=Location(str(path), 1, 1), hint="the log is damaged there")
 
 
 def to_post_log(raw: RawDeviceLog) -> PostLog:
@@ -139,11 +180,15 @@ def to_post_log(raw: RawDeviceLog) -> PostLog:
         raise UserError(f"{path}: {len(raw.imu)} IMU record(s)", location=Location(str(path), 1, 1),
                         hint="logging.imu must be on to post-process a run")
     try:
-        lsb = float(raw.header.get("accel_lsb_per_g", 16384))
-        gyro_lsb = float(raw.header.get("gyro_lsb_per_dps", 131))
+        lsb = _sensitivity(raw.header, "accel_lsb_per_g", 16384)
+        gyro_lsb = _sensitivity(raw.header, "gyro_lsb_per_dps", 131)
         axes = _axes(raw.header.get("axes", "+0+1+2"))
     except ValueError:
-        raise UserError(f"{path}: header has a bad accel_lsb_per_g, gyro_lsb_per_dps or axes value", location=Location(str(path), 1, 1)) from None
+        shown = ";".join(f"{key}={raw.header.get(key, '(none)')[:20]}" for key in
+                         ("accel_lsb_per_g", "gyro_lsb_per_dps", "axes"))
+        raise UserError(f"{path}: the header's {shown} is not a sensitivity of {LSB_RANGE[0]:g}..{LSB_RANGE[1]:g} "
+                        "counts per unit and a signed permutation of the axes 0, 1, 2 (e.g. +0+1+2)",
+                        location=Location(str(path), 1, 1), hint="the header is damaged") from None
     imu = np.array(raw.imu, dtype=float)
     t_dev = imu[:, 0] * 1e-6
     counts = imu[:, 1:4]
@@ -168,6 +213,7 @@ def to_post_log(raw: RawDeviceLog) -> PostLog:
         raise UserError(f"{path}: {int(valid.sum())} GPS record(s) with a fix and a speed", location=Location(str(path), 1, 1))
     g_dev = t_g[valid] * 1e-6
     has_utc = (utc_ms[valid] != UNKNOWN_U32) & (year[valid] > 0)
+    _check_fixes(path, year[valid], month[valid], day[valid], utc_ms[valid], lat[valid], lon[valid], has_utc)
     time_scale = "relative"
     t_gps, t_imu = g_dev, t_dev
     if has_utc.all():

@@ -76,7 +76,7 @@ def read_gpx(path: Path, text: str) -> Fixes:
         raise UserError(f"{name}: no track point with a time (the file holds {what})", location=Location(name, 1, 1),
                         hint="post-processing needs a recorded track (<trk><trkseg><trkpt> with <time>), not a route")
     data = np.array(rows, dtype=float)
-    bad = np.flatnonzero((np.abs(data[:, 1]) > 90.0) | (np.abs(data[:, 2]) > 180.0))
+    bad = np.flatnonzero(~(np.abs(data[:, 1]) <= 90.0) | ~(np.abs(data[:, 2]) <= 180.0))  # nan is outside too
     if bad.size:
         raise UserError(f"{name}: track point {bad[0] + 1} at {data[bad[0], 1]:g}, {data[bad[0], 2]:g} is outside the "
                         "Earth's latitudes/longitudes", location=Location(name, 1, 1), hint="the file is damaged")

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Iterable
 
 from codegen.errors import UserError
+from codegen.safeio import write_failed
 
 MANIFEST = "post-manifest.json"
 WRITER = "deadreckon post"
@@ -113,6 +114,8 @@ def _replace(path: Path, data: bytes) -> Path:
     try:
         tmp.write_bytes(data)
         os.replace(tmp, path)
+    except OSError as error:
+        raise write_failed(path, error) from None
     finally:
         if tmp.exists():
             tmp.unlink()

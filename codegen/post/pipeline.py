@@ -76,28 +76,30 @@ class PostResult:
         return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
 
 
-def check_log(log: PostLog) -> None:
-    """A log the method cannot work on is a user error with the reason, never a traceback later."""
+def check_log(log: PostLog, where: str | None = None) -> None:
+    """A log the method cannot work on is a user error with the reason, never a traceback later; `where` names
+    the log's file(s) in the message (default: the run's name)."""
     imu, gps = log.imu, log.gps
+    where = where or log.name
     if len(imu) < MIN_IMU_SAMPLES:
-        raise UserError(f"{log.name}: only {len(imu)} IMU sample(s); the method needs accelerations over the GPS epochs",
+        raise UserError(f"{where}: only {len(imu)} IMU sample(s); the method needs accelerations over the GPS epochs",
                         hint="is the IMU log empty or cut off?")
     if len(gps) < MIN_GPS_INTERVALS + 1:
-        raise UserError(f"{log.name}: only {len(gps)} GPS epoch(s) with a fix; need at least {MIN_GPS_INTERVALS + 1}",
+        raise UserError(f"{where}: only {len(gps)} GPS epoch(s) with a fix; need at least {MIN_GPS_INTERVALS + 1}",
                         hint="the receiver had no fix during the log, or the GPS log is cut off")
     covered = np.sum((gps.t[:-1] >= imu.t[0]) & (gps.t[1:] <= imu.t[-1]))
     if covered < MIN_GPS_INTERVALS:
         raise UserError(
-            f"{log.name}: IMU ({imu.t[0]:.3f}..{imu.t[-1]:.3f} s) and GPS ({gps.t[0]:.3f}..{gps.t[-1]:.3f} s) "
+            f"{where}: IMU ({imu.t[0]:.3f}..{imu.t[-1]:.3f} s) and GPS ({gps.t[0]:.3f}..{gps.t[-1]:.3f} s) "
             f"share {covered} GPS interval(s); need at least {MIN_GPS_INTERVALS}",
             hint="both logs must use the same time axis (device seconds or GPS time)",
         )
     if not np.all(np.isfinite(gps.vel)):
-        raise UserError(f"{log.name}: GPS velocities contain gaps (NaN)")
+        raise UserError(f"{where}: GPS velocities contain gaps (NaN)")
     if np.all(gps.vel == gps.vel[0]):
         still = not np.any(gps.vel[0])
         raise UserError(
-            f"{log.name}: the GPS velocity is {'zero' if still else np.round(gps.vel[0], 3).tolist()} m/s at all "
+            f"{where}: the GPS velocity is {'zero' if still else np.round(gps.vel[0], 3).tolist()} m/s at all "
             f"{len(gps)} epochs: {'the device stood still' if still else 'it never changes'}, so there is no velocity "
             "change to align the accelerometer to (nor to find the delay by)",
             hint="post-processing needs a run with speed changes or turns; a GPS log that repeats one velocity may "

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import os
+import stat
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +22,44 @@ from codegen.sim.run import (
 )
 
 STANDARD_HORIZONS = (10.0, 30.0, 60.0)
+# The options' ranges: an outage or a step longer than an hour outlasts every scenario; a step under a second
+# starts more outages than there are GPS fixes (the fixes come at 1 Hz) and only multiplies the run time; the
+# scenario and sensor generators take a seed of 32 bits.
+MAX_OUTAGE_S = 3600.0
+MIN_STEP_S = 1.0
+MAX_STEP_S = 3600.0
+MAX_SEED = 2**32 - 1
+PLOT_SUFFIX = ".png"
+
+
+def check_options(outage_s: float = 30.0, seed: int = 0, step: float = 5.0, plot: Path | None = None) -> None:
+    """A UserError naming the option when --outage, --seed, --step or --plot is out of its range, before any
+    simulation runs (so nothing is written and no time is spent on a run that cannot finish)."""
+    if not (math.isfinite(outage_s) and 0 < outage_s <= MAX_OUTAGE_S):
+        raise UserError(f"--outage {outage_s:g}: an outage is a positive number of seconds, at most "
+                        f"{MAX_OUTAGE_S:g}", hint="the default, 30, is a typical tunnel or urban canyon")
+    if not (math.isfinite(step) and MIN_STEP_S <= step <= MAX_STEP_S):
+        raise UserError(f"--step {step:g}: the time between outage starts is between {MIN_STEP_S:g} and "
+                        f"{MAX_STEP_S:g} seconds", hint="the default, 5, measures about a hundred outages per run")
+    if not 0 <= seed <= MAX_SEED:
+        raise UserError(f"--seed {seed}: a seed is a whole number from 0 to {MAX_SEED} (32 bits)",
+                        hint="any number in that range gives its own repeatable run; 0 is the default")
+    if plot is not None:
+        check_plot_path(Path(plot))
+
+
+def check_plot_path(plot: Path) -> None:
+    """--plot names a new or existing regular .png file in an existing folder (never a folder, a device or a link)."""
+    if plot.suffix.lower() != PLOT_SUFFIX:
+        raise UserError(f"--plot {plot}: the plot is a PNG image, so its name ends in {PLOT_SUFFIX}",
+                        hint=f"e.g. --plot {plot.with_suffix(PLOT_SUFFIX).name if plot.name else 'walk.png'}")
+    if os.path.lexists(plot) and not stat.S_ISREG(os.lstat(plot).st_mode):
+        raise UserError(f"--plot {plot}: exists and is not a regular file (a folder, a link or a device)",
+                        hint="name a new file, or a PNG of yours to replace")
+    folder = plot.parent
+    if not folder.is_dir():
+        raise UserError(f"--plot {plot}: the folder {folder} does not exist", hint="create it first, or name "
+                        "a file in an existing folder")
 
 
 def horizons_for(outage_s: float) -> tuple[float, ...]:
@@ -40,8 +81,7 @@ def simulate(board, scenario: str = "walk", outage_s: float = 30.0, seed: int = 
     seconds starting every `step` s, print the table to `stream`, and optionally write the plot."""
     if scenario not in SCENARIOS:
         raise UserError(f"unknown scenario {scenario!r}", hint=f"choose one of {', '.join(SCENARIOS)}")
-    if not outage_s > 0:
-        raise UserError(f"--outage must be a positive number of seconds, not {outage_s:g}")
+    check_options(outage_s, seed, step, plot)
     if quality not in neo6m.QUALITY:
         raise UserError(f"unknown GPS quality {quality!r}", hint=f"choose one of {', '.join(neo6m.QUALITY)}")
     available = registered_methods()
