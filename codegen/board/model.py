@@ -370,6 +370,31 @@ class Logging(Part):
     min_free_kb: int = Field(256, ge=16)
 
 
+class WiredI2C(Part):
+    """The pins an I2C part is soldered to on the board itself."""
+
+    sda: Pin
+    scl: Pin
+
+
+class WiredUART(Part):
+    """The pins a UART part is soldered to on the board itself (rx: the board's receive pin)."""
+
+    rx: Pin
+    tx: Optional[Pin] = None
+
+
+class Wired(Part):
+    """What the board's PCB wires for good: a board file may not move these parts' buses to other pins (the part
+    stays soldered where it is). Written by the board file that describes the PCB, inherited by those that extend
+    it; parts a user adds (a GY-521 on the header) are not listed."""
+
+    power: Optional[WiredI2C] = Field(None, description="the power chip (power.chip) on its I2C pins")
+    display: Optional[WiredI2C] = Field(None, description="an OLED soldered to the board")
+    imu: Optional[WiredI2C] = Field(None, description="an IMU soldered to the board")
+    gps: Optional[WiredUART] = Field(None, description="the GPS module's UART")
+
+
 Chip = Literal["esp32", "esp32s3", "rp2040"]
 Target = Literal["micropython", "circuitpython"]
 
@@ -398,6 +423,7 @@ class Board(Part):
     buttons: Buttons = Buttons()
     led: Optional[Led] = None
     reserved: dict[str, list[int]] = Field(default_factory=dict, description="pins taken by parts we do not drive")
+    wired: Wired = Field(Wired(), description="the parts the board's PCB wires to fixed pins")
     algorithm: Algorithm = Algorithm()
     logging: Logging = Logging()
 
