@@ -1,4 +1,4 @@
-"""Accuracy benchmark: how far does the device get without GPS? (issues 6, 8, 19)
+"""Accuracy benchmark: how far does the device get without GPS?
 
     python3 benchmarks/accuracy.py                      # every scenario, the 30 reported seeds (about an hour)
     python3 benchmarks/accuracy.py --scenario car       # one scenario
@@ -16,8 +16,8 @@ resamples whole runs (one seed's outages share a road, a device and a fix error,
 Seeds: the reported figures come from codegen.sim.run.REPORT_SEEDS (0-29); algorithms are tuned on TUNING_SEEDS
 (100-199) only; both ranges are printed. The replayed real walk is one recording, used for tuning: its rows are
 in-sample and marked. The second table gives the drift (the error of the displacement since the last fix, which
-removes the NEO-6M's own error), the third whether each method meets the goals (issue 8: median <= 3 / 25 / 100 m
-at 10 / 30 / 60 s, below const-velocity; issue 19, vehicles: also p90 <= 3 x median and below every baseline).
+removes the NEO-6M's own error), the third whether each method meets the goals (median <= 3 / 25 / 100 m at 10 / 30
+/ 60 s, below const-velocity; vehicles also: p90 <= 3 x median and below every baseline).
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ from codegen.sim.run import (  # noqa: E402
 )
 
 HORIZONS = (10.0, 30.0, 60.0)
-GOALS = {10.0: 3.0, 30.0: 25.0, 60.0: 100.0}  # issue 8: median horizontal error, m
+GOALS = {10.0: 3.0, 30.0: 25.0, 60.0: 100.0}  # the goals: median horizontal error, m
 STEP = {"replay-walk": 2.0}  # s between outage starts (the real walk is short)
 
 
@@ -81,8 +81,8 @@ VEHICLES = ("car", "bike")
 
 
 def goal_lines(pooled) -> list[str]:
-    """Per scenario: which methods reach issue 8's goals (medians, and below const-velocity at every horizon), on
-    the absolute error and on the drift since the last fix; for vehicles also issue 19's (p90 <= 3 x median, below
+    """Per scenario: which methods reach the goals (medians, and below const-velocity at every horizon), on
+    the absolute error and on the drift since the last fix; for vehicles also the vehicle goal (p90 <= 3 x median, below
     every baseline)."""
     lines = []
     for res in pooled:
@@ -105,7 +105,7 @@ def goal_lines(pooled) -> list[str]:
                 spread = bool(np.all(p90 <= 3 * med))
                 below = all(np.all(med < np.nanmedian(res.errors[b][:, 1:], axis=0)) for b in BASELINES + ("seed",)
                             if b in res.errors and b != name)
-                verdicts.append(f"issue 19: {'meets' if spread and below and 'meets' in verdicts[0] else 'misses'}"
+                verdicts.append(f"vehicle goal: {'meets' if spread and below and 'meets' in verdicts[0] else 'misses'}"
                                 f" (p90/median {', '.join(f'{r:.1f}' for r in p90 / med)}"
                                 f"{'' if below else '; not below every baseline'})")
             tag = " (in-sample)" if res.scenario in IN_SAMPLE else ""
@@ -178,8 +178,8 @@ def main(argv=None) -> int:
     print(format_table_ci(pooled, args.resamples))
     print("\ndrift: error of the displacement since the last fix (the fix's own error taken out), m\n")
     print(format_table(pooled, drift=True))
-    print("\ngoals (issue 8: median <= 3 / 25 / 100 m at 10 / 30 / 60 s, below const-velocity; issue 19 for "
-          "vehicles: p90 <= 3 x median, below every baseline):")
+    print("\ngoals (median <= 3 / 25 / 100 m at 10 / 30 / 60 s, below const-velocity; for "
+          "vehicles also: p90 <= 3 x median, below every baseline):")
     for line in goal_lines(pooled):
         print(line)
     if args.budget and (not args.method or "seed" in args.method):

@@ -164,7 +164,7 @@ class MicroPython(Part):
     version: str = Field("1.28.0", pattern=r"^\d+\.\d+(\.\d+)?$", description="MicroPython release on the board")
     partitions: Partitions = Partitions()
     filesystem: Filesystem = Filesystem()
-    # issue 16: what the firmware gives the app, and how long a stuck app may run
+    # what the firmware gives the app, and how long a stuck app may run
     heap_kb: Optional[int] = Field(
         None, ge=32, le=65536,
         description="KiB of Python heap the firmware gives the app (gc.mem_free() after boot); default: the chip's "
@@ -334,7 +334,7 @@ class _AlgorithmKeys(Part):
     mode: Literal["seed", "fused"] = Field(
         "fused",
         description="seed: the seed's windows (block median, deadband, double integration); fused: tilt kept by "
-        "gravity, rest detection, heading and speed from GPS (issue 8; beats the seed and both baselines on the "
+        "gravity, rest detection, heading and speed from GPS (it beats the seed and both baselines on the "
         "walk, car and real-walk benchmarks)",
     )
     block: int = Field(16, ge=1, description="b: samples per block median")

@@ -7,7 +7,7 @@ MPU-6050's FIFO, which keeps them through a flash erase, a GPS epoch or a kernel
 its data-ready flag); in the slack the loop reads the GPS UART, writes a full log block, polls the buttons, draws
 the screen or sends one page of it. The samples go through the kernel (the native module if importable, else the
 generated fallback) a window, or for the fallback a batch, at a time, and up to each GPS fix: the offset from the
-last fix always holds every sample since it, so an outage starts where the fix was (issue 16). Missed samples are
+last fix always holds every sample since it, so an outage starts where the fix was. Missed samples are
 counted, shown and logged, and their time stays in the integration; failures are said on the screen, the console
 and in the log; an error nothing handled is logged and shown, and the board resets.
 """
@@ -375,7 +375,7 @@ class App:
         """Process the samples collected so far (or the first `upto` of them): all of them for the fused method
         (any count), the whole blocks for the seed's (a multiple of b; the rest stay for the next call). The
         displacement always goes into the offset from the last fix, in GPS mode too: the samples between the last
-        fix and the moment the fix is declared lost are the outage's first metres (issue 16)."""
+        fix and the moment the fix is declared lost are the outage's first metres."""
         stop = self.k if upto < 0 or upto > self.k else upto
         k = stop if FUSED else stop - stop % dr.BLOCK
         if k == 0:
