@@ -1,4 +1,4 @@
-"""Accuracy benchmark: how far does the device get without GPS? (issues 6, 8, 19, 26)
+"""Accuracy benchmark: how far does the device get without GPS?
 
     python3 benchmarks/accuracy.py                      # every scenario, the 30 reported seeds (over an hour)
     python3 benchmarks/accuracy.py --scenario car       # one scenario
@@ -24,10 +24,10 @@ it is made. It was never tuned on.
 Seeds: the reported figures come from codegen.sim.run.REPORT_SEEDS (0-29); algorithms are tuned on TUNING_SEEDS
 (100-199) only; both ranges are printed. The replayed real walk is one recording, used for tuning: its rows are
 in-sample and marked. The second table gives the drift (the error of the displacement since the last fix, which
-removes the NEO-6M's own error), then the real car's tables, then whether each method meets the goals (issue 8:
-median <= 3 / 25 / 100 m at 10 / 30 / 60 s, below const-velocity; issue 19, vehicles: also p90 <= 3 x median and
-below every baseline; issue 26: vehicles median <= 3 / 10 / 40 m, p90 <= 3 x median, no outage beyond 1 km, auto
-within 10 % of the better forced platform; walks with stops below hold-last-fix in median and p90).
+removes the NEO-6M's own error), then the real car's tables, then whether each method meets the goals (the first:
+median <= 3 / 25 / 100 m at 10 / 30 / 60 s, below const-velocity; vehicles: also p90 <= 3 x median and below every
+baseline; the vehicle goal: median <= 3 / 10 / 40 m, p90 <= 3 x median, no outage beyond 1 km, auto within 10 % of
+the better forced platform; walks with stops below hold-last-fix in median and p90).
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ from codegen.sim.run import (  # noqa: E402
 )
 
 HORIZONS = (10.0, 30.0, 60.0)
-GOALS = {10.0: 3.0, 30.0: 25.0, 60.0: 100.0}  # issue 8: median horizontal error, m
+GOALS = {10.0: 3.0, 30.0: 25.0, 60.0: 100.0}  # the goals: median horizontal error, m
 STEP = {"replay-walk": 2.0}  # s between outage starts (the real walk is short)
 # the real car (car-comma2k19, 60 s): 10 s outages, and 30 s ones measured at 10 and 30 s; a start every second
 CAR_OUTAGES = ((10.0,), (10.0, 30.0))
@@ -130,8 +130,8 @@ VEHICLES = ("car", "bike", "car-town")
 
 
 def goal_lines(pooled) -> list[str]:
-    """Per scenario: which methods reach issue 8's goals (medians, and below const-velocity at every horizon), on
-    the absolute error and on the drift since the last fix; for vehicles also issue 19's (p90 <= 3 x median, below
+    """Per scenario: which methods reach the goals (medians, and below const-velocity at every horizon), on
+    the absolute error and on the drift since the last fix; for vehicles also the vehicle goal (p90 <= 3 x median, below
     every baseline)."""
     lines = []
     for res in pooled:
@@ -154,7 +154,7 @@ def goal_lines(pooled) -> list[str]:
                 spread = bool(np.all(p90 <= 3 * med))
                 below = all(np.all(med < np.nanmedian(res.errors[b][:, 1:], axis=0)) for b in BASELINES + ("seed",)
                             if b in res.errors and b != name)
-                verdicts.append(f"issue 19: {'meets' if spread and below and 'meets' in verdicts[0] else 'misses'}"
+                verdicts.append(f"vehicle goal: {'meets' if spread and below and 'meets' in verdicts[0] else 'misses'}"
                                 f" (p90/median {', '.join(f'{r:.1f}' for r in p90 / med)}"
                                 f"{'' if below else '; not below every baseline'})")
             tag = " (in-sample)" if res.scenario in IN_SAMPLE else ""
@@ -162,8 +162,8 @@ def goal_lines(pooled) -> list[str]:
     return lines
 
 
-GOALS_VEHICLE = {10.0: 3.0, 30.0: 10.0, 60.0: 40.0}  # issue 26: a vehicle's median horizontal error, m
-WORST_M = 1000.0  # issue 26: no vehicle outage beyond this, m
+GOALS_VEHICLE = {10.0: 3.0, 30.0: 10.0, 60.0: 40.0}  # the vehicle goal: a vehicle's median horizontal error, m
+WORST_M = 1000.0  # the vehicle goal: no vehicle outage beyond this, m
 WALKS_WITH_STOPS = ("walk-stand", "replay-walk")
 
 
@@ -291,11 +291,11 @@ def main(argv=None) -> int:
             print(format_table_ci([res], args.resamples))
             print()
     if pooled:
-        print("\ngoals (issue 8: median <= 3 / 25 / 100 m at 10 / 30 / 60 s, below const-velocity; issue 19 for "
-              "vehicles: p90 <= 3 x median, below every baseline):")
+        print("\ngoals (median <= 3 / 25 / 100 m at 10 / 30 / 60 s, below const-velocity; for "
+              "vehicles also: p90 <= 3 x median, below every baseline):")
         for line in goal_lines(pooled):
             print(line)
-    print("\ngoals of issue 26 (vehicles: median <= 3 / 10 / 40 m at 10 / 30 / 60 s, p90 <= 3 x median, no outage "
+    print("\nvehicle and walk goals (vehicles: median <= 3 / 10 / 40 m at 10 / 30 / 60 s, p90 <= 3 x median, no outage "
           "beyond 1 km, auto within 10 % of the better forced platform; walks with stops: below hold-last-fix at "
           "every horizon in median and p90):")
     for line in platform_goal_lines(pooled + car):

@@ -15,7 +15,7 @@ compile    CircuitPython compiles each .py as it imports it (it loads no MicroPy
 loop       The generated CircuitPython app through a simulated walk with a 10 s outage, on the emulated
            CircuitPython board (codegen/sim/cpsim over mpsim: the board clock's costs and the board's heap), at 100 and
            200 Hz: the kernel's board time per window of fallback batch, samples dropped, the least heap free.
-           Board times come from the MicroPython cost model of issue 16 (codegen/sim/boardclock.py), not measured on
+           Board times come from the MicroPython cost model (codegen/sim/boardclock.py), not measured on
            CircuitPython: its interpreter is MicroPython's, but its floats are not heap objects (REPR_C), which the
            model does not see, and the app's busio layer (lib/hal.py) costs nothing in it.
 median     What ulab could take over: the share of the seed kernel's window (pure Python, lib/dr_fallback.py) spent

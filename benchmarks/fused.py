@@ -1,4 +1,4 @@
-"""Speed of the fused algorithm (issue 8) per window, beside the kernel's budget (<= 5 ms per 512-sample window at
+"""Speed of the fused algorithm per window, beside the kernel's budget (<= 5 ms per 512-sample window at
 240 MHz by instruction count).
 
     python3 benchmarks/fused.py [--before REV] [--repeat N] [--no-device]

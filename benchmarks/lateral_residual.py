@@ -1,4 +1,4 @@
-"""What a vehicle's lateral residual sees in an outage (issue 19): the measurement behind the fused lateral update.
+"""What a vehicle's lateral residual sees in an outage: the measurement behind the fused lateral update.
 
     python3 benchmarks/lateral_residual.py                    # car, tuning seeds 100-119 (about 6 minutes)
     python3 benchmarks/lateral_residual.py --seeds 5 --scenario bike

@@ -1,4 +1,4 @@
-"""What a fused outage's error is made of, and what its tail is made of (issue 19).
+"""What a fused outage's error is made of, and what its tail is made of.
 
     python3 benchmarks/outage_tail.py                        # car, tuning seeds 100-119, 30 s (about 2 minutes)
     python3 benchmarks/outage_tail.py --scenario bike --horizon 60 --seeds 10

@@ -1,4 +1,4 @@
-"""Accuracy of `deadreckon post` (issue 7): the synthetic acceptance table and the real walk recording.
+"""Accuracy of `deadreckon post`: the synthetic acceptance table and the real walk recording.
 
     python3 benchmarks/post.py            # all three (about fifteen minutes on one core)
     python3 benchmarks/post.py synthetic  # only the acceptance table
@@ -43,7 +43,7 @@ def synthetic() -> None:
         ("C mount (2,1,90) deg, delay 0, seed 11", Scenario(mounting_deg=(2.0, 1.0, 90.0), bias_mg=(45.0, 10.0, -20.0),
                                                             seed=11)),
     ]
-    print("## Synthetic acceptance (issue 7): 600 s, 50 Hz IMU, 1 Hz GPS, 0.1 m/s Doppler noise, |bias| >= 50 mg")
+    print("## Synthetic acceptance: 600 s, 50 Hz IMU, 1 Hz GPS, 0.1 m/s Doppler noise, |bias| >= 50 mg")
     print()
     print("| run | max roll err | max pitch err | max yaw err (|A_h|>=0.5) | max LM-Wahba | vel resid RMS | delay err | bias err | time |")
     print("|---|---|---|---|---|---|---|---|---|")

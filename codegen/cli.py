@@ -158,6 +158,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     check_options(args.outage, args.seed, args.step, Path(args.plot) if args.plot else None)
     loaded = load_board(args.board)
     if args.on_micropython:
+        if args.data:
+            raise UserError("--data is for --scenario replay-walk, which --on-micropython does not run",
+                            hint="leave out --on-micropython to replay the recorded walk")
         from codegen.sim.onmicropython import run_on_micropython
         from codegen.sim.simulate import horizons_for
 
@@ -165,7 +168,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                            quality=args.gps)
         return 0
     simulate(loaded.board, args.scenario, args.outage, seed=args.seed, quality=args.gps, step=args.step,
-             plot=Path(args.plot) if args.plot else None, methods=args.method)
+             plot=Path(args.plot) if args.plot else None, methods=args.method,
+             data=Path(args.data) if args.data else None)
     return 0
 
 
@@ -271,6 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--step", type=float, default=5.0, help="seconds between outage starts (default 5)")
     p.add_argument("--method", action="append", help="only this method (repeatable; default: all registered)")
     p.add_argument("--plot", help="write a PNG: truth vs estimate, and error against time since GPS loss")
+    p.add_argument("--data", metavar="DIR", help="replay-walk: the recorded walk's folder (imu_1730_sf.csv, "
+                   "gnss_1730_sf.pos; default ../shared/data/gnss-imu-walk beside a checkout)")
     p.add_argument("--on-micropython", action="store_true",
                    help="run the generated app on the unix-port MicroPython with emulated peripherals (one outage)")
     p.set_defaults(func=cmd_simulate)

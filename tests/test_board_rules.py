@@ -320,3 +320,77 @@ def test_filesystem_beyond_flash(tmp_path):
           filesystem: {offset: 0x300000}
     """)
     assert _only(report).message == "micropython.filesystem: ends at 0x500000, beyond the 4MB flash"
+
+
+# --- what the board's PCB wires for good (`wired:` in the bundled board files) --------------------------------
+
+
+@pytest.mark.parametrize("lines, at, message", [
+    ("i2c:\n  main: {sda: 13, scl: 14}\n", (3, 15),
+     "i2c.main.sda: GPIO13, but this board's AXP192 power chip (power.bus: main) is soldered to "
+     "SDA GPIO21 / SCL GPIO22"),
+    ("i2c:\n  main: {scl: 15}\n", (3, 15),
+     "i2c.main.scl: GPIO15, but this board's AXP192 power chip (power.bus: main) is soldered to "
+     "SDA GPIO21 / SCL GPIO22"),
+    ("i2c:\n  side: {id: 1, sda: 13, scl: 14}\npower: {bus: side}\n", (3, 22),
+     "i2c.side.sda: GPIO13, but this board's AXP192 power chip (power.bus: side) is soldered to "
+     "SDA GPIO21 / SCL GPIO22"),
+    ("uart:\n  gps: {rx: 35}\n", (3, 13),
+     "uart.gps.rx: GPIO35, but this board's NEO-6M GPS is soldered to RX GPIO34 / TX GPIO12"),
+    ("uart:\n  gps: {tx: 13}\n", (3, 13),
+     "uart.gps.tx: GPIO13, but this board's NEO-6M GPS is soldered to RX GPIO34 / TX GPIO12"),
+    ("power: {chip: none, rails: null}\ngps: {power: always_on}\n", (2, 15),
+     "power.chip: none, but this board has its power chip soldered on I2C SDA GPIO21 / SCL GPIO22"),
+])
+def test_a_part_the_board_solders_cannot_move(tmp_path, lines, at, message):
+    report = _report(tmp_path, "extends: ttgo-tbeam-v1.1\n" + lines)
+    diagnostic = _only(report)
+    assert diagnostic.message == message
+    assert _at(diagnostic) == at
+    assert diagnostic.hint
+
+
+def test_a_part_the_user_added_moves_to_a_second_bus(tmp_path):
+    """The README's retarget: the GY-521 on I2C1 at header pins 13/14; the AXP192 and the OLED stay on 21/22."""
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        i2c:
+          imu: {id: 1, sda: 13, scl: 14}
+        imu: {bus: imu, address: 0x69, axes: [-y, x, z]}
+    """)
+    assert not report.failed(strict=True), [d.message for d in report.diagnostics]
+    display = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        i2c:
+          oled: {id: 1, sda: 13, scl: 14}
+        display: {bus: oled}
+    """, name="oled.yaml")
+    assert not display.failed(strict=True), [d.message for d in display.diagnostics]
+
+
+def test_the_v0_7_gps_is_soldered_to_its_strapping_pins(tmp_path):
+    report = _report(tmp_path, "extends: ttgo-tbeam-v0.7\nuart:\n  gps: {rx: 34}\n")
+    assert _only(report).message == ("uart.gps.rx: GPIO34, but this board's NEO-6M GPS is soldered to "
+                                     "RX GPIO12 / TX GPIO15")
+
+
+def test_a_file_that_extends_a_board_cannot_rewrite_its_wiring(tmp_path):
+    report = _report(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        wired:
+          power: null
+        i2c:
+          main: {sda: 13, scl: 14}
+    """)
+    diagnostic = _only(report)
+    assert diagnostic.message.startswith("`wired:` says what the PCB of the board this file extends "
+                                         "(ttgo-tbeam-v1.1) solders to fixed pins")
+    assert _at(diagnostic) == (2, 1) and "without `extends:`" in diagnostic.hint
+
+
+def test_a_board_file_of_its_own_declares_its_wiring(tmp_path):
+    """A board described from scratch may say what its PCB solders; the rule then holds for it."""
+    base = (Path(__file__).resolve().parents[1] / "board_configs" / "esp32-devkitc-gy521.yaml").read_text()
+    report = _report(tmp_path, base + "\nwired:\n  imu: {sda: 18, scl: 19}\n")
+    assert _only(report).message == ("i2c.main.sda: GPIO21, but this board's MPU-6050 (imu.bus: main) is soldered "
+                                     "to SDA GPIO18 / SCL GPIO19")

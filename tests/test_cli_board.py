@@ -247,18 +247,33 @@ def test_generate_protects_foreign_and_edited_folders(tmp_path):
 
 
 def test_retarget_by_yaml_alone(tmp_path):
-    """A user moves the IMU to another bus and pins with a three-line file; the constants follow."""
+    """A user puts the IMU on a second bus on two header pins with a few lines; the constants follow (the T-Beam's
+    AXP192 stays on its soldered I2C0 at 21/22)."""
+    path = write(tmp_path, """
+        extends: ttgo-tbeam-v1.1
+        i2c:
+          imu: {id: 1, sda: 13, scl: 14}
+        imu: {bus: imu, address: 0x69, axes: [-y, x, z]}
+    """)
+    assert run("generate", str(path), "-o", str(tmp_path / "out")).returncode == 0
+    config = (tmp_path / "out" / "app" / "board_config.py").read_text()
+    assert "IMU_I2C_ID = const(1)" in config
+    assert "IMU_SDA = const(13)" in config and "IMU_SCL = const(14)" in config
+    assert "PMU_I2C_ID = const(0)" in config
+    assert "IMU_ADDR = const(0x69)" in config
+    assert "IMU_AXIS_MAP = ((1, -1), (0, 1), (2, 1), )" in config
+
+
+def test_moving_the_bus_of_a_soldered_part_is_an_error_at_the_pin(tmp_path):
+    """The T-Beam's AXP192 is soldered to 21/22: moving its bus leaves the GPS unpowered on the board."""
     path = write(tmp_path, """
         extends: ttgo-tbeam-v1.1
         i2c:
           main: {sda: 13, scl: 14}
-        imu: {address: 0x69, axes: [-y, x, z]}
     """)
-    assert run("generate", str(path), "-o", str(tmp_path / "out")).returncode == 0
-    config = (tmp_path / "out" / "app" / "board_config.py").read_text()
-    assert "IMU_SDA = const(13)" in config and "IMU_SCL = const(14)" in config
-    assert "IMU_ADDR = const(0x69)" in config
-    assert "IMU_AXIS_MAP = ((1, -1), (0, 1), (2, 1), )" in config
+    assert_located(run("validate", str(path)), 3, 15,
+                   "i2c.main.sda: GPIO13, but this board's AXP192 power chip (power.bus: main) is soldered to "
+                   "SDA GPIO21 / SCL GPIO22")
 
 
 def test_generate_removes_stale_files_it_wrote_and_keeps_edited_ones(tmp_path):

@@ -33,7 +33,8 @@ def pristine(tmp_path_factory):
 
 def regenerate_with_other_pins(home):
     """The issue's case: generate, build, regenerate from a board with other pins, then flash without building."""
-    (home / "mine.yaml").write_text("extends: ttgo-tbeam-v1.1\ni2c:\n  main: {sda: 13, scl: 14}\n")
+    (home / "mine.yaml").write_text("extends: ttgo-tbeam-v1.1\ni2c:\n  imu: {id: 1, sda: 13, scl: 14}\n"
+                                    "imu: {bus: imu}\n")
     shutil.rmtree(home / "out")
     assert run_cli("generate", "-o", "out", cwd=home).returncode == 0  # a fresh generate of the old tree's board...
     assert run_cli("build", "out", cwd=home, timeout=300).returncode == 0

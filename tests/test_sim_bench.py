@@ -157,6 +157,31 @@ def test_cli_simulate_user_errors(capsys):
     assert "unknown method" in capsys.readouterr().err
 
 
+def test_cli_simulate_replay_walk_from_data_folder(capsys, tmp_path):
+    """--data points replay-walk at the recording wherever it is (an installed deadreckon has no ../shared)."""
+    walk = require_shared_data("gnss-imu-walk")
+    code = main(["simulate", "--scenario", "replay-walk", "--data", str(walk), "--outage", "10",
+                 "--method", "hold-last-fix"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "replay-walk" in out and "hold-last-fix" in out
+
+
+def test_cli_simulate_replay_walk_names_the_missing_file_and_the_option(capsys, tmp_path):
+    partial = tmp_path / "walk"
+    partial.mkdir()
+    (partial / "imu_1730_sf.csv").write_text("0,0,0,1,0,0,0\n")
+    assert main(["simulate", "--scenario", "replay-walk", "--data", str(partial)]) == 2
+    err = capsys.readouterr().err
+    assert f"{partial} has no gnss_1730_sf.pos (--data)" in err and "hint: --data DIR" in err
+    assert main(["simulate", "--scenario", "replay-walk", "--data", str(tmp_path / "absent")]) == 2
+    assert "is not a folder (--data)" in capsys.readouterr().err
+    assert main(["simulate", "--scenario", "static", "--data", str(partial)]) == 2
+    assert "--data is the recorded walk's folder" in capsys.readouterr().err
+    assert main(["simulate", "--scenario", "walk", "--on-micropython", "--data", str(partial)]) == 2
+    assert "--on-micropython does not run" in capsys.readouterr().err
+
+
 def test_on_micropython_the_app_follows_the_reference(capsys, tmp_path):
     """The generated app on the unix-port MicroPython, fed by the models, lands where its method's reference does."""
     from conftest import require_tool

@@ -168,6 +168,11 @@ def _real_path(path: Path, via: Optional[Location]) -> str:
         raise UserError(f"{display_name(path)[:300]}: {problem.strerror}", location=via, hint=hint) from None
 
 
+def _is_bundled(path: Path) -> bool:
+    """A bundled board file: the project's own description of a PCB (a revision may extend another's)."""
+    return path.resolve().parent == board_configs_dir().resolve()
+
+
 def _read_chain(path: Path, lines_by_file: dict[str, list[str]]) -> tuple[dict, SourceMap, list[Path]]:
     chain: list[Path] = []
     documents = []
@@ -196,6 +201,14 @@ def _read_chain(path: Path, lines_by_file: dict[str, list[str]]) -> tuple[dict, 
         documents.append(document)
         parent = document.data.pop("extends", None)
         via = document.source.value(("extends",))
+        if parent is not None and "wired" in document.data and not _is_bundled(current):
+            raise UserError(
+                f"`wired:` says what the PCB of the board this file extends ({parent}) solders to fixed pins; "
+                "a file that extends it cannot change that",
+                location=document.source.key(("wired",)),
+                hint="leave `wired:` out; if your board really is wired differently, describe it in a file of its "
+                     "own (copy the bundled board without `extends:`)",
+            )
         if parent is None:
             current = None
         elif not isinstance(parent, str):

@@ -185,7 +185,7 @@ class MicroPython(Part):
     version: str = Field("1.28.0", pattern=r"^\d+\.\d+(\.\d+)?$", description="MicroPython release on the board")
     partitions: Partitions = Partitions()
     filesystem: Filesystem = Filesystem()
-    # issue 16: what the firmware gives the app, and how long a stuck app may run
+    # what the firmware gives the app, and how long a stuck app may run
     heap_kb: Optional[int] = Field(
         None, ge=32, le=65536,
         description="KiB of Python heap the firmware gives the app (gc.mem_free() after boot); default: the chip's "
@@ -356,7 +356,7 @@ class _AlgorithmKeys(Part):
     mode: Literal["seed", "fused"] = Field(
         "fused",
         description="seed: the seed's windows (block median, deadband, double integration); fused: tilt kept by "
-        "gravity, rest detection, heading and speed from GPS (issue 8; beats the seed and both baselines on the "
+        "gravity, rest detection, heading and speed from GPS (it beats the seed and both baselines on the "
         "walk, car and real-walk benchmarks)",
     )
     block: int = Field(16, ge=1, le=4096, description="b: samples per block median")
@@ -396,6 +396,31 @@ class Logging(Part):
     min_free_kb: int = Field(256, ge=16, le=16384)
 
 
+class WiredI2C(Part):
+    """The pins an I2C part is soldered to on the board itself."""
+
+    sda: Pin
+    scl: Pin
+
+
+class WiredUART(Part):
+    """The pins a UART part is soldered to on the board itself (rx: the board's receive pin)."""
+
+    rx: Pin
+    tx: Optional[Pin] = None
+
+
+class Wired(Part):
+    """What the board's PCB wires for good: a board file may not move these parts' buses to other pins (the part
+    stays soldered where it is). Written by the board file that describes the PCB, inherited by those that extend
+    it; parts a user adds (a GY-521 on the header) are not listed."""
+
+    power: Optional[WiredI2C] = Field(None, description="the power chip (power.chip) on its I2C pins")
+    display: Optional[WiredI2C] = Field(None, description="an OLED soldered to the board")
+    imu: Optional[WiredI2C] = Field(None, description="an IMU soldered to the board")
+    gps: Optional[WiredUART] = Field(None, description="the GPS module's UART")
+
+
 Chip = Literal["esp32", "esp32s3", "rp2040"]
 Target = Literal["micropython", "circuitpython"]
 
@@ -425,6 +450,7 @@ class Board(Part):
     led: Optional[Led] = None
     reserved: dict[str, list[Annotated[int, Field(ge=0, le=63)]]] = Field(
         default_factory=dict, description="GPIO numbers taken by parts we do not drive")
+    wired: Wired = Field(Wired(), description="the parts the board's PCB wires to fixed pins")
     algorithm: Algorithm = Algorithm()
     logging: Logging = Logging()
 

@@ -200,6 +200,62 @@ def _check_i2c_devices(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
         taken[(bus, address)] = key
 
 
+def _wired_part_label(board: Board, key: str) -> str:
+    if key == "power":
+        return f"{board.power.chip.upper()} power chip" if board.power.chip != "none" else "power chip"
+    if key == "display":
+        return f"{board.display.model.upper()} display" if board.display is not None else "display"
+    return {"imu": "MPU-6050", "gps": f"{board.gps.model.upper()} GPS"}[key]
+
+
+def _check_wired(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    """A part the PCB wires to fixed pins stays on them: its bus must use exactly those pins."""
+    wired = board.wired
+    second_bus = "`i2c: {extra: {id: 1, sda: 13, scl: 14}}` with `imu: {bus: extra}`"
+    for key in ("power", "display", "imu"):
+        pins = getattr(wired, key)
+        if pins is None:
+            continue
+        label = _wired_part_label(board, key)
+        fixed = f"SDA {pins.sda.label} / SCL {pins.scl.label}"
+        if key == "power" and board.power.chip == "none" or key == "display" and board.display is None:
+            if key == "power":
+                yield error(f"power.chip: none, but this board has its power chip soldered on I2C {fixed}",
+                            source.value(("power", "chip")),
+                            "the GPS and the sensors get their supply through it: keep the board's power: section")
+            continue  # a display left out is only not driven
+        device = getattr(board, key)
+        bus = board.i2c.get(device.bus)
+        if bus is None:
+            continue  # an unknown bus name is reported by the I2C device check
+        for signal in ("sda", "scl"):
+            mine, theirs = getattr(bus, signal), getattr(pins, signal)
+            if mine.pin == theirs.pin:
+                continue
+            yield error(
+                f"i2c.{device.bus}.{signal}: {mine.label}, but this board's {label} ({key}.bus: {device.bus}) is "
+                f"soldered to {fixed}",
+                source.value(("i2c", device.bus, signal)),
+                f"the board's own wiring does not move with the YAML; keep i2c.{device.bus} on {fixed} and put "
+                f"a part you added on another bus, e.g. {second_bus}",
+            )
+            break
+    pins = wired.gps
+    uart = board.uart.get(board.gps.uart)
+    if pins is not None and uart is not None:
+        for signal in ("rx", "tx"):
+            mine, theirs = getattr(uart, signal), getattr(pins, signal)
+            if theirs is None or mine is None or mine.pin == theirs.pin:
+                continue
+            fixed = f"RX {pins.rx.label}" + (f" / TX {pins.tx.label}" if pins.tx is not None else "")
+            yield error(
+                f"uart.{board.gps.uart}.{signal}: {mine.label}, but this board's {_wired_part_label(board, 'gps')} "
+                f"is soldered to {fixed}",
+                source.value(("uart", board.gps.uart, signal)),
+                f"the GPS on the board cannot be moved; keep uart.{board.gps.uart} on {fixed}",
+            )
+
+
 def _check_power(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
     power = board.power
     known = PMU_RAILS.get(power.chip, {})
@@ -341,6 +397,7 @@ def check_board(board: Board, source: SourceMap, own_layout: Optional[FlashLayou
     found += _check_i2c_devices(board, source)
     found += _bus_reference(board.gps.uart, "uart", board.uart, ("gps", "uart"), source)
     found += _check_power(board, source)
+    found += _check_wired(board, source)
     found += _check_algorithm(board, source)
     if board.target == "circuitpython":
         found += check_circuitpython(board, chip, source)

@@ -1,4 +1,4 @@
-"""The fused real-time algorithm (`algorithm: fused`, issues 8 and 19): the executable specification, float64.
+"""The fused real-time algorithm (`algorithm: fused`): the executable specification, float64.
 
 Per sample (`process`): tilt corrected towards gravity, motion statistics (rest, walking, a vehicle's vibration), a
 travel direction turned by the gyro (a walker's slow swings held back) and a speed along it (a walker's learned

@@ -1,7 +1,7 @@
 """The reference pipeline: NumPy, float64, the executable specification of the dead-reckoning kernel.
 
 The C kernel (native_ext/) and the generated MicroPython fallback compute the same thing in float32; the tests hold
-them to this module. Read it next to the equations of issue 3:
+them to this module. Read it next to the seed's equations:
 
 1. gyro bias subtraction and scaling to rad/s; accel scaling to m/s^2;
 2. orientation from the gyro, as a unit quaternion q = [w, x, y, z] that turns body vectors into ENU vectors,

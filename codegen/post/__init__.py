@@ -1,4 +1,4 @@
-"""`deadreckon post`: accelerations + GPS-Doppler velocities -> orientation, delay, smoothed trajectory (issue 7).
+"""`deadreckon post`: accelerations + GPS-Doppler velocities -> orientation, delay, smoothed trajectory.
 
     load_log(LOG, gps=None) -> PostLog          readers: CSV pair, RTKLIB recording folder, device log
     process(log, PostOptions()) -> PostResult   the method: delay, LM orientation per interval, Slerp, KF + RTS

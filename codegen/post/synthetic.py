@@ -1,4 +1,4 @@
-"""Synthetic runs with known mounting, motion, bias, noise and delay: the acceptance scenarios of issue 7.
+"""Synthetic runs with known mounting, motion, bias, noise and delay: post's acceptance scenarios.
 
 A vehicle drives on flat ground with smooth speed changes and turns (sums of sinusoids, so every derivative is
 exact). The device is fixed in it at a known mounting. The IMU reads specific force in the sensor frame with a

@@ -1,6 +1,6 @@
 """The emulated board's clock and heap: what a step of the app costs on the board, and the room its heap gives.
 
-The model (issue 16). The app runs on the unix-port MicroPython of the host, which says nothing about the board's
+The model. The app runs on the unix-port MicroPython of the host, which says nothing about the board's
 time, so the emulated board (codegen/sim/mpsim) charges every operation of the app its cost on the board:
 
     board microseconds = Thumb-2 instructions / (R_pyb * S_board)

@@ -5,7 +5,7 @@
     # counts: (N, 6) int16, [ax, ay, az, gx, gy, gz] in the SENSOR frame, exactly as registers 0x3B..0x48
     #         (ACCEL_XOUT..GYRO_ZOUT, big-endian on the wire) would give them at the board's configured ranges
 
-This is the stream the app's emulated MPU-6050 (issue 4) serves from its registers, and what the reference
+This is the stream the app's emulated MPU-6050 serves from its registers, and what the reference
 pipeline consumes. The board's `imu.axes` remap is undone here (the truth is in the board frame; the chip reports
 its own axes), so `codegen.kernel.reference.remap_axes` brings the counts back to the board frame.
 

@@ -4,7 +4,7 @@
     result = evaluate(run, horizons=(10, 30, 60))            # every registered method, many outage starts
     print(format_table([result]))
 
-Metrics (issue 6): for outages starting every `step` seconds (fixed by the seed, never inside the calibration),
+Metrics: for outages starting every `step` seconds (fixed by the seed, never inside the calibration),
 the horizontal error |p_est - p_true| at each horizon after GPS loss; median and 90th percentile per method.
 The "0 s" column is the error of the last fix itself (where every method starts). The drift variant measures
 the displacement since the last fix instead, |(p_est(t) - p_est(t_fix)) - (p(t) - p(t_fix))|, which takes the

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from codegen.errors import UserError
-from codegen.sim import neo6m
+from codegen.sim import neo6m, replay
 from codegen.sim.methods import registered_methods
 from codegen.sim.run import (
     SCENARIOS,
@@ -67,6 +67,23 @@ def horizons_for(outage_s: float) -> tuple[float, ...]:
     return tuple(h for h in STANDARD_HORIZONS if h < outage_s) + (float(outage_s),)
 
 
+def recorded_walk_dir(data: Path | None) -> Path:
+    """The folder replay-walk reads, checked: `data` (the --data option) or, without it, the recording beside a
+    source checkout. A missing folder or file is a UserError naming it and the option."""
+    folder = Path(data) if data is not None else replay.default_walk_dir()
+    hint = (f"--data DIR names the recorded walk's folder, which holds {replay.IMU_FILE} and {replay.POS_FILE} "
+            "(rtklibexplorer/GNSS_IMU data/walk_0827; a checkout has it in ../shared/data/gnss-imu-walk)")
+    for name in (replay.IMU_FILE, replay.POS_FILE):
+        if (folder / name).is_file():
+            continue
+        if data is None:
+            raise UserError(f"replay-walk needs the recorded walk: none was given (--data) and {folder / name}, "
+                            "where a source checkout keeps it, is missing", hint=hint)
+        what = "is not a folder" if not folder.is_dir() else f"has no {name}"
+        raise UserError(f"replay-walk: {folder} {what} (--data)", hint=hint)
+    return folder
+
+
 @dataclass
 class SimulateReport:
     result: Result
@@ -76,12 +93,18 @@ class SimulateReport:
 
 def simulate(board, scenario: str = "walk", outage_s: float = 30.0, seed: int = 0, quality: str = "open-sky",
              step: float = 5.0, plot: Path | None = None, methods: list[str] | None = None,
-             stream=sys.stdout) -> SimulateReport:
+             stream=None, data: Path | None = None) -> SimulateReport:
     """Simulate `scenario` on `board` (reference pipeline), measure every method over outages of `outage_s`
-    seconds starting every `step` s, print the table to `stream`, and optionally write the plot."""
+    seconds starting every `step` s, print the table to `stream`, and optionally write the plot. `data`: the
+    folder of the recorded walk that replay-walk reads (default: ../shared/data/gnss-imu-walk beside a checkout)."""
+    stream = sys.stdout if stream is None else stream  # looked up per call: a caller may have replaced sys.stdout
     if scenario not in SCENARIOS:
         raise UserError(f"unknown scenario {scenario!r}", hint=f"choose one of {', '.join(SCENARIOS)}")
     check_options(outage_s, seed, step, plot)
+    if data is not None and scenario != "replay-walk":
+        raise UserError(f"--data is the recorded walk's folder; the {scenario} scenario is simulated and reads none",
+                        hint="use --data with --scenario replay-walk, or leave it out")
+    walk_dir = recorded_walk_dir(data) if scenario == "replay-walk" else None
     if quality not in neo6m.QUALITY:
         raise UserError(f"unknown GPS quality {quality!r}", hint=f"choose one of {', '.join(neo6m.QUALITY)}")
     available = registered_methods()
@@ -92,10 +115,7 @@ def simulate(board, scenario: str = "walk", outage_s: float = 30.0, seed: int = 
         available = {m: available[m] for m in methods}
     progress(0, 3, f"simulating {scenario}")
     try:
-        run = build_run(scenario, board, seed=seed, quality=quality)
-    except FileNotFoundError as error:
-        raise UserError(f"the real walk recording is missing: {error.filename}",
-                        hint="replay-walk reads ../shared/data/gnss-imu-walk beside the project checkout") from None
+        run = build_run(scenario, board, seed=seed, quality=quality, walk_dir=walk_dir)
     except ValueError as error:  # e.g. a GPS rate the NEO-6M cannot deliver
         raise UserError(str(error), hint="check the board's gps: and imu: settings") from None
     progress(1, 3, "measuring outages")

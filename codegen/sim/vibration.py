@@ -24,7 +24,7 @@ road; through the quarter-car they give the sharp, sometimes range-saturating, j
 
 Engine: a four-stroke, four-cylinder engine shakes at its firing frequency (twice the crankshaft rate) and its
 harmonics; idle at 750-850 rpm (25-28 Hz), driving at 1300-2600 rpm through a five-speed gearbox. The angular
-amplitude is chosen so that the rate at idle is 0.7-1.0 degree/s rms, as measured on the real drive of issue 19 at
+amplitude is chosen so that the rate at idle is 0.7-1.0 degree/s rms, as measured on the real drive at
 its stops; the linear amplitude (0.1 m/s^2 rms at idle) is our choice: small enough that a car at rest with its
 engine running is "almost" at rest, which is exactly the case rest detection has to decide.
 """
@@ -215,7 +215,7 @@ def road_shake(distance: np.ndarray, rate_hz: float, body: VehicleBody, road: Ro
 
 
 def window_std_of_norm(f: np.ndarray, rate_hz: float, window_s: float = 1.0) -> np.ndarray:
-    """Standard deviation of |f| in consecutive windows of window_s, in g (the statistic issue 19 quotes)."""
+    """Standard deviation of |f| in consecutive windows of window_s, in g (the statistic the vehicle goal quotes)."""
     m = int(round(window_s * rate_hz))
     norm = np.linalg.norm(f, axis=1) / STANDARD_GRAVITY
     k = len(norm) // m
