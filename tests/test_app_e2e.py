@@ -24,7 +24,7 @@ from codegen.sim.harness import (
     write_counts,
     write_stream,
 )
-from conftest import require_shared_data, require_tool
+from conftest import board_micropython, require_shared_data
 
 LAT, LON = 40.0350855, -75.52009367  # the gr601-w capture's place (Malvern PA)
 RATE = 200.0
@@ -32,7 +32,7 @@ RATE = 200.0
 
 @pytest.fixture(scope="module")
 def micropython():
-    return require_tool("micropython")
+    return board_micropython()
 
 SEED_BOARD = "extends: ttgo-tbeam-v1.1\nname: tbeam-seed\nalgorithm:\n  mode: seed\n"
 

@@ -36,7 +36,7 @@ from codegen.kernel.reference import KernelConfig
 from codegen.sim import methods, neo6m
 from codegen.sim.harness import generate_app, run_app
 from codegen.tools import tool_env
-from conftest import mpy_dir, require_tool
+from conftest import board_micropython, mpy_dir, require_tool
 from kernelkit import U, window_bound
 
 EPS32 = 2.0**-24
@@ -63,7 +63,8 @@ def natmod(entry) -> Path:
         out = entry["out"]
         mpy_cross = require_tool("mpy-cross")
         require_tool("make")
-        done = subprocess.run(["make", f"MPY_DIR={mpy_dir()}", "ARCH=x64", f"MPY_CROSS={mpy_cross}",
+        # x86: the natmod for the 32-bit board-precision interpreter the app runs on
+        done = subprocess.run(["make", f"MPY_DIR={mpy_dir()}", "ARCH=x86", f"MPY_CROSS={mpy_cross}",
                                f"PYTHON={sys.executable}"], cwd=out / "native", capture_output=True, text=True,
                               env=tool_env())
         assert done.returncode == 0, done.stdout + done.stderr
@@ -75,7 +76,7 @@ def natmod(entry) -> Path:
 
 
 def run_outages(entry, scenario, kernel, work: Path):
-    micropython = require_tool("micropython")
+    micropython = board_micropython()
     board = entry["board"]
     extra = [natmod(entry)] if kernel == "native" else []
     world, traj, track = outage_world(board, scenario, SEEDS[scenario], DURATION, OUTAGES, work)
