@@ -53,3 +53,40 @@ def test_log_keeps_the_receivers_decimals(app_dir, tmp_path, alt, hdop):
     alt_mm, sog_mm, cog, hdop_100 = fields[9], fields[10], fields[11], fields[16]
     assert alt_mm == round(float(alt) * 1000) and hdop_100 == round(float(hdop) * 100), (alt_mm, hdop_100)
     assert sog_mm == 514 and cog == 9000  # 1 kn, 90 degrees
+
+
+CLIMB = r"""
+import struct
+import sys
+from nmea import Nmea
+
+got = []
+p = Nmea(on_fix=got.append)
+for line in sys.argv[1:]:
+    p.feed(line.encode() + b"\r\n")
+print(" ".join("%d:%s" % (round(f.alt_m * 1000), struct.pack("<f", f.climb_ms or 0.0).hex()) for f in got))
+"""
+
+
+def _epoch(second: int, alt: str) -> list[str]:
+    utc = f"1200{second:02d}.00"
+    return [sentence(f"GPRMC,{utc},A,4005.80138,N,10508.83204,W,0.000,,241013,,,A"),
+            sentence(f"GPGGA,{utc},4005.80138,N,10508.83204,W,1,07,1.1,{alt},M,-21.0,M,,"),
+            sentence("GPGSA,A,3,28,17,01,08,09,11,32,,,,,,2.94,1.72,2.39")]
+
+
+def test_climb_rate_from_the_receivers_altitudes_not_their_floats(app_dir, tmp_path):
+    """Boulder, 1600 m up: a float32 altitude there is a multiple of 0.12 mm (30-bit floats: 0.5 mm), so two of them
+    0.2 m apart gave a climb of 0.19995 m/s (CircuitPython: 0.19983). The parser keeps altitudes in integer
+    millimetres, as it keeps positions in 1e-7 degree: the climb is one rounding from the truth."""
+    script = tmp_path / "climb.py"
+    script.write_text(CLIMB)
+    lines = _epoch(0, "1600.2") + _epoch(1, "1600.4") + _epoch(2, "1599.9") + _epoch(3, "-0.0005") + \
+        [sentence("GPRMC,120004.00,A,4005.80138,N,10508.83204,W,0.000,,241013,,,A")]
+    done = run_script(board_micropython(), app_dir, str(script), lines, timeout=60)
+    assert done.returncode == 0, done.stderr + done.stdout
+    fixes = [(int(a), struct.unpack("<f", bytes.fromhex(c))[0]) for a, c in
+             (item.split(":") for item in done.stdout.split())]
+    assert [a for a, _ in fixes] == [1600200, 1600400, 1599900, -1]
+    for (_, climb), want in zip(fixes[1:], (0.2, -0.5, -1599.901)):
+        assert abs(climb - want) <= 2.0**-23 * abs(want), (climb, want)

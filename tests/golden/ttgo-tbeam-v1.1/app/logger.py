@@ -44,9 +44,9 @@ _ZEROS = const(256)  # padding is copied from this many zero bytes at a time
 
 
 def _scaled(value, scale):
-    """value * scale as the nearest integer (halves away from zero). The GPS's decimals ("183.8" m, "0.53") are
-    parsed into floats a rounding away from them, below as often as above: truncating logged 183.8 m as 183799 mm
-    on some values in double precision and on others in the boards' single precision."""
+    """value * scale as the nearest integer (halves away from zero). The GPS's decimals ("0.53") are parsed into
+    floats a rounding away from them, below as often as above: truncating logged an HDOP of 0.53 as 0.52 on some
+    values in double precision and on others in the boards' single precision."""
     v = value * scale
     return int(v + 0.5) if v >= 0 else -int(0.5 - v)
 
@@ -254,7 +254,7 @@ class Logger:
             GPS_FMT, self.block, self.used, REC_GPS, self.t_lo, self.t_hi,
             p.utc_ms if p.utc_ms is not None else -1, y, mo, d,
             p.lat_e7, p.lon_e7,
-            _scaled(p.alt_m, 1000) if p.alt_m is not None else _UNKNOWN_I32,
+            p.alt_mm if p.alt_mm is not None else _UNKNOWN_I32,
             _scaled(p.speed_ms, 1000) if p.speed_ms is not None else _UNKNOWN_I32,
             _scaled(p.course_deg, 100) % 36000 if p.course_deg is not None else _UNKNOWN_U16,
             _scaled(p.climb_ms, 1000) if p.climb_ms is not None else _UNKNOWN_I32,
