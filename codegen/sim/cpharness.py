@@ -26,6 +26,7 @@ from codegen.sim.harness import MPSIM, Run, pointer_bytes
 CPSIM = Path(__file__).resolve().parent / "cpsim"
 # the firmware's monotonic_ns() step: RP2040 counts 1/1024 s ticks with 1/32 subticks (shared-module/time),
 # the ESP32-S3 microseconds (ports/espressif/common-hal/time)
+FAT_SECTOR_BYTES = 512
 MONOTONIC_NS_STEP = {"rp2040": 30518, "esp32s3": 1000, "esp32": 1000}
 
 
@@ -46,8 +47,11 @@ def circuitpython_world(board: Board, usb_connected: bool = True) -> dict:
 def with_circuitpython(scenario: dict, board: Board, usb_connected: bool = True) -> dict:
     """`scenario` (a world of mpsim's) seen by a CircuitPython board: the firmware's settings, and the display read
     back with the app's own font (lib/textfb.py, codegen/font.py)."""
-    return dict(scenario, circuitpython=circuitpython_world(board, usb_connected),
-                display_font={"first": FONT.first, "cell": FONT.cell, "data": FONT.data.hex()})
+    world = dict(scenario, circuitpython=circuitpython_world(board, usb_connected),
+                 display_font={"first": FONT.first, "cell": FONT.cell, "data": FONT.data.hex()})
+    if world.get("fs"):  # the CIRCUITPY drive: FAT in 512-byte sectors (CircuitPython has no LittleFS)
+        world["fs"] = dict(world["fs"], format="fat", block=FAT_SECTOR_BYTES)
+    return world
 
 
 def run_circuitpython(micropython: str, app_dir: Path, scenario: dict, work: Path, timeout: float = 600,
