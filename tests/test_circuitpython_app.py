@@ -18,7 +18,7 @@ from codegen.board.loader import load_board
 from codegen.deploy.build import build
 from codegen.errors import UserError
 from codegen.sim.harness import generate_app, read_log, run_app
-from conftest import board_micropython, circuitpython
+from conftest import board_micropython, circuitpython, circuitpython_mpy_cross, require_tool
 
 PICO = "pico-gy521-circuitpython"
 S3 = "esp32s3-devkitc-gy521-circuitpython"
@@ -48,12 +48,43 @@ def _static_world(board, work: Path, duration: float, pins: dict | None = None):
 
 
 @pytest.mark.parametrize("name", [PICO, S3])
-def test_build_ships_checked_py(apps, name):
+def test_build_ships_circuitpython_mpy(apps, name):
+    """lib/ compiled by CircuitPython's own mpy-cross (built from the shared tree, the boards' release): .mpy that
+    start with 'C', which CircuitPython loads and MicroPython's would not be; code.py and boot.py stay source."""
+    circuitpython_mpy_cross()  # the compiler the build found (skips locally without the shared tree)
     board, out = apps[name]
-    files = sorted(p.relative_to(out / "build" / "app").as_posix() for p in (out / "build" / "app").rglob("*"))
-    assert "code.py" in files and "boot.py" in files and "lib/app.py" in files and "lib/dr_fallback.py" in files
-    assert not [f for f in files if f.endswith(".mpy")] and not (out / "build" / "fs.img").exists()
+    app = out / "build" / "app"
+    files = sorted(p.relative_to(app).as_posix() for p in app.rglob("*"))
+    assert "code.py" in files and "boot.py" in files and "lib/app.mpy" in files and "lib/dr_fallback.mpy" in files
+    assert not [f for f in files if f.startswith("lib/") and f.endswith(".py")], files
+    assert all((app / f).read_bytes()[:2] == b"C\x06" for f in files if f.endswith(".mpy"))
+    assert not (out / "build" / "fs.img").exists()
     assert not (out / "native").exists()  # CircuitPython loads no native module
+
+
+def test_build_without_circuitpythons_mpy_cross_ships_checked_py(apps, tmp_path, monkeypatch):
+    from codegen import tools
+
+    monkeypatch.delenv("DEADRECKON_CP_MPY_CROSS", raising=False)
+    monkeypatch.delenv("CIRCUITPY_DIR", raising=False)
+    monkeypatch.setattr(tools, "SHARED_CIRCUITPYTHON", tmp_path / "none")
+    board, out = apps[PICO]
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    said = []
+    build(copy, progress=said.append)
+    files = sorted(p.relative_to(copy / "build" / "app").as_posix() for p in (copy / "build" / "app").rglob("*"))
+    assert "lib/app.py" in files and not [f for f in files if f.endswith(".mpy")]
+    assert any("no CircuitPython 10.2.1 mpy-cross: set DEADRECKON_CP_MPY_CROSS" in line for line in said), said
+
+
+def test_build_refuses_micropythons_mpy_cross_for_circuitpython(apps, tmp_path, monkeypatch):
+    monkeypatch.setenv("DEADRECKON_CP_MPY_CROSS", require_tool("mpy-cross"))
+    board, out = apps[PICO]
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    with pytest.raises(UserError, match="is not CircuitPython's mpy-cross"):
+        build(copy, progress=lambda line: None)
 
 
 def test_build_refuses_a_library_the_board_lacks(apps, tmp_path):

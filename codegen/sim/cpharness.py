@@ -47,11 +47,8 @@ def circuitpython_world(board: Board, usb_connected: bool = True) -> dict:
 def with_circuitpython(scenario: dict, board: Board, usb_connected: bool = True) -> dict:
     """`scenario` (a world of mpsim's) seen by a CircuitPython board: the firmware's settings, and the display read
     back with the app's own font (lib/textfb.py, codegen/font.py)."""
-    world = dict(scenario, circuitpython=circuitpython_world(board, usb_connected),
-                 display_font={"first": FONT.first, "cell": FONT.cell, "data": FONT.data.hex()})
-    if world.get("fs"):  # the CIRCUITPY drive: FAT in 512-byte sectors (CircuitPython has no LittleFS)
-        world["fs"] = dict(world["fs"], format="fat", block=FAT_SECTOR_BYTES)
-    return world
+    return dict(scenario, circuitpython=circuitpython_world(board, usb_connected),
+                display_font={"first": FONT.first, "cell": FONT.cell, "data": FONT.data.hex()})
 
 
 def run_circuitpython(micropython: str, app_dir: Path, scenario: dict, work: Path, timeout: float = 600,
@@ -63,8 +60,11 @@ def run_circuitpython(micropython: str, app_dir: Path, scenario: dict, work: Pat
     work.mkdir(parents=True, exist_ok=True)
     scenario = dict(scenario)
     scenario.setdefault("trace", str(work / "trace.jsonl"))
-    if scenario.get("fs"):
-        scenario["fs"] = dict(scenario["fs"], image=scenario["fs"].get("image", str(work / "fs.img")))
+    if scenario.get("fs"):  # the CIRCUITPY drive: FAT in 512-byte sectors (CircuitPython has no LittleFS)
+        scenario["fs"] = dict(scenario["fs"], image=scenario["fs"].get("image", str(work / "fs.img")), format="fat",
+                              block=FAT_SECTOR_BYTES)
+    # the display read back with the CircuitPython app's font: the firmware has no framebuf font to read it with
+    scenario.setdefault("display_font", {"first": FONT.first, "cell": FONT.cell, "data": FONT.data.hex()})
     process_heap = 64 * 1024 * 1024
     if heap_bytes is not None:
         scenario["heap_bytes"] = boardclock.host_heap_bytes(heap_bytes, pointer_bytes=pointer_bytes(micropython))
