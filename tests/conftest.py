@@ -56,7 +56,7 @@ def require_shared_data(*parts: str) -> Path:
     return path
 
 
-CIRCUITPYTHON_RELEASE = "10.2.1"  # the release of ../shared/circuitpython, the one the bundled CircuitPython boards declare
+CIRCUITPYTHON_RELEASE = "10.2.1"  # ../shared/circuitpython's release: the bundled CircuitPython boards declare it
 
 
 @functools.cache

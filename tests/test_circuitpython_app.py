@@ -1,5 +1,5 @@
-"""The generated CircuitPython app, unmodified, on the emulated CircuitPython board (codegen/sim/cpsim over mpsim's
-world): it builds as CircuitPython takes it, boots within the board's heap on the board's clock, shows and logs as
+"""The generated CircuitPython app, unmodified, on CircuitPython's own unix port (30-bit floats, ulab; built from
+../shared/circuitpython) as the emulated CircuitPython board (codegen/sim/cpsim over mpsim's world): it builds as CircuitPython takes it, boots within the board's heap on the board's clock, shows and logs as
 the MicroPython app does, gives the drive back when asked, survives a stuck bus through the watchdog, and on the
 same recording gets the same fixes and the same outage estimates as its MicroPython twin."""
 
