@@ -42,7 +42,6 @@ class Product:
     make_dir: str  # where make runs, inside the tree
     make_args: tuple[str, ...]
     built: str  # the file the build leaves, relative to make_dir
-    env: tuple[tuple[str, str], ...] = ()  # extra environment for make
     needs: str = "gcc"  # the compiler the build uses (its version is part of the key)
     hint: str = "apt-get install gcc-multilib make"
 
@@ -74,7 +73,6 @@ CIRCUITPYTHON_MPY_CROSS = Product(
     make_dir="mpy-cross",
     make_args=(),
     built="build/mpy-cross",
-    needs="gcc",
     hint="apt-get install gcc make",
 )
 
@@ -110,9 +108,7 @@ def build(product: Product, tree: Path, version: str = "", log: Log = None) -> P
     if missing:
         raise PortBuildError(f"{tree} has no {', '.join(missing)}: not a source tree {product.name} builds from",
                              hint="point at the top of the MicroPython or CircuitPython source tree")
-    env = dict(product.env)
-    if version:
-        env["CP_VERSION"] = version
+    env = {"CP_VERSION": version} if version else {}
     key = hashlib.sha256(f"{tree_digest(tree, product.dirs)} {product.make_args} {sorted(env.items())} "
                          f"{_compiler_version(product.needs, product.hint)}".encode()).hexdigest()
     home = cache_root() / product.name / key[:24]
