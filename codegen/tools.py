@@ -45,6 +45,7 @@ def tool_env(base: Optional[dict] = None) -> dict:
 
 
 SHARED_MICROPYTHON = Path(__file__).resolve().parents[2] / "shared" / "micropython"
+SHARED_CIRCUITPYTHON = SHARED_MICROPYTHON.parent / "circuitpython"
 
 
 def micropython_tree() -> Optional[Path]:

@@ -15,7 +15,7 @@ from codegen.sim.harness import (
     write_counts,
     write_stream,
 )
-from conftest import require_tool
+from conftest import board_micropython
 
 LAT, LON = 51.4778, -0.0015
 
@@ -44,7 +44,7 @@ def world(board, work, counts, gps, duration):
 
 @pytest.mark.parametrize("name", [name for name, _, _ in bundled_boards("micropython")])
 def test_board_app_runs(name, tmp_path):
-    micropython = require_tool("micropython")
+    micropython = board_micropython()
     board = load_board(name).board
     out = generate_app(name, tmp_path / "out")
     rate = board.imu.achieved_sample_rate_hz
@@ -61,7 +61,7 @@ def test_board_app_runs(name, tmp_path):
 
 def test_display_on_its_own_bus_uses_that_bus_pins(tmp_path):
     """Retargeting by YAML alone: the OLED moved to I2C1 on GPIO 13/14 is opened on those pins, the IMU stays."""
-    micropython = require_tool("micropython")
+    micropython = board_micropython()
     board_file = tmp_path / "two-buses.yaml"
     board_file.write_text(
         "extends: ttgo-tbeam-v1.1\n"
@@ -89,7 +89,7 @@ def test_display_on_its_own_bus_uses_that_bus_pins(tmp_path):
 def test_smallest_heaps_boot_calibrate_log_and_carry_an_outage(name, tmp_path):
     """The boards with the least heap (an ESP32 without PSRAM: 112 KiB; the RP2040: 205 KiB), on the board's heap
     and clock: the app boots, calibrates, logs and dead-reckons through a GPS outage."""
-    micropython = require_tool("micropython")
+    micropython = board_micropython()
     from appkit import outage_world
 
     board = load_board(name).board
@@ -106,7 +106,7 @@ def test_smallest_heaps_boot_calibrate_log_and_carry_an_outage(name, tmp_path):
     imu_windows = [line for line in run.stdout.splitlines() if line.startswith("WIN") and "mode=IMU" in line]
     assert len(imu_windows) >= 5
     free = [int(line.split("heap_free=")[1].split()[0]) for line in run.console("DIAG")]
-    print(f"{name}: heap free (host) {min(free)}..{max(free)} B of {run_heap(out)} B")
+    print(f"{name}: heap free {min(free)}..{max(free)} B of {run_heap(out)} B")
     files = sorted((tmp_path / "fs").glob("dr*.bin"))
     assert files and files[0].stat().st_size >= 3 * 4096  # blocks logged through the run
 
@@ -115,4 +115,4 @@ def run_heap(out):
     from codegen.sim import boardclock
     from codegen.sim.harness import app_constants
 
-    return boardclock.host_heap_bytes(app_constants(out)["HEAP_BYTES"])
+    return boardclock.host_heap_bytes(app_constants(out)["HEAP_BYTES"], pointer_bytes=4)  # the 32-bit build's

@@ -24,7 +24,7 @@ from codegen.sim.harness import (
     write_counts,
     write_stream,
 )
-from conftest import require_shared_data, require_tool
+from conftest import board_micropython, require_shared_data
 
 LAT, LON = 40.0350855, -75.52009367  # the gr601-w capture's place (Malvern PA)
 RATE = 200.0
@@ -32,7 +32,7 @@ RATE = 200.0
 
 @pytest.fixture(scope="module")
 def micropython():
-    return require_tool("micropython")
+    return board_micropython()
 
 SEED_BOARD = "extends: ttgo-tbeam-v1.1\nname: tbeam-seed\nalgorithm:\n  mode: seed\n"
 
@@ -104,7 +104,10 @@ def test_fix_lost_switches_to_imu_and_moves(modes_run):
     lon = float(screen[2].split()[0])
     assert east > 5.0  # 0.5 m/s^2 for 4 s: 2 m/s from t = 34 s
     assert lon < 75.5200937  # West longitude shrinks going East
-    assert screen[3].startswith("2.00m/s  90deg")
+    # 0.5 m/s^2 for 4 s: 2 m/s East, within the seed's block medians of the noisy counts (0.5 %; the exact stream
+    # shows 2.01, the emulator's float sample clock once repeated a sample of it and showed 2.00)
+    speed, course = re.match(r"([\d.]+)m/s +(\d+)deg", screen[3]).groups()
+    assert abs(float(speed) - 2.0) <= 0.01 and course == "90", screen[3]
 
 
 def test_test_mode_button_and_led(modes_run):

@@ -18,7 +18,7 @@ from appkit import outage_world
 from codegen.board.loader import load_board
 from codegen.post.devicelog import parse_device_log
 from codegen.sim.harness import generate_app, read_log, run_app
-from conftest import require_tool
+from conftest import board_micropython
 
 DURATION = 45.0
 BLOCK_SPAN_S = 6.0  # one 4096-byte log block at the defaults (50 Hz IMU records of 17 bytes, fixes, windows)
@@ -35,7 +35,7 @@ def run(tbeam, work: Path, edit=None, outages=(), duration=DURATION):
     world, _, _ = outage_world(board, "walk", 5, duration, list(outages), work)
     if edit:
         edit(world)
-    result = run_app(require_tool("micropython"), out, world, work / "w")
+    result = run_app(board_micropython(), out, world, work / "w")
     assert "Traceback" not in result.stderr, result.stderr
     return result
 

@@ -36,10 +36,11 @@ from codegen.kernel.reference import KernelConfig
 from codegen.sim import methods, neo6m
 from codegen.sim.harness import generate_app, run_app
 from codegen.tools import tool_env
-from conftest import mpy_dir, require_tool
+from conftest import board_micropython, mpy_dir, require_tool
 from kernelkit import U, window_bound
 
 EPS32 = 2.0**-24
+EPS30 = 2.0**-22  # CircuitPython's boards: 30-bit floats, 22 significant bits (tests/test_circuitpython_app.py)
 DURATION = 75.0
 OUTAGES = [(26.5, 36.5), (44.5, 54.5), (62.5, 72.5)]  # fixes at whole seconds: the last one at 26, 44, 62 s
 MODE_IMU = 1
@@ -63,7 +64,8 @@ def natmod(entry) -> Path:
         out = entry["out"]
         mpy_cross = require_tool("mpy-cross")
         require_tool("make")
-        done = subprocess.run(["make", f"MPY_DIR={mpy_dir()}", "ARCH=x64", f"MPY_CROSS={mpy_cross}",
+        # x86: the natmod for the 32-bit board-precision interpreter the app runs on
+        done = subprocess.run(["make", f"MPY_DIR={mpy_dir()}", "ARCH=x86", f"MPY_CROSS={mpy_cross}",
                                f"PYTHON={sys.executable}"], cwd=out / "native", capture_output=True, text=True,
                               env=tool_env())
         assert done.returncode == 0, done.stdout + done.stderr
@@ -75,7 +77,7 @@ def natmod(entry) -> Path:
 
 
 def run_outages(entry, scenario, kernel, work: Path):
-    micropython = require_tool("micropython")
+    micropython = board_micropython()
     board = entry["board"]
     extra = [natmod(entry)] if kernel == "native" else []
     world, traj, track = outage_world(board, scenario, SEEDS[scenario], DURATION, OUTAGES, work)
@@ -112,7 +114,9 @@ def check_anchor_and_screen(rec, calls, fix):
 
 
 # ------------------------------------------------------------------------------------------------------- fused
-def fused_compare(rec, board, origin):
+def fused_compare(rec, board, origin, eps=EPS32):
+    """Per app call: (reference offset from its anchor, bound, path since the fix) after it, or None; `eps`: the
+    unit roundoff of the interpreter the app ran on (float32; CircuitPython's 30-bit floats: EPS30)."""
     kcfg = KernelConfig.from_board(board)
     fcfg = F.FusedConfig.from_board(board)
     assert F.IDX["flags"] == 32  # where the tap reads the app's flags (API.md)
@@ -157,7 +161,7 @@ def fused_compare(rec, board, origin):
             continue
         pe0, pn0, ae, an, path0 = base[a]
         n_samples = end
-        bound = 2 * (n_samples * EPS32 * max(path, 1.0) + 1e-4) + 2 * 2e-5 * path
+        bound = 2 * (n_samples * eps * max(path, 1.0) + 1e-4) + 2 * 2e-5 * path
         offsets.append((np.array([ae + st.pe - pe0, an + st.pn - pn0]), bound, path - path0))
     return offsets
 

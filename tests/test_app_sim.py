@@ -14,7 +14,7 @@ from codegen.sim.harness import (
     write_counts,
     write_stream,
 )
-from conftest import require_tool
+from conftest import board_micropython
 
 # In fused mode the app runs under this tap: it reports each fix's fused_position call (the Doppler, the metres from
 # the previous anchor the app computed, the smoothed offset it got) and, per GPS-mode window, the app's ENU offset.
@@ -46,7 +46,7 @@ a.run()
 
 @pytest.mark.parametrize("mode", ["seed", "fused"])
 def test_simulated_drive_with_outage(tmp_path, mode):
-    micropython = require_tool("micropython")
+    micropython = board_micropython()
     import codegen.sim.trajectory as sim_traj
     from codegen.sim.mpu6050 import simulate_imu
     from codegen.sim.neo6m import nmea_sentences, simulate_gps

@@ -11,14 +11,14 @@ import pytest
 from codegen.board.loader import load_board
 from codegen.sim.cpharness import breadboard_world, circuitpython_world, run_circuitpython
 from codegen.sim.harness import imu_counts, nmea_epoch, write_counts, write_stream
-from conftest import require_tool
+from conftest import circuitpython
 
 REMOUNT = 'import storage\nstorage.remount("/", readonly=False)\n'
 
 
 def _run(tmp_path: Path, code: str, boot: str | None = REMOUNT, board_name: str = "pico-gy521-circuitpython",
          duration_s: float = 3.0, pins: dict | None = None):
-    micropython = require_tool("micropython")
+    micropython = circuitpython()
     app = tmp_path / "app"
     (app / "lib").mkdir(parents=True, exist_ok=True)
     (app / "code.py").write_text(textwrap.dedent(code))

@@ -15,7 +15,7 @@ import json
 import pytest
 
 from codegen.sim.harness import generate_app, run_script, sentence
-from conftest import require_tool
+from conftest import board_micropython
 
 DRIVER = r"""
 import sys, json
@@ -81,7 +81,7 @@ def epoch(t, alt=183.8, mode=3, valid=True):
 
 @pytest.fixture(scope="module")
 def parse(tmp_path_factory):
-    micropython = require_tool("micropython")
+    micropython = board_micropython()
     folder = tmp_path_factory.mktemp("nmea")
     app = generate_app("ttgo-tbeam-v1.1", folder / "out") / "app"
     script = folder / "driver.py"

@@ -13,7 +13,7 @@ from datetime import datetime, timezone
 import pytest
 
 from codegen.sim.harness import generate_app, run_script
-from conftest import require_shared_data, require_tool
+from conftest import board_micropython, require_shared_data
 
 CAPTURES = ["gr601-w", "ublox-lea-5h", "haicom-305N", "bt451", "nmea-fuzzy-cases"]
 
@@ -52,7 +52,7 @@ def _iso(ours):
 
 @pytest.mark.parametrize("capture", CAPTURES)
 def test_parser_agrees_with_gpsd(capture, app_dir, tmp_path):
-    micropython = require_tool("micropython")
+    micropython = board_micropython()
     chk = require_shared_data("nmea-gpsd", f"{capture}.log.chk")
     script = tmp_path / "mp_side.py"
     script.write_text(MP_SIDE)

@@ -155,9 +155,9 @@ def test_log_written_by_the_generated_app_on_micropython(tmp_path):
         write_counts,
         write_stream,
     )
-    from conftest import require_tool
+    from conftest import board_micropython
 
-    micropython = require_tool("micropython")
+    micropython = board_micropython()
     app = generate_app("ttgo-tbeam-v1.1", tmp_path / "out")
     rate, accel = 200.0, 1.0  # Hz, m/s^2
     pushes = [(12.0, 16.0, 0, accel), (22.0, 26.0, 0, -accel)]

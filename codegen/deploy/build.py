@@ -8,13 +8,14 @@
 `main.py` and `boot.py` stay source: MicroPython only runs those two names as `.py`. Everything else under app/
 that is Python becomes `.mpy`; other files are copied. Nothing is written outside OUT/build/.
 
-A CircuitPython tree (`target: circuitpython`) is built differently (build_circuitpython): its files stay `.py`.
-CircuitPython refuses MicroPython's .mpy ("MicroPython .mpy file; use CircuitPython mpy-cross": its header starts
-'C', not 'M'), its own mpy-cross is a download from Adafruit that no package registry carries, and it compiles a
-`.py` as it imports it (code.py imports the largest modules first, for the compiler's room). So the build checks
-each module instead: it must compile (MicroPython's compiler, from which CircuitPython's comes, as a syntax check),
-and every module it imports must be in the app or built into the board's CircuitPython (a library the board lacks
-would stop the app at boot). There is no native module (CircuitPython loads none) and no filesystem image (the
+A CircuitPython tree (`target: circuitpython`) is built differently (build_circuitpython). CircuitPython refuses
+MicroPython's .mpy ("MicroPython .mpy file; use CircuitPython mpy-cross": its header starts 'C', not 'M'), so its
+modules under lib/ are compiled by CircuitPython's own mpy-cross for the board's release (codegen/deploy/cpmpycross.py:
+one the user gives, or built from a CircuitPython source tree); code.py and boot.py stay source. Without that
+compiler they stay `.py`, each checked to compile (MicroPython's compiler, from which CircuitPython's comes), and
+CircuitPython compiles them as it imports them (code.py imports the largest modules first, for the compiler's room).
+Either way every module it imports must be in the app or built into the board's CircuitPython (a library the board
+lacks would stop the app at boot). There is no native module (CircuitPython loads none) and no filesystem image (the
 files go onto the CIRCUITPY drive: `deadreckon upload OUT --drive PATH`).
 """
 
@@ -35,6 +36,7 @@ from codegen.tools import find_mpy_cross, mpy_format
 BUILD_DIR = "build"
 IMAGE_NAME = "fs.img"
 KEEP_AS_SOURCE = ("main.py", "boot.py")  # MicroPython runs only these names from the filesystem root
+KEEP_AS_SOURCE_CIRCUITPYTHON = ("code.py", "boot.py")  # CircuitPython runs only .py (or .txt) under these names
 NATIVE_MODULE = "dr_native"
 
 Progress = Callable[[str], None]
@@ -206,24 +208,43 @@ def check_names(paths: list[str]) -> None:
 
 
 def build_circuitpython(tree: GeneratedTree, progress: Progress = print) -> BuildResult:
-    """Check a CircuitPython tree's modules and copy them into OUT/build/app, as the CIRCUITPY drive takes them."""
+    """Compile a CircuitPython tree's modules with CircuitPython's mpy-cross for the board's release (code.py and
+    boot.py stay source: CircuitPython runs only those names) into OUT/build/app, as the CIRCUITPY drive takes them;
+    without that compiler, check them and ship .py."""
+    from codegen.deploy import cpmpycross
     from codegen.deploy.cpimports import check_imports
 
     board = tree.board
+    version = board.circuitpython.version
     built_from, target_dir, sources = _start_app_build(tree)
-    progress(f"building {len(sources)} app files for {board.name} (CircuitPython {board.circuitpython.version} "
-             f"on {board.circuitpython.board}): .py as CircuitPython runs them")
+    mpy_cross, where = cpmpycross.find(version, progress)
+    how = f".mpy by CircuitPython's mpy-cross ({where})" if mpy_cross else ".py as CircuitPython runs them"
+    progress(f"building {len(sources)} app files for {board.name} (CircuitPython {version} "
+             f"on {board.circuitpython.board}): {how}")
+    if mpy_cross is None:
+        progress(f"  {where}; CircuitPython compiles each .py at import, in the app's heap")
     result = BuildResult(tree=tree, app_dir=target_dir, image=None)
     check_names([source.relative_to(tree.app_dir).as_posix() for source in sources])
-    for index, source in enumerate(sources, 1):
+    for source in sources:
         rel = source.relative_to(tree.app_dir).as_posix()
-        if source.suffix == ".py":
-            check_compiles(source, rel, tree.build_dir)
         (target_dir / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(source, target_dir / rel)
-        result.files.append(rel)
-        progress(f"  [{index}/{len(sources)}] checked   {rel}")
-    found = check_imports(target_dir, board)
+    found = check_imports(target_dir, board)  # on the sources, before any becomes bytecode
+    for index, source in enumerate(sources, 1):
+        rel = source.relative_to(tree.app_dir).as_posix()
+        out_rel = rel
+        if source.suffix != ".py":
+            action = "copy"
+        elif mpy_cross is None or rel in KEEP_AS_SOURCE_CIRCUITPYTHON:
+            check_compiles(source, rel, tree.build_dir)
+            action = "checked"
+        else:
+            out_rel = rel[:-3] + ".mpy"
+            cpmpycross.compile_module(mpy_cross, source, target_dir / out_rel, rel)
+            (target_dir / rel).unlink()
+            action = "mpy-cross"
+        result.files.append(out_rel)
+        progress(f"  [{index}/{len(sources)}] {action:9s} {rel}" + (f" -> {out_rel}" if out_rel != rel else ""))
     progress(f"  imports: {', '.join(sorted(found.builtin))} built into CircuitPython on {board.circuitpython.board}; "
              f"{len(found.local)} modules of the app")
     result.native_note = ("no native module: CircuitPython loads none, the app runs the pure-Python kernel "

@@ -23,7 +23,9 @@ Operations the app does that the table has no entry for cost nothing: the table 
 The heap: the board declares the heap its firmware gives (micropython.heap_kb, codegen/board/chips.py). The host's
 MicroPython stores every pointer in 8 bytes where the board uses 4, so the same app needs more room; the calibration
 loads the app into the 32-bit QEMU port and into the 64-bit host and records the ratio of their footprints
-(`host_heap_scale`): the emulated board gives the app heap_kb * that ratio, no more.
+(`host_heap_scale`): the emulated board gives the app heap_kb * that ratio, no more. A 32-bit interpreter (the
+single-precision unix port the app tests run on, CircuitPython's unix port) stores pointers as the board does and
+gives the app heap_kb itself.
 """
 
 from __future__ import annotations
@@ -89,7 +91,11 @@ def scenario_clock(chip: str, table: dict | None = None) -> dict:
     return {"chip": chip, "costs": clock.costs_us(), "flash": dict(FLASH)}
 
 
-def host_heap_bytes(board_heap_bytes: int, table: dict | None = None) -> int:
-    """The room the 64-bit host gives the app for a board heap of `board_heap_bytes` (see the module docstring)."""
+def host_heap_bytes(board_heap_bytes: int, table: dict | None = None, pointer_bytes: int = 8) -> int:
+    """The room an interpreter storing pointers in `pointer_bytes` gives the app for a board heap of
+    `board_heap_bytes`: a 32-bit build (the board-precision unix ports) gives the board's own figure, the 64-bit
+    host that figure times the calibrated footprint ratio (see the module docstring)."""
+    if pointer_bytes == 4:
+        return int(board_heap_bytes)
     table = load_table() if table is None else table
     return int(board_heap_bytes * table["host_heap_scale"])

@@ -21,11 +21,12 @@ from codegen.board.circuitpython import WATCHDOG_MAX_S, find_board
 from codegen.board.model import Board
 from codegen.font import FONT
 from codegen.sim import boardclock
-from codegen.sim.harness import MPSIM, Run
+from codegen.sim.harness import MPSIM, Run, pointer_bytes
 
 CPSIM = Path(__file__).resolve().parent / "cpsim"
 # the firmware's monotonic_ns() step: RP2040 counts 1/1024 s ticks with 1/32 subticks (shared-module/time),
 # the ESP32-S3 microseconds (ports/espressif/common-hal/time)
+FAT_SECTOR_BYTES = 512
 MONOTONIC_NS_STEP = {"rp2040": 30518, "esp32s3": 1000, "esp32": 1000}
 
 
@@ -54,16 +55,19 @@ def run_circuitpython(micropython: str, app_dir: Path, scenario: dict, work: Pat
                       heap_bytes: int | None = None, clock_chip: str | None = None,
                       libraries: list[Path] = ()) -> Run:
     """Run APP_DIR (boot.py, code.py, lib/) on the emulated CircuitPython board in `scenario`. `heap_bytes`: the
-    board's heap for the program (scaled to the host as codegen/sim/boardclock.py scales MicroPython's; None: the
+    board's heap for the program (scaled to a 64-bit host as codegen/sim/boardclock.py scales MicroPython's; None: the
     host's 64 MB); `clock_chip`: charge the app's operations the board clock's costs for that chip (None: free)."""
     work.mkdir(parents=True, exist_ok=True)
     scenario = dict(scenario)
     scenario.setdefault("trace", str(work / "trace.jsonl"))
-    if scenario.get("fs"):
-        scenario["fs"] = dict(scenario["fs"], image=scenario["fs"].get("image", str(work / "fs.img")))
+    if scenario.get("fs"):  # the CIRCUITPY drive: FAT in 512-byte sectors (CircuitPython has no LittleFS)
+        scenario["fs"] = dict(scenario["fs"], image=scenario["fs"].get("image", str(work / "fs.img")), format="fat",
+                              block=FAT_SECTOR_BYTES)
+    # the display read back with the CircuitPython app's font: the firmware has no framebuf font to read it with
+    scenario.setdefault("display_font", {"first": FONT.first, "cell": FONT.cell, "data": FONT.data.hex()})
     process_heap = 64 * 1024 * 1024
     if heap_bytes is not None:
-        scenario["heap_bytes"] = boardclock.host_heap_bytes(heap_bytes)
+        scenario["heap_bytes"] = boardclock.host_heap_bytes(heap_bytes, pointer_bytes=pointer_bytes(micropython))
         process_heap = scenario["heap_bytes"] + boardclock.MPSIM_RESERVE_BYTES
     if clock_chip is not None:
         scenario["clock"] = boardclock.scenario_clock(clock_chip)

@@ -6,6 +6,7 @@ Runs on CPython only; `deadreckon simulate --on-micropython` and the app tests b
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import re
@@ -89,6 +90,16 @@ def compile_app(app_dir: Path, target: Path) -> Path:
     return target
 
 
+@functools.cache
+def pointer_bytes(micropython: str) -> int:
+    """4 for a 32-bit interpreter (as the boards are), 8 for the 64-bit PyPI unix port."""
+    done = subprocess.run([micropython, "-c", "import sys; print(8 if sys.maxsize > 0xFFFFFFFF else 4)"],
+                          capture_output=True, text=True, timeout=30)
+    if done.returncode:
+        raise RuntimeError(f"{micropython} did not start: {(done.stderr or done.stdout).strip()}")
+    return int(done.stdout.split()[-1])
+
+
 def run_app(
     micropython: str,
     out: Path,
@@ -110,7 +121,7 @@ def run_app(
     if scenario.get("fs"):
         scenario["fs"] = dict(scenario["fs"], image=scenario["fs"].get("image", str(work / "fs.img")))
     board_heap = heap_bytes if heap_bytes is not None else constants["HEAP_BYTES"]
-    scenario["heap_bytes"] = boardclock.host_heap_bytes(board_heap)
+    scenario["heap_bytes"] = boardclock.host_heap_bytes(board_heap, pointer_bytes=pointer_bytes(micropython))
     if clock:
         scenario["clock"] = boardclock.scenario_clock(constants["CHIP"])
     scenario_path = work / "scenario.json"

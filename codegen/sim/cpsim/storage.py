@@ -4,7 +4,7 @@ CircuitPython mounts its filesystem read-only to the program while the USB host 
 remount it writable to the program (the host then sees it read-only). The world's filesystem (simworld's, mounted
 at its "mount" path, the app's log folder) stands for the drive: the launcher mounts it read-only before boot.py,
 remount("/", readonly=False) makes it writable. After boot.py the firmware refuses a remount while the drive is
-visible over USB.
+visible over USB. The drive is FAT (512-byte sectors), as on every CircuitPython board: the firmware has no LittleFS.
 """
 
 import os
@@ -12,6 +12,69 @@ import os
 import simworld
 
 _state = {"in_boot": False, "readonly": True}
+_EROFS = 30
+
+
+class _Drive:
+    """The drive as the program sees it: the FAT filesystem, refusing (OSError EROFS) to open a file for writing,
+    remove, rename or make a folder while it is read-only to the program, as CircuitPython's vfs_fat does
+    (verify_fs_writable). Its unix port leaves that to the board's supervisor, which is this."""
+
+    def __init__(self, fat):
+        self.fat = fat
+
+    def _writable(self):
+        if _state["readonly"]:
+            raise OSError(_EROFS)
+
+    def mount(self, readonly, mkfs):
+        self.fat.mount(False, mkfs)
+
+    def umount(self):
+        self.fat.umount()
+
+    def open(self, path, mode):
+        if "w" in mode or "a" in mode or "+" in mode or "x" in mode:
+            self._writable()
+        return self.fat.open(path, mode)
+
+    def remove(self, path):
+        self._writable()
+        return self.fat.remove(path)
+
+    def rename(self, old, new):
+        self._writable()
+        return self.fat.rename(old, new)
+
+    def mkdir(self, path):
+        self._writable()
+        return self.fat.mkdir(path)
+
+    def rmdir(self, path):
+        self._writable()
+        return self.fat.rmdir(path)
+
+    def ilistdir(self, path):
+        return self.fat.ilistdir(path)
+
+    def stat(self, path):
+        return self.fat.stat(path)
+
+    def statvfs(self, path):
+        return self.fat.statvfs(path)
+
+    def chdir(self, path):
+        return self.fat.chdir(path)
+
+    def getcwd(self):
+        return self.fat.getcwd()
+
+    @property
+    def readonly(self):
+        return _state["readonly"]
+
+
+_drive = [None]
 
 
 def _set_readonly(readonly):
@@ -19,9 +82,11 @@ def _set_readonly(readonly):
     if found is None:
         return
     disk, mount = found
-    os.umount(mount)
-    os.mount(os.VfsLfs2(disk), mount, readonly=readonly)  # a new VfsLfs2: a read-only one stays read-only
     _state["readonly"] = readonly
+    if _drive[0] is None:
+        os.umount(mount)
+        _drive[0] = _Drive(simworld.filesystem_class()(disk))
+        os.mount(_drive[0], mount)
 
 
 def power_on():
@@ -48,7 +113,7 @@ def getmount(mount_path):
     found = simworld.filesystem()
     if found is None or mount_path != "/":
         raise OSError(22)
-    return os.VfsLfs2(found[0])
+    return _drive[0]
 
 
 def readonly():

@@ -187,7 +187,8 @@ class FileDisk:
             return
         self.erases += 1
         if self.flash:
-            time.advance(self.flash["sector_erase_us"] * (self.block // 4096 or 1))
+            # per 4 KiB sector; FAT's 512-byte sectors go through the firmware's sector cache, an erase per eight
+            time.advance(self.flash["sector_erase_us"] * self.block / 4096)
 
 
 
@@ -199,8 +200,14 @@ def filesystem():
     return _filesystem
 
 
+def filesystem_class():
+    """The board's filesystem: LittleFS as MicroPython's ESP32 and RP2040 ports format it, or FAT (fs.format "fat")
+    as CircuitPython's CIRCUITPY drive is, the only one CircuitPython has."""
+    return os.VfsFat if _scenario["fs"].get("format") == "fat" else os.VfsLfs2
+
+
 def _mount_disk(fs):
-    """The board's log partition: a fresh LittleFS, optionally partly taken by a file that is not the app's
+    """The board's log partition: a fresh LittleFS (or FAT), optionally partly taken by a file that is not the app's
     (fs.prefill_bytes: a nearly full filesystem). At the end of the run the files are copied out as the flash holds
     them: through a second, fresh mount of the image, so whatever the app had not written and flushed is gone, as
     after a power cut."""
@@ -212,9 +219,9 @@ def _mount_disk(fs):
         _power_cut_us = int(fs["power_cut_s"] * 1000000)
     if fs.get("write_error_after_s") is not None:
         _write_error_us = int(fs["write_error_after_s"] * 1000000)
-    os.VfsLfs2.mkfs(disk)
+    filesystem_class().mkfs(disk)
     mount = fs.get("mount", "/logs")
-    os.mount(os.VfsLfs2(disk), mount)
+    os.mount(filesystem_class()(disk), mount)
     _filesystem = (disk, mount)
     if fs.get("prefill_bytes"):
         chunk = bytearray(block)
@@ -226,7 +233,7 @@ def _mount_disk(fs):
 
         def copy_out():
             flash = FileDisk(fs["image"], block, count, fresh=False)
-            os.mount(os.VfsLfs2(flash), "/flash")
+            os.mount(filesystem_class()(flash), "/flash")
             buf = bytearray(512)
             names = sorted(os.listdir("/flash"))
             for name in names:
@@ -295,13 +302,16 @@ class Mpu6050:
         self.fifo = bytearray()
 
     def _rate(self):
-        base = 8000 if (self.regs[0x1A] & 7) in (0, 7) else 1000
-        return base / (1 + self.regs[0x19])
+        """(base Hz, divider): the chip samples at base / divider (integers: the clock's arithmetic stays exact on
+        an interpreter with 30-bit floats, where 1 / 100.0 * 100.0 is 0.99999994)."""
+        return (8000 if (self.regs[0x1A] & 7) in (0, 7) else 1000), 1 + self.regs[0x19]
 
-    def _sample(self, t_s):
+    def _sample(self, k, base, div):
+        """The recording's record for the chip's k-th sample (at base / div Hz; the recording at stream_rate)."""
         if self.nsamples == 0:
             return (0, 0, 0, 0, 0, 0)
-        i = int(t_s * self.stream_rate)
+        ratio = self.stream_rate * div / base
+        i = k if abs(ratio - 1.0) < 1e-6 else int(k * ratio + 1e-3)
         if i >= self.nsamples:
             i = self.nsamples - 1
         self.counts.seek(12 * i)
@@ -323,15 +333,14 @@ class Mpu6050:
         if self.t0 is None:
             self.t0 = now
             self.k = 0
-        rate = self._rate()
-        due = int((now - self.t0) * rate / 1000000) + 1  # samples produced so far
+        base, div = self._rate()
+        due = (now - self.t0) * base // (1000000 * div) + 1  # samples produced so far
         if due - self.k > 2000:  # long stall: skip ahead, the chip keeps only the newest
             self.k = due - 2000
         fifo_on = self.regs[0x6A] & 0x40
         fifo_sel = self.regs[0x23]
         while self.k < due:
-            t_s = self.k / rate
-            self.latest = self._sample(t_s)
+            self.latest = self._sample(self.k, base, div)
             self.k += 1
             self.samples_made += 1
             self.regs[0x3A] |= 0x01

@@ -192,13 +192,16 @@ def _median(x, start, count):
     return (x[start + half - 1] + x[start + half]) * 0.5
 
 
+_block_median = _median
+
+
 def block_median(values, b, out):
-    """out[j] = median of values[j*b:(j+1)*b] for every block; values (array('f')) is reordered in place."""
+    """out[j] = median of values[j*b:(j+1)*b] for every block; values (array('f')) may be reordered in place."""
     count = len(values)
     if b < 1 or count % b or len(out) < count // b:
         raise ValueError("sample count must be a positive multiple of block")
     for j in range(count // b):
-        out[j] = _median(values, j * b, b)
+        out[j] = _block_median(values, j * b, b)
 
 
 def process(state, samples, dt_us, out):
@@ -281,9 +284,9 @@ def process(state, samples, dt_us, out):
             qx = rx * n
             qy = ry * n
             qz = rz * n
-        me = _median(state, se, b)
-        mn = _median(state, sn, b)
-        mu = _median(state, su, b)
+        me = _block_median(state, se, b)
+        mn = _block_median(state, sn, b)
+        mu = _block_median(state, su, b)
         if ndeadband < me < deadband:
             me = 0.0
         if ndeadband < mn < deadband:

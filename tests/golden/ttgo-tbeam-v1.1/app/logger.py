@@ -43,6 +43,14 @@ _UNKNOWN_U16 = const(0xFFFF)
 _ZEROS = const(256)  # padding is copied from this many zero bytes at a time
 
 
+def _scaled(value, scale):
+    """value * scale as the nearest integer (halves away from zero). The GPS's decimals ("0.53") are parsed into
+    floats a rounding away from them, below as often as above: truncating logged an HDOP of 0.53 as 0.52 on some
+    values in double precision and on others in the boards' single precision."""
+    v = value * scale
+    return int(v + 0.5) if v >= 0 else -int(0.5 - v)
+
+
 def _number(name):
     if name.startswith(_PREFIX) and name.endswith(_SUFFIX):
         digits = name[len(_PREFIX) : -len(_SUFFIX)]
@@ -246,12 +254,12 @@ class Logger:
             GPS_FMT, self.block, self.used, REC_GPS, self.t_lo, self.t_hi,
             p.utc_ms if p.utc_ms is not None else -1, y, mo, d,
             p.lat_e7, p.lon_e7,
-            int(p.alt_m * 1000) if p.alt_m is not None else _UNKNOWN_I32,
-            int(p.speed_ms * 1000 + 0.5) if p.speed_ms is not None else _UNKNOWN_I32,
-            int(p.course_deg * 100 + 0.5) % 36000 if p.course_deg is not None else _UNKNOWN_U16,
-            int(p.climb_ms * 1000) if p.climb_ms is not None else _UNKNOWN_I32,
+            p.alt_mm if p.alt_mm is not None else _UNKNOWN_I32,
+            _scaled(p.speed_ms, 1000) if p.speed_ms is not None else _UNKNOWN_I32,
+            _scaled(p.course_deg, 100) % 36000 if p.course_deg is not None else _UNKNOWN_U16,
+            _scaled(p.climb_ms, 1000) if p.climb_ms is not None else _UNKNOWN_I32,
             p.mode, p.quality if p.quality < 256 else 255, p.sats if p.sats < 256 else 255,
-            int(p.hdop * 100) if p.hdop is not None and p.hdop < 655 else _UNKNOWN_U16,
+            _scaled(p.hdop, 100) if p.hdop is not None and p.hdop < 655 else _UNKNOWN_U16,
         )
         self.used += _GPS_LEN
 

@@ -44,6 +44,28 @@ def _float(field, default=None):
     return value
 
 
+def _milli(field):
+    """A decimal field ("-34.4", "1600.25") -> the nearest integer of thousandths, or None. Exact from the text: a
+    float32 altitude of 1600 m has a resolution of 0.12 mm (CircuitPython's 30-bit floats 0.5 mm), so a climb
+    rate from two of them (a 0.2 m step) would carry a 1e-4 m/s error of float cancellation alone."""
+    if not field:
+        return None
+    body = field[1:] if field[0:1] in (b"-", b"+") else field
+    dot = body.find(b".")
+    whole = body if dot < 0 else body[:dot]
+    frac = b"" if dot < 0 else body[dot + 1 :]
+    if not (whole.isdigit() or whole == b"" and frac) or frac and not frac.isdigit():
+        value = _float(field)  # a form the receivers do not send ("1e3"): as a number, rounded
+        if value is None or abs(value) > 1e9:
+            return None
+        value *= 1000
+        return int(value + 0.5) if value >= 0 else -int(0.5 - value)
+    value = int(whole or b"0") * 1000 + int((frac + b"000")[:3])
+    if len(frac) > 3 and frac[3] >= 53:  # the fourth decimal rounds (half away from zero)
+        value += 1
+    return -value if field[0:1] == b"-" else value
+
+
 def _course(field):
     """Degrees from true North in [0, 360], or None (empty or out of range)."""
     value = _float(field)
@@ -105,6 +127,7 @@ class Fix:
         self.date = p.date
         self.lat_e7 = p.lat_e7
         self.lon_e7 = p.lon_e7
+        self.alt_mm = p.alt_mm
         self.alt_m = p.alt_m
         self.speed_ms = p.speed_ms
         self.course_deg = p.course_deg
@@ -139,7 +162,8 @@ class Nmea:
         self.date = None  # (year, month, day)
         self.lat_e7 = None
         self.lon_e7 = None
-        self.alt_m = None  # above mean sea level
+        self.alt_mm = None  # above mean sea level, integer millimetres (as the receiver's decimals say)
+        self.alt_m = None  # the same in metres (a float)
         self.speed_ms = None  # speed over ground, m/s
         self.course_deg = None  # course over ground, degrees from true North
         self.climb_ms = None  # from consecutive fix altitudes
@@ -371,21 +395,21 @@ class Nmea:
         if f[7] == b"00":  # SiRF says "fix" from no satellites while acquiring: only a GSA 2D/3D confirms it
             self._set_invalid()
             self.lat_e7, self.lon_e7 = lat, lon
-            self.alt_m = _float(f[9])
+            self._altitude(f[9])
             self._pending = True
             return
         self.valid = True
         self.lat_e7, self.lon_e7 = lat, lon
-        self.alt_m = _float(f[9])
-        if self.alt_m is not None and self.utc_ms is not None:
+        self._altitude(f[9])
+        if self.alt_mm is not None and self.utc_ms is not None:
             if self._prev_alt is not None:  # the previous fix's, with no fixless epoch between
                 dt = (self.utc_ms - self._prev_utc) % 86400000
                 if 0 < dt <= _CLIMB_MAX_MS:
-                    self.climb_ms = (self.alt_m - self._prev_alt) * 1000 / dt
-            self._prev_alt = self.alt_m
+                    self.climb_ms = (self.alt_mm - self._prev_alt) / dt  # mm per ms: one rounding
+            self._prev_alt = self.alt_mm
             self._prev_utc = self.utc_ms
         # the receiver's own 2D/3D (GSA) when it said so this epoch; else a GGA altitude makes the fix 3D (gpsd)
-        self.mode = self._gsa_mode if self._gsa_mode >= 2 else (3 if self.alt_m is not None else 2)
+        self.mode = self._gsa_mode if self._gsa_mode >= 2 else (3 if self.alt_mm is not None else 2)
         self._seen_part(_SEEN_GGA)
 
     def _gll(self, f):
@@ -429,6 +453,10 @@ class Nmea:
                 self._seen_part(_SEEN_GGA)
             elif self.valid:
                 self.mode = mode  # the receiver's fix type: 2D stays 2D whatever GGA's altitude says
+
+    def _altitude(self, field):
+        self.alt_mm = _milli(field)
+        self.alt_m = self.alt_mm / 1000 if self.alt_mm is not None else None
 
     def _set_invalid(self):
         self.valid = False
