@@ -219,6 +219,12 @@ class Kernel:
         return tuple((f, i, float(v)) for f in self.state for i, v in enumerate(f.initial) if v)
 
 
+# The fused method's Kalman filters and the steps after which each one's covariance is checked (and, on the host,
+# observed): DR_FUSED_FILTER_* / DR_FUSED_STEP_* in C, _FILTER_* / _STEP_* in the fallback, FILTER_* / STEP_* in
+# codegen.kernel.fused.
+COVARIANCE_FILTERS = ("TILT", "LATERAL", "POSITION")
+FILTER_STEPS = ("START", "PREDICT", "UPDATE")
+
 RETURN_CODES = (
     Code("OK", 0, "done"),
     Code("MOVED", 1, "calibration: an accel axis' standard deviation exceeded the motion threshold"),
@@ -355,6 +361,9 @@ FUSED = Kernel(
         Field("nh_p", "", "the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, "
               "folded offsets x, y (m/s^2); all 0 until the outage's first sample", 10,
               ("nh_pss", "nh_psb", "nh_psx", "nh_psy", "nh_pbb", "nh_pbx", "nh_pby", "nh_pxx", "nh_pxy", "nh_pyy")),
+        Field("cov_repairs", "", "how often a filter's covariance went wrong (a negative variance, a value not finite, "
+              "an update's innovation variance not positive) and was reset to its prior instead of used (a whole "
+              "number)", public="COV_REPAIRS"),
     ),
     params=(
         Param("tilt_tau_s", "s", "tilt correction time constant while GPS fixes arrive", Store("kp", "1/s", "recip"),
@@ -489,6 +498,8 @@ class Layout:
     out_floats: int = OUT_FLOATS
     median_max: int = FUSED_MEDIAN_MAX
     constants: dict = field(default_factory=lambda: dict(CONSTANTS))
+    filters: tuple[str, ...] = COVARIANCE_FILTERS
+    filter_steps: tuple[str, ...] = FILTER_STEPS
 
     @property
     def kernels(self) -> tuple[Kernel, ...]:

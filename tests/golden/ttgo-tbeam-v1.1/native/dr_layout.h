@@ -28,6 +28,13 @@
 
 #define DR_OUT_FLOATS (6) /* floats *_process writes: displacement E, N, U (m), velocity (m/s) */
 #define DR_FUSED_MEDIAN_MAX (32) /* samples: the longest block the fused median option keeps */
+/* The fused method's Kalman filters, and the steps after which each one's covariance is checked. */
+#define DR_FUSED_FILTER_TILT (0)
+#define DR_FUSED_FILTER_LATERAL (1)
+#define DR_FUSED_FILTER_POSITION (2)
+#define DR_FUSED_STEP_START (0)
+#define DR_FUSED_STEP_PREDICT (1)
+#define DR_FUSED_STEP_UPDATE (2)
 
 /* ---- the seed kernel (dr_kernel.c, codegen/kernel/reference.py) ---- */
 
@@ -253,9 +260,12 @@ typedef struct {
     /* the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, folded offsets x,
      * y (m/s^2); all 0 until the outage's first sample */
     float nh_p[10];
+    /* how often a filter's covariance went wrong (a negative variance, a value not finite, an update's innovation
+     * variance not positive) and was reset to its prior instead of used (a whole number) */
+    float cov_repairs;
 } dr_fused_state;
 
-#define DR_FUSED_STATE_FLOATS (142) /* floats in dr_fused_state */
+#define DR_FUSED_STATE_FLOATS (143) /* floats in dr_fused_state */
 #define DR_FUSED_CONFIG_FLOATS (49) /* floats in dr_fused_config */
 #define DR_FUSED_PARAMS (49) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
@@ -330,12 +340,16 @@ typedef struct {
 #define DR_FUSED_STATE_NH_U0 (128)
 #define DR_FUSED_STATE_NH_I (130)
 #define DR_FUSED_STATE_NH_P (132)
-typedef char dr_fused_state_is_142_floats[
-    sizeof(dr_fused_state) == 142 * sizeof(float) ? 1 : -1];
+#define DR_FUSED_STATE_COV_REPAIRS (142)
+typedef char dr_fused_state_is_143_floats[
+    sizeof(dr_fused_state) == 143 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_config_is_49_floats[
     sizeof(dr_fused_config) == 49 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
+    ? 1 : -1];
+typedef char dr_fused_cov_repairs_at_142[
+    offsetof(dr_fused_state, cov_repairs) == DR_FUSED_STATE_COV_REPAIRS * sizeof(float)
     ? 1 : -1];
 /* platform's choices */
 #define DR_FUSED_PLATFORM_PEDESTRIAN (0)
@@ -706,8 +720,8 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
 /* The buffers dr_native hands the app, in floats: the seed's dr_state | dr_config | scratch (3 * block), the fused
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
-#define DR_FUSED_CONFIG_AT (142)
-#define DR_FUSED_KERNEL_CONFIG_AT (191)
-#define DR_FUSED_BUFFER_FLOATS (203)
+#define DR_FUSED_CONFIG_AT (143)
+#define DR_FUSED_KERNEL_CONFIG_AT (192)
+#define DR_FUSED_BUFFER_FLOATS (204)
 
 #endif /* DR_LAYOUT_H */
