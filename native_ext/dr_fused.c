@@ -532,6 +532,8 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
     int flags = (int)st->flags;
     int vehicle = platform == DR_FUSED_PLATFORM_VEHICLE || (flags & DR_FUSED_VEHICLE);
     int driven = flags & DR_FUSED_SHAKEN;
+    int fast = (flags & DR_FUSED_FAST) && platform != DR_FUSED_PLATFORM_PEDESTRIAN;
+    int walked = flags & DR_FUSED_WALKED;
     int32_t median = cfg->median > 0.0f && kcfg->block > 1 ? kcfg->block : 0;
     if (count < 1) {
         return DR_ERR_COUNT;
@@ -545,7 +547,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         float f[3], c[3], w[3];
         float nf, alpha, beta, gamma, d, h, r00, r01, r02, r10, r11, r12, r20, r21, r22, ae, an, de, dn, r, da, ux, uy,
             ue, un, inv, gain, cx, cy, cz, nc2;
-        int i, rest, walking, steps, shaken, broadband, turning = flags & DR_FUSED_TURNING;
+        int i, rest, walking, steps, shaken, broadband, still, turning = flags & DR_FUSED_TURNING;
         for (i = 0; i < 3; i++) {
             int32_t src = kcfg->axis_source[i];
             f[i] = kcfg->axis_sign[i] * (float)s[src] * kcfg->accel_ms2_per_lsb;
@@ -595,26 +597,21 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         r22 = 1.0f - 2.0f * (qx * qx + qy * qy);
         ae = r00 * f[0] + r01 * f[1] + r02 * f[2];
         an = r10 * f[0] + r11 * f[1] + r12 * f[2];
-        /* walking: shaken, in the gait band (auto) for walk_time_s; a vehicle: shaken above it, or the platform */
         shaken = st->var_f > cfg->walk_var;
         broadband = st->vib_var > cfg->vib_ratio * st->vib_tot;
-        steps = platform != DR_FUSED_PLATFORM_VEHICLE && shaken &&
-                (platform == DR_FUSED_PLATFORM_PEDESTRIAN || !broadband);
-        st->walk_s = steps ? st->walk_s + dt : 0.0f;
-        walking = steps && ((flags & DR_FUSED_WALKING) || st->walk_s >= cfg->walk_time_s);
-        if (walking) {
-            vehicle = 0;
-        } else if (shaken && broadband && platform != DR_FUSED_PLATFORM_PEDESTRIAN) {
-            vehicle = 1;
-        }
         /* rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
-         * deadband (a vehicle quiet after shaking, or below rest_speed_ms: any) */
+         * deadband (a vehicle quiet after shaking, or below rest_speed_ms: any). Still: below rest_accel_g, or below
+         * still_accel_g for a pedestrian's hand or a vehicle's idling engine (broadband, slower than rest_speed_ms) */
         st->ah[0] += alpha * (ae - st->ah[0]);
         st->ah[1] += alpha * (an - st->ah[1]);
         de = ae - st->ah[0];
         dn = an - st->ah[1];
-        if (st->var_f < cfg->rest_var && st->ws[0] * st->ws[0] + st->ws[1] * st->ws[1] + st->ws[2] * st->ws[2] <
-            cfg->rest_w2 && de * de + dn * dn < db2 &&
+        still = st->var_f < cfg->rest_var;
+        if (!still && st->var_f < cfg->still_var) {
+            still = vehicle ? broadband && st->speed < cfg->rest_speed_ms : platform != DR_FUSED_PLATFORM_VEHICLE;
+        }
+        if (still && st->ws[0] * st->ws[0] + st->ws[1] * st->ws[1] + st->ws[2] * st->ws[2] < cfg->rest_w2 &&
+            de * de + dn * dn < db2 &&
             (ae * ae + an * an < db2 || (vehicle && (driven || st->speed < cfg->rest_speed_ms))) &&
             !(st->since_fix < cfg->gps_timeout_s && st->gps_ok > 0.0f)) {
             st->rest_s += dt;
@@ -622,8 +619,27 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
             st->rest_s = 0.0f;
         }
         rest = st->rest_s >= cfg->rest_time_s;
+        /* walking: shaken, not at rest, in the gait band (auto) for walk_time_s, and nothing says a vehicle (a fast
+         * fix since the last rest, its own speed beyond a runner's); a vehicle: shaken above it, a fast fix, or the
+         * platform */
+        steps = platform != DR_FUSED_PLATFORM_VEHICLE && shaken && !rest &&
+                (platform == DR_FUSED_PLATFORM_PEDESTRIAN ||
+                 !(broadband || fast || (vehicle && st->speed > cfg->pedestrian_max_ms)));
+        st->walk_s = steps ? st->walk_s + dt : 0.0f;
+        walking = steps && ((flags & DR_FUSED_WALKING) || st->walk_s >= cfg->walk_time_s);
+        if (walking) {
+            vehicle = 0;
+            walked = DR_FUSED_WALKED;
+        } else if (fast || (shaken && broadband && platform != DR_FUSED_PLATFORM_PEDESTRIAN)) {
+            vehicle = 1;
+        }
+        if (vehicle) {
+            walked = 0;
+        }
         if (rest) {
             driven = 0;
+            fast = 0;
+            walked = 0;
         } else if (shaken && vehicle) {
             driven = DR_FUSED_SHAKEN;
         }
@@ -651,7 +667,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
             st->held = 0.0f;
         }
         flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0) | turning |
-                (vehicle ? DR_FUSED_VEHICLE : 0) | driven;
+                (vehicle ? DR_FUSED_VEHICLE : 0) | driven | (fast ? DR_FUSED_FAST : 0) | walked;
         /* u rotated by da, to second order */
         {
             float cd = 1.0f - 0.5f * da * da, sd = da * (1.0f - da * da * (1.0f / 6.0f));
@@ -662,7 +678,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         st->ux = ux * inv;
         st->uy = uy * inv;
         /* speed along u */
-        if (rest || walking) { /* the median ring restarts when the vehicle branch is entered again */
+        if (rest || walking || walked) { /* the median ring restarts when the vehicle branch is entered again */
             st->med_i = 0.0f;
             st->med_n = 0.0f;
             st->acc_lp = 0.0f;
@@ -677,8 +693,15 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
             }
             st->speed = 0.0f;
             st->zr_v = 0.0f;
-        } else if (walking) {
-            st->speed = st->walk_speed;
+        } else if (walking || walked) {
+            /* walking: the learned walking speed; a pedestrian whose steps stopped without a rest: the speed decays
+             * to 0 over stand_tau_s, never integrated */
+            if (walking) {
+                st->speed = st->walk_speed;
+            } else {
+                float decay = dt * cfg->inv_stand_tau;
+                st->speed -= st->speed * (decay < 1.0f ? decay : 1.0f);
+            }
             st->zr_v = st->speed;
         } else {
             float a = ae * st->ux + an * st->uy;
@@ -714,7 +737,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
                 st->speed = 0.0f;
             }
         }
-        if (rest || walking) {
+        if (rest || walking || walked) {
             st->zr_t = 0.0f;
             st->zr_turn = 0.0f;
             for (i = 0; i < 2; i++) {
@@ -761,7 +784,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         un = st->sin_t * st->ux + st->cos_t * st->uy;
         st->pe += st->speed * ue * dt;
         st->pn += st->speed * un * dt;
-        if (!(rest || walking)) { /* the integrals a zero-velocity update corrects the position by */
+        if (!(rest || walking || walked)) { /* the integrals a zero-velocity update corrects the position by */
             float lag = (st->zr_v - st->speed) * dt;
             st->zr_turn += dr_absf(r) * dt;
             st->zr_t += (1.0f + st->zr_turn * cfg->zupt_turn_weight) * dt;
@@ -983,8 +1006,9 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
             st->ux = ux * norm;
             st->uy = uy * norm;
         }
-        if (flags & DR_FUSED_WALKING) {
-            st->walk_speed += cfg->walk_speed_gain * (speed - st->walk_speed);
+        if (flags & DR_FUSED_WALKING) { /* what people walk and run: a pedestrian's speed is bounded */
+            float bounded = speed < cfg->pedestrian_max_ms ? speed : cfg->pedestrian_max_ms;
+            st->walk_speed += cfg->walk_speed_gain * (bounded - st->walk_speed);
         }
     }
     e = speed - st->speed;
@@ -996,6 +1020,9 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     st->gps_vn = vn;
     st->gps_speed = speed;
     st->gps_ok = speed - cfg->min_speed_ms;
+    if (speed > cfg->pedestrian_max_ms) { /* faster than people run: a vehicle until it rests */
+        st->flags = (float)((int)st->flags | DR_FUSED_FAST);
+    }
     st->dvx = 0.0f;
     st->dvy = 0.0f;
     st->dpx = 0.0f;

@@ -30,8 +30,9 @@ from codegen.kernel.reference import (
     tilt_from_gravity,
 )
 
-AT_REST, WALKING, TURNING, VEHICLE, SHAKEN = (next(f.value for f in FUSED.flags if f.name == name)
-                                              for name in ("AT_REST", "WALKING", "TURNING", "VEHICLE", "SHAKEN"))
+AT_REST, WALKING, TURNING, VEHICLE, SHAKEN, FAST, WALKED = (
+    next(f.value for f in FUSED.flags if f.name == name)
+    for name in ("AT_REST", "WALKING", "TURNING", "VEHICLE", "SHAKEN", "FAST", "WALKED"))
 PLATFORM_PEDESTRIAN, PLATFORM_VEHICLE = (FUSED.param("platform").code(name) for name in ("pedestrian", "vehicle"))
 FILTER_TILT, FILTER_LATERAL, FILTER_POSITION = (COVARIANCE_FILTERS.index(n) for n in ("TILT", "LATERAL", "POSITION"))
 STEP_START, STEP_PREDICT, STEP_UPDATE = (FILTER_STEPS.index(n) for n in ("START", "PREDICT", "UPDATE"))
@@ -117,6 +118,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     kp_dark = 1.0 / fcfg.tilt_tau_dark_s if fcfg.tilt_tau_dark_s > 0.0 else 0.0
     deadband = kcfg.deadband_ms2
     rest_var = (fcfg.rest_accel_g * g) ** 2
+    still_var = (fcfg.still_accel_g * g) ** 2
+    inv_stand = 1.0 / fcfg.stand_tau_s if fcfg.stand_tau_s > 0.0 else 0.0
     rest_w2 = math.radians(fcfg.rest_gyro_dps) ** 2
     walk_var = (fcfg.walk_accel_g * g) ** 2
     vib_rate = fcfg.vibration_hz * 2.0 * math.pi
@@ -134,6 +137,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     was_walking = bool(int(st.flags) & WALKING)
     vehicle = platform == PLATFORM_VEHICLE or bool(int(st.flags) & VEHICLE)
     driven = bool(int(st.flags) & SHAKEN)
+    fast = bool(int(st.flags) & FAST) and platform != PLATFORM_PEDESTRIAN
+    walked = bool(int(st.flags) & WALKED)
     turning = bool(int(st.flags) & TURNING)
     hold_rate = 1.0 / fcfg.turn_hold_tau_s if fcfg.turn_hold_tau_s > 0.0 else 0.0
     turn_start = math.radians(fcfg.turn_start_dps)
@@ -187,29 +192,25 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
         ae = r00 * fx + r01 * fy + r02 * fz
         an = r10 * fx + r11 * fy + r12 * fz
-        # walking: shaken (the steps), by a pedestrian; on auto, only while the shaking stays in the gait band. A
-        # vehicle: shaken far above it (its road, wheels and engine), or the platform says so; until the steps.
         shaken = st.var_f > walk_var
         broadband = st.vib_var > fcfg.vibration_ratio * st.vib_tot
-        steps = platform != PLATFORM_VEHICLE and shaken and (platform == PLATFORM_PEDESTRIAN or not broadband)
-        st.walk_s = st.walk_s + dt if steps else 0.0
-        walking = steps and (was_walking or st.walk_s >= fcfg.walk_time_s)
-        if walking:
-            vehicle = False
-        elif shaken and broadband and platform != PLATFORM_PEDESTRIAN:
-            vehicle = True
         # rest: still (variance, smoothed rate: an idling engine's shake averages out), the horizontal acceleration
         # steady within the deadband (a push, a start or a stop is no rest), not while fixes arrive that say the
         # device moves (a smooth cruise is no rest), and the horizontal acceleration itself within the deadband;
         # but a vehicle stopped in an outage may have a larger tilt error: any, if it shook (drove) since its last
         # rest and went quiet, or while its speed is below rest_speed_ms (a quiet, steady start from a rest has
-        # neither: it gathers speed)
+        # neither: it gathers speed). Still: |f| varies by less than rest_accel_g, or by less than still_accel_g
+        # where more than the amplitude says rest: a pedestrian's hand (the steadiness and the rate above tell it
+        # from steps, whose surges and swings break both), a vehicle's idling engine (its shaking above the gait
+        # band, its speed below rest_speed_ms: creeping traffic has speed)
         st.ah_e += alpha * (ae - st.ah_e)
         st.ah_n += alpha * (an - st.ah_n)
         de, dn = ae - st.ah_e, an - st.ah_n
         ah2 = ae * ae + an * an
         gps_moving = st.since_fix < fcfg.gps_timeout_s and st.gps_ok > 0.0
-        if (st.var_f < rest_var and st.wsx * st.wsx + st.wsy * st.wsy + st.wsz * st.wsz < rest_w2
+        still = st.var_f < rest_var or st.var_f < still_var and (
+            broadband and st.speed < fcfg.rest_speed_ms if vehicle else platform != PLATFORM_VEHICLE)
+        if (still and st.wsx * st.wsx + st.wsy * st.wsy + st.wsz * st.wsz < rest_w2
                 and de * de + dn * dn < deadband * deadband
                 and (ah2 < deadband * deadband or vehicle and (driven or st.speed < fcfg.rest_speed_ms))
                 and not gps_moving):
@@ -217,8 +218,23 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         else:
             st.rest_s = 0.0
         rest = st.rest_s >= fcfg.rest_time_s
+        # walking: shaken (the steps), by a pedestrian, not at rest; on auto, only while the shaking stays in the gait
+        # band and nothing says a vehicle: a fix faster than people run since the last rest (fast), or the vehicle's
+        # own speed beyond that (a vehicle does not become a pedestrian without stopping). A vehicle: shaken far
+        # above the gait band (its road, wheels and engine), a fast fix, or the platform says so; until the steps.
+        steps = platform != PLATFORM_VEHICLE and shaken and not rest and (platform == PLATFORM_PEDESTRIAN or not (
+            broadband or fast or vehicle and st.speed > fcfg.pedestrian_max_ms))
+        st.walk_s = st.walk_s + dt if steps else 0.0
+        walking = steps and (was_walking or st.walk_s >= fcfg.walk_time_s)
+        if walking:
+            vehicle = False
+            walked = True
+        elif fast or shaken and broadband and platform != PLATFORM_PEDESTRIAN:
+            vehicle = True
+        if vehicle:
+            walked = False
         if rest:
-            driven = False
+            driven = fast = walked = False
         elif shaken and vehicle:
             driven = True
         if was_walking and not walking:
@@ -244,7 +260,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
             da += st.held
             st.held = 0.0
         flags[k] = ((AT_REST if rest else 0) | (WALKING if walking else 0) | (TURNING if turning else 0)
-                    | (VEHICLE if vehicle else 0) | (SHAKEN if driven else 0))
+                    | (VEHICLE if vehicle else 0) | (SHAKEN if driven else 0) | (FAST if fast else 0)
+                    | (WALKED if walked else 0))
         # u rotated by da (to second order: a turn's held part can be tens of degrees)
         cd = 1.0 - 0.5 * da * da
         sd = da * (1.0 - da * da * (1.0 / 6.0))
@@ -254,7 +271,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         st.ux = ux * inv
         st.uy = uy * inv
         # speed along u
-        if rest or walking:
+        if rest or walking or walked:
             st.med_i = st.med_n = 0.0  # the median ring restarts when the vehicle branch is entered again
             st.acc_lp = 0.0
         if rest:
@@ -268,8 +285,14 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
                 st.pn += st.zr_cn - k * st.zr_pn
             st.speed = 0.0
             st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_v = st.zr_turn = 0.0
-        elif walking:
-            st.speed = st.walk_speed
+        elif walking or walked:
+            # walking: the learned walking speed; a pedestrian whose steps stopped without a rest (the hand still
+            # moves): the speed decays to 0 over stand_tau_s, never integrated (what the along-track acceleration
+            # less a bias gives a standing hand is a drift, 29 m/s in 18 s on a real stand)
+            if walking:
+                st.speed = st.walk_speed
+            else:
+                st.speed -= st.speed * min(1.0, dt * inv_stand)
             st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_turn = 0.0
             st.zr_v = st.speed
         else:
@@ -325,7 +348,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         un = st.sin_t * st.ux + st.cos_t * st.uy
         st.pe += st.speed * ue * dt
         st.pn += st.speed * un * dt
-        if not (rest or walking):  # the integrals a zero-velocity update corrects the position by
+        if not (rest or walking or walked):  # the integrals a zero-velocity update corrects the position by
             st.zr_turn += abs(r) * dt
             st.zr_t += (1.0 + st.zr_turn * fcfg.zupt_turn_weight) * dt
             st.zr_pe += st.zr_t * ue * dt
@@ -619,8 +642,8 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
         norm = math.sqrt(ux * ux + uy * uy)
         if norm > 0.0:
             st.ux, st.uy = ux / norm, uy / norm
-        if int(st.flags) & WALKING:
-            st.walk_speed += fcfg.walk_speed_gain * (speed - st.walk_speed)
+        if int(st.flags) & WALKING:  # what people walk and run: a pedestrian's speed is bounded
+            st.walk_speed += fcfg.walk_speed_gain * (min(speed, fcfg.pedestrian_max_ms) - st.walk_speed)
     e = speed - st.speed
     st.speed += fcfg.speed_gain * e
     if t > 0.0 and not int(st.flags) & (AT_REST | WALKING):
@@ -642,6 +665,8 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
     st.gps_ve, st.gps_vn = ve, vn
     st.gps_speed = speed
     st.gps_ok = speed - fcfg.min_speed_ms
+    if speed > fcfg.pedestrian_max_ms:  # faster than people run: a vehicle until it rests (process)
+        st.flags = float(int(st.flags) | FAST)
     st.dvx = st.dvy = st.dpx = st.dpy = 0.0
     st.m00 = st.m01 = st.m10 = st.m11 = st.m02 = st.m12 = st.turn = 0.0
     st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_turn = 0.0

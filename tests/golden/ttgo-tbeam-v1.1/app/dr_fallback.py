@@ -376,8 +376,8 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(204)
-_F_KCFG = const(192)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(207)
+_F_KCFG = const(195)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
@@ -501,11 +501,16 @@ _FC_NHC_MIN_RATE = const(188)  # rad/s, from nhc_min_rate (rad/s)
 _FC_NHC_POSITION = const(189)  # , from nhc_position
 _FC_NHC_LEAK_TURN = const(190)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
 _FC_NHC_FOLD_SCALE = const(191)  # , from nhc_fold_scale
+_FC_PEDESTRIAN_MAX_MS = const(192)  # m/s, from pedestrian_max_ms (m/s)
+_FC_STILL_VAR = const(193)  # (m/s^2)^2, from still_accel_g (g)
+_FC_INV_STAND_TAU = const(194)  # 1/s, from stand_tau_s (s)
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
 _VEHICLE = const(8)  # flags bit: the last shaking was a vehicle's (above vibration_hz), or the platform is a vehicle
 _SHAKEN = const(16)  # flags bit: a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped
+_FAST = const(32)  # flags bit: a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests
+_WALKED = const(64)  # flags bit: a pedestrian: walked since the last rest, no vehicle since
 _PLATFORM_PEDESTRIAN = const(0)  # platform: pedestrian
 _PLATFORM_VEHICLE = const(1)  # platform: vehicle
 _PLATFORM_AUTO = const(2)  # platform: auto
@@ -570,11 +575,14 @@ _FUSED_PARAMS = (
     1.0,  # nhc_position
     0.3,  # nhc_leak_turn, m/s^2 per rad
     1.0,  # nhc_fold_scale
+    6.0,  # pedestrian_max_ms, m/s
+    0.04,  # still_accel_g, g
+    1.0,  # stand_tau_s, s
 )
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 49 values in the
+    """Reset the fused state and store the configuration: the board's, or 52 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -675,6 +683,12 @@ def fused_init(fstate, params=_FUSED_PARAMS):
         raise ValueError("nhc_leak_turn must be >= 0")
     if not (p[48] >= 0):
         raise ValueError("nhc_fold_scale must be >= 0")
+    if not (p[49] > 0):
+        raise ValueError("pedestrian_max_ms must be > 0")
+    if not (p[50] >= 0):
+        raise ValueError("still_accel_g must be >= 0")
+    if not (p[51] >= 0):
+        raise ValueError("stand_tau_s must be >= 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
     fstate[_F_Q + 0] = 1.0
@@ -729,6 +743,9 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_NHC_POSITION] = p[46]
     fstate[_FC_NHC_LEAK_TURN] = p[47]
     fstate[_FC_NHC_FOLD_SCALE] = p[48]
+    fstate[_FC_PEDESTRIAN_MAX_MS] = p[49]
+    fstate[_FC_STILL_VAR] = p[50] * p[50] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_INV_STAND_TAU] = 1.0 / p[51] if p[51] > 0 else 0.0
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -785,6 +802,9 @@ def fused_process(fstate, samples, dt_us, out):
     rest_w2 = st[_FC_REST_W2]
     rest_time = st[_FC_REST_TIME_S]
     rest_speed = st[_FC_REST_SPEED_MS]
+    still_var = st[_FC_STILL_VAR]
+    pedestrian_max = st[_FC_PEDESTRIAN_MAX_MS]
+    inv_stand = st[_FC_INV_STAND_TAU]
     update_s = st[_FC_REST_UPDATE_S]
     gather_s = rest_time + update_s
     walk_var = st[_FC_WALK_VAR]
@@ -895,6 +915,8 @@ def fused_process(fstate, samples, dt_us, out):
     walking = flags & _WALKING
     vehicle = platform == _PLATFORM_VEHICLE or flags & _VEHICLE
     driven = flags & _SHAKEN
+    fast = flags & _FAST if platform != _PLATFORM_PEDESTRIAN else 0
+    walked = flags & _WALKED
     for k in range(count):
         i = 6 * k
         dt = dt_us[k] * _S_PER_US
@@ -955,10 +977,33 @@ def fused_process(fstate, samples, dt_us, out):
         r22 = 1.0 - xx - yy
         ae = r00 * fx + r01 * fy + r02 * fz
         an = r10 * fx + r11 * fy + r12 * fz
-        # walking: shaken, in the gait band (auto) for walk_time_s; a vehicle: shaken above it, or the platform
         shaken = var_f > walk_var
         broadband = vib_var > vib_ratio * vib_tot
-        if shaken and platform != _PLATFORM_VEHICLE and (platform == _PLATFORM_PEDESTRIAN or not broadband):
+        # rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
+        # deadband (a vehicle quiet after shaking, or below rest_speed_ms: any). Still: below rest_accel_g, or below
+        # still_accel_g for a pedestrian's hand or a vehicle's idling engine (broadband, slower than rest_speed_ms)
+        ah_e += alpha * (ae - ah_e)
+        ah_n += alpha * (an - ah_n)
+        de = ae - ah_e
+        dn = an - ah_n
+        if var_f < rest_var:
+            still = True
+        elif var_f < still_var:
+            still = broadband and speed < rest_speed if vehicle else platform != _PLATFORM_VEHICLE
+        else:
+            still = False
+        if (still and wsx * wsx + wsy * wsy + wsz * wsz < rest_w2 and de * de + dn * dn < db2
+                and (ae * ae + an * an < db2 or vehicle and (driven or speed < rest_speed))
+                and not (since < timeout and gps_ok)):
+            rest_s += dt
+        else:
+            rest_s = 0.0
+        rest = rest_s >= rest_time
+        # walking: shaken, not at rest, in the gait band (auto) for walk_time_s, and nothing says a vehicle (a fast
+        # fix since the last rest, its own speed beyond a runner's); a vehicle: shaken above it, a fast fix, or the
+        # platform
+        if shaken and not rest and platform != _PLATFORM_VEHICLE and (platform == _PLATFORM_PEDESTRIAN or not (
+                broadband or fast or vehicle and speed > pedestrian_max)):
             walk_s += dt
             now_walking = walking or walk_s >= walk_time
         else:
@@ -966,23 +1011,13 @@ def fused_process(fstate, samples, dt_us, out):
             now_walking = False
         if now_walking:
             vehicle = False
-        elif shaken and broadband and platform != _PLATFORM_PEDESTRIAN:
+            walked = _WALKED
+        elif fast or shaken and broadband and platform != _PLATFORM_PEDESTRIAN:
             vehicle = True
-        # rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
-        # deadband (a vehicle quiet after shaking, or below rest_speed_ms: any)
-        ah_e += alpha * (ae - ah_e)
-        ah_n += alpha * (an - ah_n)
-        de = ae - ah_e
-        dn = an - ah_n
-        if (var_f < rest_var and wsx * wsx + wsy * wsy + wsz * wsz < rest_w2 and de * de + dn * dn < db2
-                and (ae * ae + an * an < db2 or vehicle and (driven or speed < rest_speed))
-                and not (since < timeout and gps_ok)):
-            rest_s += dt
-        else:
-            rest_s = 0.0
-        rest = rest_s >= rest_time
+        if vehicle:
+            walked = 0
         if rest:
-            driven = 0
+            driven = fast = walked = 0
         elif shaken and vehicle:
             driven = _SHAKEN
         if walking and not now_walking:
@@ -1012,7 +1047,7 @@ def fused_process(fstate, samples, dt_us, out):
                 da += held
                 held = 0.0
         flags = ((_AT_REST if rest else 0) | (_WALKING if walking else 0) | turning | (_VEHICLE if vehicle else 0)
-                 | driven)
+                 | driven | (_FAST if fast else 0) | walked)
         # u rotated by da, to second order
         da2 = da * da
         cd = 1.0 - 0.5 * da2
@@ -1025,7 +1060,7 @@ def fused_process(fstate, samples, dt_us, out):
         ue = cos_t * ux - sin_t * uy
         un = sin_t * ux + cos_t * uy
         # speed along u
-        if rest or walking:
+        if rest or walking or walked:
             if median:  # the median ring restarts when the vehicle branch is entered again
                 st[_F_MED_I] = st[_F_MED_N] = 0.0
             acc_lp = 0.0
@@ -1040,8 +1075,12 @@ def fused_process(fstate, samples, dt_us, out):
                 zr_v = 0.0
                 if rest_s >= gather_s:
                     zt += dt  # a rest update every rest_update_s, after the rest's first (the end of the braking)
-            else:
+            elif walking:
                 speed = walk_speed
+                zr_v = speed
+            else:  # a pedestrian whose steps stopped without a rest: the speed decays to 0, never integrated
+                decay = dt * inv_stand
+                speed -= speed * (decay if decay < 1.0 else 1.0)
                 zr_v = speed
             zr_t = zr_turn = zr_pe = zr_pn = zr_ce = zr_cn = 0.0
             if nhc and not nh_fresh:
@@ -1721,8 +1760,9 @@ def fused_gps(fstate, ve, vn):
         if norm > 0.0:
             st[_F_UX] = ux / norm
             st[_F_UY] = uy / norm
-        if flags & _WALKING:
-            st[_F_WALK_SPEED] += st[_FC_WALK_SPEED_GAIN] * (speed - st[_F_WALK_SPEED])
+        if flags & _WALKING:  # what people walk and run: a pedestrian's speed is bounded
+            bounded = speed if speed < st[_FC_PEDESTRIAN_MAX_MS] else st[_FC_PEDESTRIAN_MAX_MS]
+            st[_F_WALK_SPEED] += st[_FC_WALK_SPEED_GAIN] * (bounded - st[_F_WALK_SPEED])
     e = speed - st[_F_SPEED]
     st[_F_SPEED] += st[_FC_SPEED_GAIN] * e
     if t > 0.0 and not flags & (_AT_REST | _WALKING):
@@ -1731,6 +1771,8 @@ def fused_gps(fstate, ve, vn):
     st[_F_GPS_VN] = vn
     st[_F_GPS_SPEED] = speed
     st[_F_GPS_OK] = speed - min_speed
+    if speed > st[_FC_PEDESTRIAN_MAX_MS]:  # faster than people run: a vehicle until it rests
+        st[_F_FLAGS] = float(int(st[_F_FLAGS]) | _FAST)
     st[_F_DVX] = 0.0
     st[_F_DVY] = 0.0
     st[_F_DPX] = 0.0
