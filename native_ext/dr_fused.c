@@ -601,14 +601,17 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         broadband = st->vib_var > cfg->vib_ratio * st->vib_tot;
         /* rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
          * deadband (a vehicle quiet after shaking, or below rest_speed_ms: any). Still: below rest_accel_g, or below
-         * still_accel_g for a pedestrian's hand or a vehicle's idling engine (broadband, slower than rest_speed_ms) */
+         * still_accel_g for a pedestrian's hand, idle_accel_g for a vehicle's idling engine (broadband, slower than
+         * rest_speed_ms) */
         st->ah[0] += alpha * (ae - st->ah[0]);
         st->ah[1] += alpha * (an - st->ah[1]);
         de = ae - st->ah[0];
         dn = an - st->ah[1];
         still = st->var_f < cfg->rest_var;
-        if (!still && st->var_f < cfg->still_var) {
-            still = vehicle ? broadband && st->speed < cfg->rest_speed_ms : platform != DR_FUSED_PLATFORM_VEHICLE;
+        if (!still && vehicle) {
+            still = st->var_f < cfg->idle_var && broadband && st->speed < cfg->rest_speed_ms;
+        } else if (!still) {
+            still = st->var_f < cfg->still_var;
         }
         if (still && st->ws[0] * st->ws[0] + st->ws[1] * st->ws[1] + st->ws[2] * st->ws[2] < cfg->rest_w2 &&
             de * de + dn * dn < db2 &&
@@ -630,16 +633,15 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         if (walking) {
             vehicle = 0;
             walked = DR_FUSED_WALKED;
-        } else if (fast || (shaken && broadband && platform != DR_FUSED_PLATFORM_PEDESTRIAN)) {
+        } else if (fast || (shaken && broadband && platform != DR_FUSED_PLATFORM_PEDESTRIAN && !walked)) {
             vehicle = 1;
         }
         if (vehicle) {
             walked = 0;
         }
-        if (rest) {
+        if (rest) { /* a walker's stop keeps him a pedestrian (walked) */
             driven = 0;
             fast = 0;
-            walked = 0;
         } else if (shaken && vehicle) {
             driven = DR_FUSED_SHAKEN;
         }

@@ -119,6 +119,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     deadband = kcfg.deadband_ms2
     rest_var = (fcfg.rest_accel_g * g) ** 2
     still_var = (fcfg.still_accel_g * g) ** 2
+    idle_var = (fcfg.idle_accel_g * g) ** 2
     inv_stand = 1.0 / fcfg.stand_tau_s if fcfg.stand_tau_s > 0.0 else 0.0
     rest_w2 = math.radians(fcfg.rest_gyro_dps) ** 2
     walk_var = (fcfg.walk_accel_g * g) ** 2
@@ -199,17 +200,19 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         # device moves (a smooth cruise is no rest), and the horizontal acceleration itself within the deadband;
         # but a vehicle stopped in an outage may have a larger tilt error: any, if it shook (drove) since its last
         # rest and went quiet, or while its speed is below rest_speed_ms (a quiet, steady start from a rest has
-        # neither: it gathers speed). Still: |f| varies by less than rest_accel_g, or by less than still_accel_g
-        # where more than the amplitude says rest: a pedestrian's hand (the steadiness and the rate above tell it
-        # from steps, whose surges and swings break both), a vehicle's idling engine (its shaking above the gait
-        # band, its speed below rest_speed_ms: creeping traffic has speed)
+        # neither: it gathers speed). Still: |f| varies by less than rest_accel_g, or where more than the amplitude
+        # says rest by less than still_accel_g for a pedestrian's hand (the steadiness and the rate above tell it
+        # from steps, whose surges and swings break both) and idle_accel_g for a vehicle's idling engine (its
+        # shaking above the gait band, its speed below rest_speed_ms: creeping traffic has speed)
         st.ah_e += alpha * (ae - st.ah_e)
         st.ah_n += alpha * (an - st.ah_n)
         de, dn = ae - st.ah_e, an - st.ah_n
         ah2 = ae * ae + an * an
         gps_moving = st.since_fix < fcfg.gps_timeout_s and st.gps_ok > 0.0
-        still = st.var_f < rest_var or st.var_f < still_var and (
-            broadband and st.speed < fcfg.rest_speed_ms if vehicle else platform != PLATFORM_VEHICLE)
+        if vehicle:
+            still = st.var_f < rest_var or st.var_f < idle_var and broadband and st.speed < fcfg.rest_speed_ms
+        else:
+            still = st.var_f < rest_var or st.var_f < still_var
         if (still and st.wsx * st.wsx + st.wsy * st.wsy + st.wsz * st.wsz < rest_w2
                 and de * de + dn * dn < deadband * deadband
                 and (ah2 < deadband * deadband or vehicle and (driven or st.speed < fcfg.rest_speed_ms))
@@ -221,7 +224,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         # walking: shaken (the steps), by a pedestrian, not at rest; on auto, only while the shaking stays in the gait
         # band and nothing says a vehicle: a fix faster than people run since the last rest (fast), or the vehicle's
         # own speed beyond that (a vehicle does not become a pedestrian without stopping). A vehicle: shaken far
-        # above the gait band (its road, wheels and engine), a fast fix, or the platform says so; until the steps.
+        # above the gait band (its road, wheels and engine) unless it walked (a hand's tremor is broadband too: a
+        # pedestrian becomes a vehicle by a fast fix), a fast fix, or the platform says so; until the steps.
         steps = platform != PLATFORM_VEHICLE and shaken and not rest and (platform == PLATFORM_PEDESTRIAN or not (
             broadband or fast or vehicle and st.speed > fcfg.pedestrian_max_ms))
         st.walk_s = st.walk_s + dt if steps else 0.0
@@ -229,12 +233,12 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         if walking:
             vehicle = False
             walked = True
-        elif fast or shaken and broadband and platform != PLATFORM_PEDESTRIAN:
-            vehicle = True
+        elif fast or shaken and broadband and platform != PLATFORM_PEDESTRIAN and not walked:
+            vehicle = True  # a walker's hand tremor (8-12 Hz) is broadband too
         if vehicle:
             walked = False
-        if rest:
-            driven = fast = walked = False
+        if rest:  # a walker's stop keeps him a pedestrian (walked): his hand's tremor is broadband, no engine
+            driven = fast = False
         elif shaken and vehicle:
             driven = True
         if was_walking and not walking:

@@ -376,8 +376,8 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(207)
-_F_KCFG = const(195)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(208)
+_F_KCFG = const(196)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
@@ -503,14 +503,15 @@ _FC_NHC_LEAK_TURN = const(190)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per r
 _FC_NHC_FOLD_SCALE = const(191)  # , from nhc_fold_scale
 _FC_PEDESTRIAN_MAX_MS = const(192)  # m/s, from pedestrian_max_ms (m/s)
 _FC_STILL_VAR = const(193)  # (m/s^2)^2, from still_accel_g (g)
-_FC_INV_STAND_TAU = const(194)  # 1/s, from stand_tau_s (s)
+_FC_IDLE_VAR = const(194)  # (m/s^2)^2, from idle_accel_g (g)
+_FC_INV_STAND_TAU = const(195)  # 1/s, from stand_tau_s (s)
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
 _VEHICLE = const(8)  # flags bit: the last shaking was a vehicle's (above vibration_hz), or the platform is a vehicle
 _SHAKEN = const(16)  # flags bit: a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped
 _FAST = const(32)  # flags bit: a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests
-_WALKED = const(64)  # flags bit: a pedestrian: walked since the last rest, no vehicle since
+_WALKED = const(64)  # flags bit: a pedestrian: walked, and no fast fix since (a walker's stops keep it)
 _PLATFORM_PEDESTRIAN = const(0)  # platform: pedestrian
 _PLATFORM_VEHICLE = const(1)  # platform: vehicle
 _PLATFORM_AUTO = const(2)  # platform: auto
@@ -577,12 +578,13 @@ _FUSED_PARAMS = (
     1.0,  # nhc_fold_scale
     6.0,  # pedestrian_max_ms, m/s
     0.04,  # still_accel_g, g
+    0.03,  # idle_accel_g, g
     1.0,  # stand_tau_s, s
 )
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 52 values in the
+    """Reset the fused state and store the configuration: the board's, or 53 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -688,6 +690,8 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     if not (p[50] >= 0):
         raise ValueError("still_accel_g must be >= 0")
     if not (p[51] >= 0):
+        raise ValueError("idle_accel_g must be >= 0")
+    if not (p[52] >= 0):
         raise ValueError("stand_tau_s must be >= 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
@@ -745,7 +749,8 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_NHC_FOLD_SCALE] = p[48]
     fstate[_FC_PEDESTRIAN_MAX_MS] = p[49]
     fstate[_FC_STILL_VAR] = p[50] * p[50] * (_GRAVITY_MS2 * _GRAVITY_MS2)
-    fstate[_FC_INV_STAND_TAU] = 1.0 / p[51] if p[51] > 0 else 0.0
+    fstate[_FC_IDLE_VAR] = p[51] * p[51] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_INV_STAND_TAU] = 1.0 / p[52] if p[52] > 0 else 0.0
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -803,6 +808,7 @@ def fused_process(fstate, samples, dt_us, out):
     rest_time = st[_FC_REST_TIME_S]
     rest_speed = st[_FC_REST_SPEED_MS]
     still_var = st[_FC_STILL_VAR]
+    idle_var = st[_FC_IDLE_VAR]
     pedestrian_max = st[_FC_PEDESTRIAN_MAX_MS]
     inv_stand = st[_FC_INV_STAND_TAU]
     update_s = st[_FC_REST_UPDATE_S]
@@ -981,17 +987,18 @@ def fused_process(fstate, samples, dt_us, out):
         broadband = vib_var > vib_ratio * vib_tot
         # rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
         # deadband (a vehicle quiet after shaking, or below rest_speed_ms: any). Still: below rest_accel_g, or below
-        # still_accel_g for a pedestrian's hand or a vehicle's idling engine (broadband, slower than rest_speed_ms)
+        # still_accel_g for a pedestrian's hand, idle_accel_g for a vehicle's idling engine (broadband, slower than
+        # rest_speed_ms)
         ah_e += alpha * (ae - ah_e)
         ah_n += alpha * (an - ah_n)
         de = ae - ah_e
         dn = an - ah_n
         if var_f < rest_var:
             still = True
-        elif var_f < still_var:
-            still = broadband and speed < rest_speed if vehicle else platform != _PLATFORM_VEHICLE
+        elif vehicle:
+            still = var_f < idle_var and broadband and speed < rest_speed
         else:
-            still = False
+            still = var_f < still_var
         if (still and wsx * wsx + wsy * wsy + wsz * wsz < rest_w2 and de * de + dn * dn < db2
                 and (ae * ae + an * an < db2 or vehicle and (driven or speed < rest_speed))
                 and not (since < timeout and gps_ok)):
@@ -1012,12 +1019,12 @@ def fused_process(fstate, samples, dt_us, out):
         if now_walking:
             vehicle = False
             walked = _WALKED
-        elif fast or shaken and broadband and platform != _PLATFORM_PEDESTRIAN:
-            vehicle = True
+        elif fast or shaken and broadband and platform != _PLATFORM_PEDESTRIAN and not walked:
+            vehicle = True  # a walker's hand tremor is broadband too: a fast fix or a rest ends a walker
         if vehicle:
             walked = 0
-        if rest:
-            driven = fast = walked = 0
+        if rest:  # a walker's stop keeps him a pedestrian (walked)
+            driven = fast = 0
         elif shaken and vehicle:
             driven = _SHAKEN
         if walking and not now_walking:

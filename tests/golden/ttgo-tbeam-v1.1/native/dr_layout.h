@@ -130,7 +130,7 @@ static inline void dr_state_start(dr_state *st) {
 #define DR_FUSED_VEHICLE (8) /* dr_fused_state.flags bit: the last shaking was a vehicle's (above vibration_hz), or the platform is a vehicle */
 #define DR_FUSED_SHAKEN (16) /* dr_fused_state.flags bit: a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped */
 #define DR_FUSED_FAST (32) /* dr_fused_state.flags bit: a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests */
-#define DR_FUSED_WALKED (64) /* dr_fused_state.flags bit: a pedestrian: walked since the last rest, no vehicle since */
+#define DR_FUSED_WALKED (64) /* dr_fused_state.flags bit: a pedestrian: walked, and no fast fix since (a walker's stops keep it) */
 
 /* The configuration the loop reads, each parameter in the form it is used in. */
 typedef struct {
@@ -185,6 +185,7 @@ typedef struct {
     float nhc_fold_scale; /* from nhc_fold_scale */
     float pedestrian_max_ms; /* m/s, from pedestrian_max_ms (m/s) */
     float still_var; /* (m/s^2)^2, from still_accel_g (g) */
+    float idle_var; /* (m/s^2)^2, from idle_accel_g (g) */
     float inv_stand_tau; /* 1/s, from stand_tau_s (s) */
 } dr_fused_config;
 
@@ -271,8 +272,8 @@ typedef struct {
 } dr_fused_state;
 
 #define DR_FUSED_STATE_FLOATS (143) /* floats in dr_fused_state */
-#define DR_FUSED_CONFIG_FLOATS (52) /* floats in dr_fused_config */
-#define DR_FUSED_PARAMS (52) /* parameters dr_fused_config_set takes */
+#define DR_FUSED_CONFIG_FLOATS (53) /* floats in dr_fused_config */
+#define DR_FUSED_PARAMS (53) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
 #define DR_FUSED_STATE_Q (0)
 #define DR_FUSED_STATE_GYRO_BIAS_LSB (4)
@@ -348,8 +349,8 @@ typedef struct {
 #define DR_FUSED_STATE_COV_REPAIRS (142)
 typedef char dr_fused_state_is_143_floats[
     sizeof(dr_fused_state) == 143 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_52_floats[
-    sizeof(dr_fused_config) == 52 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_53_floats[
+    sizeof(dr_fused_config) == 53 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
     ? 1 : -1];
@@ -448,13 +449,16 @@ typedef char dr_fused_cov_repairs_at_142[
 /* m/s: auto: a fix faster than this (people walk at up to ~3 m/s and run at up to ~6) makes the device a vehicle,
  * which no steps turn into a pedestrian until it has rested; nor do steps while a vehicle's own speed is above it */
 #define DR_FUSED_P_PEDESTRIAN_MAX_MS (49)
-/* g: |f| standard deviation up to which a device may still be at rest if the rest is more than quiet: a pedestrian's
- * hand (steady horizontal force, averaged rate below fused_rest_gyro_dps), a vehicle's idling engine (shaking above
- * fused_vibration_hz, speed below fused_rest_speed_ms) */
+/* g: |f| standard deviation up to which a pedestrian may still be at rest if the rest is more than quiet: a hand
+ * (steady horizontal force, averaged rate below fused_rest_gyro_dps) */
 #define DR_FUSED_P_STILL_ACCEL_G (50)
+/* g: and a vehicle, if its shaking is above fused_vibration_hz (an idling engine) and its speed below
+ * fused_rest_speed_ms (a real highway drive shook less than 30 mg with its averaged rate below fused_rest_gyro_dps
+ * in 6.6 % of its samples, 40 mg in 40 %) */
+#define DR_FUSED_P_IDLE_ACCEL_G (51)
 /* s: a pedestrian whose steps stopped without a rest: the speed decays to 0 with this time constant, never
  * integrated (0: held) */
-#define DR_FUSED_P_STAND_TAU_S (51)
+#define DR_FUSED_P_STAND_TAU_S (52)
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
@@ -617,6 +621,9 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     if (!(p[DR_FUSED_P_STILL_ACCEL_G] >= 0.0f)) { /* still_accel_g must be >= 0 */
         return DR_ERR_RANGE;
     }
+    if (!(p[DR_FUSED_P_IDLE_ACCEL_G] >= 0.0f)) { /* idle_accel_g must be >= 0 */
+        return DR_ERR_RANGE;
+    }
     if (!(p[DR_FUSED_P_STAND_TAU_S] >= 0.0f)) { /* stand_tau_s must be >= 0 */
         return DR_ERR_RANGE;
     }
@@ -676,6 +683,7 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->nhc_fold_scale = p[DR_FUSED_P_NHC_FOLD_SCALE];
     cfg->pedestrian_max_ms = p[DR_FUSED_P_PEDESTRIAN_MAX_MS];
     cfg->still_var = p[DR_FUSED_P_STILL_ACCEL_G] * p[DR_FUSED_P_STILL_ACCEL_G] * (DR_GRAVITY_MS2 * DR_GRAVITY_MS2);
+    cfg->idle_var = p[DR_FUSED_P_IDLE_ACCEL_G] * p[DR_FUSED_P_IDLE_ACCEL_G] * (DR_GRAVITY_MS2 * DR_GRAVITY_MS2);
     cfg->inv_stand_tau = p[DR_FUSED_P_STAND_TAU_S] > 0.0f ? dr_recip(p[DR_FUSED_P_STAND_TAU_S]) : 0.0f;
 }
 
@@ -732,6 +740,7 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_NHC_FOLD_SCALE] = DR_FUSED_NHC_FOLD_SCALE;
     p[DR_FUSED_P_PEDESTRIAN_MAX_MS] = DR_FUSED_PEDESTRIAN_MAX_MS;
     p[DR_FUSED_P_STILL_ACCEL_G] = DR_FUSED_STILL_ACCEL_G;
+    p[DR_FUSED_P_IDLE_ACCEL_G] = DR_FUSED_IDLE_ACCEL_G;
     p[DR_FUSED_P_STAND_TAU_S] = DR_FUSED_STAND_TAU_S;
 }
 
@@ -751,7 +760,7 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
 #define DR_FUSED_CONFIG_AT (143)
-#define DR_FUSED_KERNEL_CONFIG_AT (195)
-#define DR_FUSED_BUFFER_FLOATS (207)
+#define DR_FUSED_KERNEL_CONFIG_AT (196)
+#define DR_FUSED_BUFFER_FLOATS (208)
 
 #endif /* DR_LAYOUT_H */
