@@ -1,4 +1,4 @@
-"""Where the simulator's shaking came from: the real recordings' figures beside the simulated scenarios' (issue 26).
+"""Where the simulator's shaking came from: the real recordings' figures beside the simulated scenarios'.
 
     python3 benchmarks/sim_calibration.py              # seeds 0-5 of each simulated scenario (about a minute)
     python3 benchmarks/sim_calibration.py --seeds 20
@@ -7,7 +7,7 @@ Every figure comes from codegen.sim.features on 2 s windows of |f| (steady speed
 (standard deviation of |f| about its 0.5 s running mean, mg) and the share of its variance above 8 Hz (analogue
 filters, bilinear at each stream's rate), the medians and the 10th-90th percentiles over windows by speed band; and
 the fused method's own statistic (codegen.sim.features.fused_statistic_share: its Euler steps) on a ~100 Hz stream
-(every other sample of the device's 200 Hz), which is how issue 26 measured its real car park (0.02-0.04). Rows:
+(every other sample of the device's 200 Hz), which is how a real car park outside ../shared/data was measured (0.02-0.04). Rows:
 - car-comma2k19: the recording's dash unit IMU at ~104 Hz, speed from CAN; it drives at 8-20 m/s only;
 - gnss-imu-walk: the hand-held walk's IMU (imu_1730_sf.csv, ~167 Hz), speed from the RTK Doppler;
 - the simulated scenarios through the MPU-6050 model at the board's 200 Hz (car, car-town, walk, walk-stand),

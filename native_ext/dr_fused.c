@@ -8,6 +8,17 @@
 #include "dr_median.h"
 
 #define DR_FUSED_SUM_CHUNK (1024) /* samples summed in int32 before moving to float (1024 * 32768 < 2^31) */
+#define DR_FUSED_COV_MAX (1.0e30f) /* a covariance entry beyond this in magnitude (or not a number) is broken */
+
+/* After every step of every filter, a host build with DR_FUSED_OBSERVED defined (codegen/kernel/hostfused.py) calls
+ * dr_fused_observed(st, DR_FUSED_FILTER_*, DR_FUSED_STEP_*) before the covariance is checked; on the device the
+ * hook is nothing. */
+#ifdef DR_FUSED_OBSERVED
+void dr_fused_observed(const dr_fused_state *st, int filter, int step);
+#define DR_FUSED_OBSERVE(st, filter, step) dr_fused_observed((st), (filter), (step))
+#else
+#define DR_FUSED_OBSERVE(st, filter, step) ((void)(st), (void)(filter), (void)(step))
+#endif
 
 void dr_fused_config_init(dr_fused_config *cfg) {
     float p[DR_FUSED_PARAMS];
@@ -130,15 +141,12 @@ static void dr_fused_rotation(const float q[4], float r[3][3]) {
     r[2][2] = 1.0f - 2.0f * (qx * qx + qy * qy);
 }
 
-/* Starts the tilt/offset filter on its first use after calibration (codegen.fused's _kf_start): b ~ kf_bias_init_g
- * per axis across gravity (0 along it), d = -R_h b. Returns 1 if it started now (no update this time). */
-static int dr_fused_kf_start(const dr_fused_config *cfg, dr_fused_state *st) {
+/* The tilt/offset filter's covariance at its start (codegen.fused's _kf_prior): b ~ kf_bias_init_g per axis across
+ * gravity (0 along it), d = -R_h b, from the attitude st->q. */
+static void dr_fused_kf_prior(const dr_fused_config *cfg, dr_fused_state *st) {
     float r[3][3], pm[5][5];
     const float v = cfg->kf_bias_var;
     int i, j, c;
-    if (st->p[7] > 0.0f) {
-        return 0;
-    }
     dr_fused_rotation(st->q, r);
     for (i = 0; i < 5; i++) {
         for (j = i; j < 5; j++) {
@@ -164,11 +172,76 @@ static int dr_fused_kf_start(const dr_fused_config *cfg, dr_fused_state *st) {
     dr_fused_p_store(st, pm);
     st->kf_t = 0.0f;
     st->turn = 0.0f;
+}
+
+/* Whether a covariance entry is a number within +-DR_FUSED_COV_MAX (NaN fails both comparisons). */
+static int dr_fused_bounded(float v) {
+    return v <= DR_FUSED_COV_MAX && v >= -DR_FUSED_COV_MAX;
+}
+
+/* Whether the upper triangle p (n x n, row by row) is usable: every entry bounded, every variance >= 0. */
+static int dr_fused_triangle_usable(const float *p, int n) {
+    int i, j, k = 0;
+    for (i = 0; i < n; i++) {
+        for (j = i; j < n; j++) {
+            if (!dr_fused_bounded(p[k]) || (j == i && !(p[k] >= 0.0f))) {
+                return 0;
+            }
+            k++;
+        }
+    }
     return 1;
 }
 
-/* The filter's process noise over the kf_t seconds since its last prediction (codegen.fused's _kf_predict). */
-static void dr_fused_kf_predict(const dr_fused_config *cfg, dr_fused_state *st) {
+static void dr_fused_nhc_restart(dr_fused_state *st);
+static void dr_fused_position_prior(const dr_fused_config *cfg, dr_fused_state *st);
+
+/* After a step of a filter (codegen.fused's _covariance_checked): 1 if its covariance is usable (and, for an update,
+ * innovation_ok: the innovation's covariance was positive definite); otherwise it is reset to its prior, counted in
+ * st->cov_repairs, and 0 returned (the caller uses nothing of the step). */
+static int dr_fused_covariance_checked(const dr_fused_config *cfg, dr_fused_state *st, int filter, int step,
+                                       int innovation_ok) {
+    int usable;
+    DR_FUSED_OBSERVE(st, filter, step);
+    if (!innovation_ok) {
+        usable = 0;
+    } else if (filter == DR_FUSED_FILTER_TILT) {
+        usable = dr_fused_triangle_usable(st->p, 4) && dr_fused_bounded(st->pz[0]) && dr_fused_bounded(st->pz[1]) &&
+                 dr_fused_bounded(st->pz[2]) && dr_fused_bounded(st->pz[3]) && dr_fused_triangle_usable(st->pz + 4, 1);
+    } else if (filter == DR_FUSED_FILTER_LATERAL) {
+        usable = dr_fused_triangle_usable(st->nh_p, 4);
+    } else {
+        usable = dr_fused_bounded(st->fix_pxx) && st->fix_pxx >= 0.0f && dr_fused_bounded(st->fix_pxe) &&
+                 dr_fused_bounded(st->fix_pee) && st->fix_pee >= 0.0f;
+    }
+    if (usable) {
+        return 1;
+    }
+    st->cov_repairs += 1.0f;
+    if (filter == DR_FUSED_FILTER_TILT) {
+        dr_fused_kf_prior(cfg, st);
+    } else if (filter == DR_FUSED_FILTER_LATERAL) {
+        dr_fused_nhc_restart(st);
+    } else {
+        dr_fused_position_prior(cfg, st);
+    }
+    return 0;
+}
+
+/* Starts the tilt/offset filter on its first use after calibration (codegen.fused's _kf_start). Returns 1 if it
+ * started now (no update this time). */
+static int dr_fused_kf_start(const dr_fused_config *cfg, dr_fused_state *st) {
+    if (st->p[7] > 0.0f) {
+        return 0;
+    }
+    dr_fused_kf_prior(cfg, st);
+    dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_START, 1);
+    return 1;
+}
+
+/* The filter's predict P <- P + Q, Q the process noise over the kf_t seconds since its last prediction
+ * (codegen.fused's _kf_predict). Returns 0 if the covariance went wrong (reset to the prior). */
+int dr_fused_kf_predict(const dr_fused_config *cfg, dr_fused_state *st) {
     float qd = cfg->kf_tilt_q * st->kf_t + cfg->kf_turn_q * st->turn * st->turn;
     float qb = cfg->kf_bias_q * st->kf_t;
     st->p[0] += qd;
@@ -178,11 +251,15 @@ static void dr_fused_kf_predict(const dr_fused_config *cfg, dr_fused_state *st) 
     st->pz[4] += qb;
     st->kf_t = 0.0f;
     st->turn = 0.0f;
+    return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_PREDICT, 1);
 }
 
-/* The filter's update with z = d + h b + noise (variance r per axis), fed back at once (codegen.fused's _kf_update):
- * b into bax, bay, baz, d as a small rotation of q about the kernel frame's horizontal axes. x: the correction. */
-static void dr_fused_kf_update(dr_fused_state *st, float z0, float z1, const float h[2][3], float r, float x[5]) {
+/* The filter's update with z = d + h b + noise (variance r per axis), H = [I2 | h]: P <- P - K S K^T, fed back at
+ * once (codegen.fused's _kf_update): b into bax, bay, baz, d as a small rotation of q about the kernel frame's
+ * horizontal axes. x: the correction. Returns 0 if the covariance went wrong (reset to the prior, nothing fed back,
+ * x unset). */
+int dr_fused_kf_update(const dr_fused_config *cfg, dr_fused_state *st, float z0, float z1, const float h[2][3],
+                       float r, float x[5]) {
     float pm[5][5], pht[5][2], gain[5][2];
     float s00, s01, s11, inv_det, i00, i01, i11, hx, hy;
     int i, j, c;
@@ -202,6 +279,10 @@ static void dr_fused_kf_update(dr_fused_state *st, float z0, float z1, const flo
         s00 += h[0][c] * pht[2 + c][0];
         s01 += h[0][c] * pht[2 + c][1];
         s11 += h[1][c] * pht[2 + c][1];
+    }
+    if (!(s00 > 0.0f && s00 <= DR_FUSED_COV_MAX && s00 * s11 - s01 * s01 > 0.0f &&
+          s00 * s11 - s01 * s01 <= DR_FUSED_COV_MAX)) {
+        return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_UPDATE, 0);
     }
     inv_det = dr_recip(s00 * s11 - s01 * s01);
     i00 = s11 * inv_det;
@@ -223,6 +304,9 @@ static void dr_fused_kf_update(dr_fused_state *st, float z0, float z1, const flo
         }
     }
     dr_fused_p_store(st, pm);
+    if (!dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_UPDATE, 1)) {
+        return 0;
+    }
     st->bax += x[2];
     st->bay += x[3];
     st->baz += x[4];
@@ -241,6 +325,7 @@ static void dr_fused_kf_update(dr_fused_state *st, float z0, float z1, const flo
         st->q[2] = ny * inv;
         st->q[3] = nz * inv;
     }
+    return 1;
 }
 
 /* Every rest_update_s at rest (codegen.fused's rest_update): the smoothed rate is the gyro bias's error, the smoothed
@@ -256,16 +341,18 @@ static void dr_fused_rest_update(const dr_config *kcfg, const dr_fused_config *c
             st->gyro_bias_lsb[i] += k * st->ws[i];
         }
     }
-    if (!(cfg->kf_bias_var > 0.0f) || !(cfg->kf_rest_r > 0.0f) || dr_fused_kf_start(cfg, st)) {
+    if (!(cfg->kf_bias_var > 0.0f) || !(cfg->kf_rest_r > 0.0f) || dr_fused_kf_start(cfg, st) ||
+        !dr_fused_kf_predict(cfg, st)) {
         return;
     }
-    dr_fused_kf_predict(cfg, st);
     dr_fused_rotation(st->q, r);
     for (i = 0; i < 3; i++) {
         h[0][i] = r[0][i];
         h[1][i] = r[1][i];
     }
-    dr_fused_kf_update(st, st->ah[0], st->ah[1], (const float(*)[3])h, cfg->kf_rest_r, x);
+    if (!dr_fused_kf_update(cfg, st, st->ah[0], st->ah[1], (const float(*)[3])h, cfg->kf_rest_r, x)) {
+        return;
+    }
     /* the correction leaves the samples from now on: the smoothed value follows */
     st->ah[0] -= x[0] + h[0][0] * x[2] + h[0][1] * x[3] + h[0][2] * x[4];
     st->ah[1] -= x[1] + h[1][0] * x[2] + h[1][1] * x[3] + h[1][2] * x[4];
@@ -325,71 +412,26 @@ static void dr_fused_nhc_start(const dr_fused_config *cfg, dr_fused_state *st, c
  * of the speed error e (fed back into the speed), the lateral leak l and the folded offsets f (kernel frame),
  * z = l + (n0 - nbar) . f - rbar e + noise, e grown by T (u0 - ubar) . (f - f_estimated); rbar the mean rate about Up
  * (0 below nhc_min_rate, its speed error term then noise), the noise's variance nhc_var / T. */
+static void dr_fused_lateral_feed_back(const dr_fused_config *cfg, dr_fused_state *st, const float x[4]);
+
 static void dr_fused_nhc_update(const dr_fused_config *cfg, dr_fused_state *st) {
     const float t = st->nh_t, inv_t = dr_recip(st->nh_t);
     float rbar = st->nh_r * inv_t, z = st->nh_z * inv_t, turn = cfg->nhc_leak_turn * st->nh_r, unseen = 0.0f;
-    float pm[4][4], fp[4], h[4], ph[4], gain[4], s, inv_s, y, e, dux, duy, f2, f3;
-    int i, j, n = 0;
+    float h[4], x[4], dux, duy, y;
     if (dr_absf(rbar) < cfg->nhc_min_rate) {
         unseen = rbar * rbar; /* no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle */
         rbar = 0.0f;
     }
     dux = st->nh_u0[0] - st->nh_i[0] * inv_t; /* u0 - ubar; n0 - nbar = (-duy, dux) */
     duy = st->nh_u0[1] - st->nh_i[1] * inv_t;
-    for (i = 0; i < 4; i++) {
-        for (j = i; j < 4; j++) {
-            pm[i][j] = st->nh_p[n];
-            pm[j][i] = st->nh_p[n];
-            n++;
-        }
-    }
-    f2 = t * dux; /* predict: F = I + (row 0: T du in columns 2, 3) */
-    f3 = t * duy;
-    for (j = 0; j < 4; j++) {
-        fp[j] = f2 * pm[2][j] + f3 * pm[3][j];
-    }
-    for (j = 0; j < 4; j++) {
-        pm[0][j] += fp[j];
-        pm[j][0] = pm[0][j];
-    }
-    pm[0][0] += fp[2] * f2 + fp[3] * f3;
-    pm[0][0] += cfg->nhc_speed_q * t;
-    pm[1][1] += turn * turn;
-    h[0] = -rbar;
-    h[1] = 1.0f;
-    h[2] = -duy;
-    h[3] = dux;
-    s = cfg->nhc_var * inv_t + unseen * pm[0][0];
-    for (i = 0; i < 4; i++) {
-        ph[i] = pm[i][0] * h[0] + pm[i][1] * h[1] + pm[i][2] * h[2] + pm[i][3] * h[3];
-    }
-    for (i = 0; i < 4; i++) {
-        s += h[i] * ph[i];
-    }
-    inv_s = dr_recip(s);
-    y = z - st->nh_b - h[2] * st->nh_f[0] - h[3] * st->nh_f[1];
-    for (i = 0; i < 4; i++) {
-        gain[i] = ph[i] * inv_s;
-    }
-    e = gain[0] * y;
-    st->speed -= e;
-    st->zr_v -= e;
-    if (cfg->nhc_position > 0.0f && st->zr_t > 0.0f) {
-        /* the speed error found, taken as grown as the zero-velocity update takes it: its integral taken back */
-        float k = cfg->nhc_position * e * dr_recip(st->zr_t);
-        st->pe -= k * st->zr_p[0];
-        st->pn -= k * st->zr_p[1];
-    }
-    if (st->speed < 0.0f) {
-        st->speed = 0.0f;
-    }
-    st->nh_b += gain[1] * y;
-    st->nh_f[0] += gain[2] * y;
-    st->nh_f[1] += gain[3] * y;
-    n = 0;
-    for (i = 0; i < 4; i++) {
-        for (j = i; j < 4; j++) {
-            st->nh_p[n++] = pm[i][j] - gain[i] * ph[j];
+    if (dr_fused_lateral_predict(cfg, st, t * dux, t * duy, cfg->nhc_speed_q * t, turn * turn)) {
+        h[0] = -rbar;
+        h[1] = 1.0f;
+        h[2] = -duy;
+        h[3] = dux;
+        y = z - st->nh_b - h[2] * st->nh_f[0] - h[3] * st->nh_f[1];
+        if (dr_fused_lateral_correct(cfg, st, h, cfg->nhc_var * inv_t + unseen * st->nh_p[0], y, x)) {
+            dr_fused_lateral_feed_back(cfg, st, x);
         }
     }
     st->nh_t = 0.0f;
@@ -397,6 +439,85 @@ static void dr_fused_nhc_update(const dr_fused_config *cfg, dr_fused_state *st) 
     st->nh_r = 0.0f;
     st->nh_i[0] = 0.0f;
     st->nh_i[1] = 0.0f;
+}
+
+/* The lateral filter's predict P <- F P F^T + Q (codegen.fused's _lateral_predict): F = I + A, A only in row 0 (f2, f3
+ * in columns 2, 3), so row and column 0 gain (A P)[0], the corner twice that plus A P A^T; Q = diag(q_speed, q_leak,
+ * 0, 0). Returns 0 if the covariance went wrong (the filter restarted). */
+int dr_fused_lateral_predict(const dr_fused_config *cfg, dr_fused_state *st, float f2, float f3, float q_speed,
+                             float q_leak) {
+    float *p = st->nh_p; /* upper triangle: 0 ss, 1 sb, 2 sx, 3 sy, 4 bb, 5 bx, 6 by, 7 xx, 8 xy, 9 yy */
+    const float ap0 = f2 * p[2] + f3 * p[3]; /* row 0 of A P */
+    const float ap1 = f2 * p[5] + f3 * p[6];
+    const float ap2 = f2 * p[7] + f3 * p[8];
+    const float ap3 = f2 * p[8] + f3 * p[9];
+    p[0] += 2.0f * ap0 + (f2 * ap2 + f3 * ap3) + q_speed;
+    p[1] += ap1;
+    p[2] += ap2;
+    p[3] += ap3;
+    p[4] += q_leak;
+    return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_LATERAL, DR_FUSED_STEP_PREDICT, 1);
+}
+
+/* The lateral filter's update with z = h . x + noise (variance r), innovation y (codegen.fused's _lateral_correct):
+ * P <- P - K S K^T, K = P h / S. x: the correction K y. Returns 0 if the covariance went wrong (the filter
+ * restarted, x unset). */
+int dr_fused_lateral_correct(const dr_fused_config *cfg, dr_fused_state *st, const float h[4], float r, float y,
+                             float x[4]) {
+    float pm[4][4], ph[4], gain[4], s = r, inv_s;
+    int i, j, n = 0;
+    for (i = 0; i < 4; i++) {
+        for (j = i; j < 4; j++) {
+            pm[i][j] = st->nh_p[n];
+            pm[j][i] = st->nh_p[n];
+            n++;
+        }
+    }
+    for (i = 0; i < 4; i++) {
+        ph[i] = pm[i][0] * h[0] + pm[i][1] * h[1] + pm[i][2] * h[2] + pm[i][3] * h[3];
+    }
+    for (i = 0; i < 4; i++) {
+        s += h[i] * ph[i];
+    }
+    if (!(s > 0.0f && s <= DR_FUSED_COV_MAX)) {
+        return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_LATERAL, DR_FUSED_STEP_UPDATE, 0);
+    }
+    inv_s = dr_recip(s);
+    for (i = 0; i < 4; i++) {
+        gain[i] = ph[i] * inv_s;
+    }
+    n = 0;
+    for (i = 0; i < 4; i++) {
+        for (j = i; j < 4; j++) {
+            st->nh_p[n++] = pm[i][j] - gain[i] * ph[j];
+        }
+    }
+    if (!dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_LATERAL, DR_FUSED_STEP_UPDATE, 1)) {
+        return 0;
+    }
+    for (i = 0; i < 4; i++) {
+        x[i] = gain[i] * y;
+    }
+    return 1;
+}
+
+/* The lateral update's correction x (codegen.fused's _lateral_feed_back): the speed error out of the speed and, as
+ * the zero-velocity update takes it, its integral out of the position; the leak and the folded offsets in. */
+static void dr_fused_lateral_feed_back(const dr_fused_config *cfg, dr_fused_state *st, const float x[4]) {
+    const float e = x[0];
+    st->speed -= e;
+    st->zr_v -= e;
+    if (cfg->nhc_position > 0.0f && st->zr_t > 0.0f) {
+        float k = cfg->nhc_position * e * dr_recip(st->zr_t);
+        st->pe -= k * st->zr_p[0];
+        st->pn -= k * st->zr_p[1];
+    }
+    if (st->speed < 0.0f) {
+        st->speed = 0.0f;
+    }
+    st->nh_b += x[1];
+    st->nh_f[0] += x[2];
+    st->nh_f[1] += x[3];
 }
 
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
@@ -411,6 +532,8 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
     int flags = (int)st->flags;
     int vehicle = platform == DR_FUSED_PLATFORM_VEHICLE || (flags & DR_FUSED_VEHICLE);
     int driven = flags & DR_FUSED_SHAKEN;
+    int fast = (flags & DR_FUSED_FAST) && platform != DR_FUSED_PLATFORM_PEDESTRIAN;
+    int walked = flags & DR_FUSED_WALKED;
     int32_t median = cfg->median > 0.0f && kcfg->block > 1 ? kcfg->block : 0;
     if (count < 1) {
         return DR_ERR_COUNT;
@@ -424,7 +547,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         float f[3], c[3], w[3];
         float nf, alpha, beta, gamma, d, h, r00, r01, r02, r10, r11, r12, r20, r21, r22, ae, an, de, dn, r, da, ux, uy,
             ue, un, inv, gain, cx, cy, cz, nc2;
-        int i, rest, walking, steps, shaken, broadband, turning = flags & DR_FUSED_TURNING;
+        int i, rest, walking, steps, shaken, broadband, still, turning = flags & DR_FUSED_TURNING;
         for (i = 0; i < 3; i++) {
             int32_t src = kcfg->axis_source[i];
             f[i] = kcfg->axis_sign[i] * (float)s[src] * kcfg->accel_ms2_per_lsb;
@@ -474,26 +597,24 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         r22 = 1.0f - 2.0f * (qx * qx + qy * qy);
         ae = r00 * f[0] + r01 * f[1] + r02 * f[2];
         an = r10 * f[0] + r11 * f[1] + r12 * f[2];
-        /* walking: shaken, in the gait band (auto) for walk_time_s; a vehicle: shaken above it, or the platform */
         shaken = st->var_f > cfg->walk_var;
         broadband = st->vib_var > cfg->vib_ratio * st->vib_tot;
-        steps = platform != DR_FUSED_PLATFORM_VEHICLE && shaken &&
-                (platform == DR_FUSED_PLATFORM_PEDESTRIAN || !broadband);
-        st->walk_s = steps ? st->walk_s + dt : 0.0f;
-        walking = steps && ((flags & DR_FUSED_WALKING) || st->walk_s >= cfg->walk_time_s);
-        if (walking) {
-            vehicle = 0;
-        } else if (shaken && broadband && platform != DR_FUSED_PLATFORM_PEDESTRIAN) {
-            vehicle = 1;
-        }
         /* rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
-         * deadband (a vehicle quiet after shaking, or below rest_speed_ms: any) */
+         * deadband (a vehicle quiet after shaking, or below rest_speed_ms: any). Still: below rest_accel_g, or below
+         * still_accel_g for a pedestrian's hand, idle_accel_g for a vehicle's idling engine (broadband, slower than
+         * rest_speed_ms) */
         st->ah[0] += alpha * (ae - st->ah[0]);
         st->ah[1] += alpha * (an - st->ah[1]);
         de = ae - st->ah[0];
         dn = an - st->ah[1];
-        if (st->var_f < cfg->rest_var && st->ws[0] * st->ws[0] + st->ws[1] * st->ws[1] + st->ws[2] * st->ws[2] <
-            cfg->rest_w2 && de * de + dn * dn < db2 &&
+        still = st->var_f < cfg->rest_var;
+        if (!still && vehicle) {
+            still = st->var_f < cfg->idle_var && broadband && st->speed < cfg->rest_speed_ms;
+        } else if (!still) {
+            still = st->var_f < cfg->still_var;
+        }
+        if (still && st->ws[0] * st->ws[0] + st->ws[1] * st->ws[1] + st->ws[2] * st->ws[2] < cfg->rest_w2 &&
+            de * de + dn * dn < db2 &&
             (ae * ae + an * an < db2 || (vehicle && (driven || st->speed < cfg->rest_speed_ms))) &&
             !(st->since_fix < cfg->gps_timeout_s && st->gps_ok > 0.0f)) {
             st->rest_s += dt;
@@ -501,8 +622,26 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
             st->rest_s = 0.0f;
         }
         rest = st->rest_s >= cfg->rest_time_s;
-        if (rest) {
+        /* walking: shaken, not at rest, in the gait band (auto) for walk_time_s, and nothing says a vehicle (a fast
+         * fix since the last rest, its own speed beyond a runner's); a vehicle: shaken above it, a fast fix, or the
+         * platform */
+        steps = platform != DR_FUSED_PLATFORM_VEHICLE && shaken && !rest &&
+                (platform == DR_FUSED_PLATFORM_PEDESTRIAN ||
+                 !(broadband || fast || (vehicle && st->speed > cfg->pedestrian_max_ms)));
+        st->walk_s = steps ? st->walk_s + dt : 0.0f;
+        walking = steps && ((flags & DR_FUSED_WALKING) || st->walk_s >= cfg->walk_time_s);
+        if (walking) {
+            vehicle = 0;
+            walked = DR_FUSED_WALKED;
+        } else if (fast || (shaken && broadband && platform != DR_FUSED_PLATFORM_PEDESTRIAN && !walked)) {
+            vehicle = 1;
+        }
+        if (vehicle) {
+            walked = 0;
+        }
+        if (rest) { /* a walker's stop keeps him a pedestrian (walked) */
             driven = 0;
+            fast = 0;
         } else if (shaken && vehicle) {
             driven = DR_FUSED_SHAKEN;
         }
@@ -530,7 +669,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
             st->held = 0.0f;
         }
         flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0) | turning |
-                (vehicle ? DR_FUSED_VEHICLE : 0) | driven;
+                (vehicle ? DR_FUSED_VEHICLE : 0) | driven | (fast ? DR_FUSED_FAST : 0) | walked;
         /* u rotated by da, to second order */
         {
             float cd = 1.0f - 0.5f * da * da, sd = da * (1.0f - da * da * (1.0f / 6.0f));
@@ -541,7 +680,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         st->ux = ux * inv;
         st->uy = uy * inv;
         /* speed along u */
-        if (rest || walking) { /* the median ring restarts when the vehicle branch is entered again */
+        if (rest || walking || walked) { /* the median ring restarts when the vehicle branch is entered again */
             st->med_i = 0.0f;
             st->med_n = 0.0f;
             st->acc_lp = 0.0f;
@@ -556,8 +695,15 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
             }
             st->speed = 0.0f;
             st->zr_v = 0.0f;
-        } else if (walking) {
-            st->speed = st->walk_speed;
+        } else if (walking || walked) {
+            /* walking: the learned walking speed; a pedestrian whose steps stopped without a rest: the speed decays
+             * to 0 over stand_tau_s, never integrated */
+            if (walking) {
+                st->speed = st->walk_speed;
+            } else {
+                float decay = dt * cfg->inv_stand_tau;
+                st->speed -= st->speed * (decay < 1.0f ? decay : 1.0f);
+            }
             st->zr_v = st->speed;
         } else {
             float a = ae * st->ux + an * st->uy;
@@ -593,7 +739,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
                 st->speed = 0.0f;
             }
         }
-        if (rest || walking) {
+        if (rest || walking || walked) {
             st->zr_t = 0.0f;
             st->zr_turn = 0.0f;
             for (i = 0; i < 2; i++) {
@@ -640,7 +786,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
         un = st->sin_t * st->ux + st->cos_t * st->uy;
         st->pe += st->speed * ue * dt;
         st->pn += st->speed * un * dt;
-        if (!(rest || walking)) { /* the integrals a zero-velocity update corrects the position by */
+        if (!(rest || walking || walked)) { /* the integrals a zero-velocity update corrects the position by */
             float lag = (st->zr_v - st->speed) * dt;
             st->zr_turn += dr_absf(r) * dt;
             st->zr_t += (1.0f + st->zr_turn * cfg->zupt_turn_weight) * dt;
@@ -718,10 +864,9 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
 static void dr_fused_filter(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, int moving, float t) {
     float h[2][3], x[5];
     float inv_t, gx, gy, z0, z1, norm2;
-    if (dr_fused_kf_start(cfg, st)) {
+    if (dr_fused_kf_start(cfg, st) || !dr_fused_kf_predict(cfg, st)) {
         return;
     }
-    dr_fused_kf_predict(cfg, st);
     norm2 = st->align_c * st->align_c + st->align_s * st->align_s;
     if (!(st->gps_ok > 0.0f && moving && t > 0.0f && t < cfg->gps_timeout_s &&
           norm2 >= cfg->kf_align_min * cfg->kf_align_min)) {
@@ -738,30 +883,23 @@ static void dr_fused_filter(const dr_fused_config *cfg, dr_fused_state *st, floa
     h[1][0] = st->m[2] * inv_t;
     h[1][1] = st->m[3] * inv_t;
     h[1][2] = st->m2[1] * inv_t;
-    dr_fused_kf_update(st, z0, z1, (const float(*)[3])h, cfg->kf_vel_r * inv_t * inv_t, x);
+    dr_fused_kf_update(cfg, st, z0, z1, (const float(*)[3])h, cfg->kf_vel_r * inv_t * inv_t, x);
 }
 
 void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn) {
     const float t = st->since_fix;
-    float x, phi, pxx, pxe, pee, cx, cy, ae, an, ee, en, s, inv_s, kx, ke;
+    float phi, cx, cy, ae, an, ee, en, gain[2];
     if (!(cfg->pos_var > 0.0f)) {
         return;
     }
     if (!(st->fix_pxx > 0.0f && t > 0.0f && t < cfg->gps_timeout_s)) { /* (re)start at the fix itself */
-        st->fix_ae = 0.0f;
-        st->fix_an = 0.0f;
-        st->fix_ee = 0.0f;
-        st->fix_en = 0.0f;
-        st->fix_pxx = cfg->pos_var;
-        st->fix_pee = cfg->pos_var;
-        st->fix_pxe = -cfg->pos_var;
+        dr_fused_position_prior(cfg, st);
+        dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_POSITION, DR_FUSED_STEP_START, 1);
         return;
     }
-    x = t * cfg->inv_pos_tau;
-    phi = 1.0f - x * (1.0f - x * (0.5f - x * (1.0f / 6.0f))); /* exp(-x), cubic Taylor (x <= gps_timeout / tau) */
-    pxx = st->fix_pxx + cfg->pos_step_q * t * t;
-    pxe = phi * st->fix_pxe;
-    pee = phi * phi * st->fix_pee + cfg->pos_var * (1.0f - phi * phi);
+    if (!dr_fused_position_predict(cfg, st, t, &phi)) {
+        return;
+    }
     /* the IMU's correction to the trapezoid T (v0 + v1) / 2, rotated into true ENU below */
     cx = st->dpx - 0.5f * t * st->dvx;
     cy = st->dpy - 0.5f * t * st->dvy;
@@ -769,17 +907,55 @@ void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve,
     an = st->fix_an + 0.5f * t * (st->gps_vn + vn) + (st->sin_t * cx + st->cos_t * cy) - dn;
     ee = phi * st->fix_ee;
     en = phi * st->fix_en;
-    s = pxx + 2.0f * pxe + pee;
+    if (!dr_fused_position_correct(cfg, st, gain)) {
+        return;
+    }
+    st->fix_ae = ae - gain[0] * (ae + ee);
+    st->fix_an = an - gain[0] * (an + en);
+    st->fix_ee = ee - gain[1] * (ae + ee);
+    st->fix_en = en - gain[1] * (an + en);
+}
+
+/* The position filter (re)started at the fix itself (codegen.fused's _position_prior). */
+static void dr_fused_position_prior(const dr_fused_config *cfg, dr_fused_state *st) {
+    st->fix_ae = 0.0f;
+    st->fix_an = 0.0f;
+    st->fix_ee = 0.0f;
+    st->fix_en = 0.0f;
+    st->fix_pxx = cfg->pos_var;
+    st->fix_pee = cfg->pos_var;
+    st->fix_pxe = -cfg->pos_var;
+}
+
+/* The position filter's predict over t s (codegen.fused's _position_predict): P <- F P F^T + Q, F = diag(1, phi),
+ * Q = diag(pos_step_q t^2, pos_var (1 - phi^2)). *phi: exp(-t / pos_tau_s). Returns 0 if the covariance went wrong
+ * (restarted at the fix). */
+int dr_fused_position_predict(const dr_fused_config *cfg, dr_fused_state *st, float t, float *phi) {
+    const float x = t * cfg->inv_pos_tau;
+    const float f = 1.0f - x * (1.0f - x * (0.5f - x * (1.0f / 6.0f))); /* cubic Taylor (x <= gps_timeout / tau) */
+    st->fix_pxx += cfg->pos_step_q * t * t;
+    st->fix_pxe *= f;
+    st->fix_pee = f * f * st->fix_pee + cfg->pos_var * (1.0f - f * f);
+    *phi = f;
+    return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_POSITION, DR_FUSED_STEP_PREDICT, 1);
+}
+
+/* The position filter's update with the fix y = x + e, H = [1, 1], no noise of its own (codegen.fused's
+ * _position_correct): P <- P - K S K^T. gain: K. Returns 0 if the covariance went wrong (restarted at the fix). */
+int dr_fused_position_correct(const dr_fused_config *cfg, dr_fused_state *st, float gain[2]) {
+    const float pxx = st->fix_pxx, pxe = st->fix_pxe, pee = st->fix_pee;
+    const float s = pxx + 2.0f * pxe + pee;
+    float inv_s;
+    if (!(s > 0.0f && s <= DR_FUSED_COV_MAX)) {
+        return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_POSITION, DR_FUSED_STEP_UPDATE, 0);
+    }
     inv_s = dr_recip(s);
-    kx = (pxx + pxe) * inv_s;
-    ke = (pxe + pee) * inv_s;
-    st->fix_ae = ae - kx * (ae + ee);
-    st->fix_an = an - kx * (an + en);
-    st->fix_ee = ee - ke * (ae + ee);
-    st->fix_en = en - ke * (an + en);
-    st->fix_pxx = pxx - kx * kx * s;
-    st->fix_pxe = pxe - kx * ke * s;
-    st->fix_pee = pee - ke * ke * s;
+    gain[0] = (pxx + pxe) * inv_s;
+    gain[1] = (pxe + pee) * inv_s;
+    st->fix_pxx = pxx - gain[0] * gain[0] * s;
+    st->fix_pxe = pxe - gain[0] * gain[1] * s;
+    st->fix_pee = pee - gain[1] * gain[1] * s;
+    return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_POSITION, DR_FUSED_STEP_UPDATE, 1);
 }
 
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn) {
@@ -832,8 +1008,9 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
             st->ux = ux * norm;
             st->uy = uy * norm;
         }
-        if (flags & DR_FUSED_WALKING) {
-            st->walk_speed += cfg->walk_speed_gain * (speed - st->walk_speed);
+        if (flags & DR_FUSED_WALKING) { /* what people walk and run: a pedestrian's speed is bounded */
+            float bounded = speed < cfg->pedestrian_max_ms ? speed : cfg->pedestrian_max_ms;
+            st->walk_speed += cfg->walk_speed_gain * (bounded - st->walk_speed);
         }
     }
     e = speed - st->speed;
@@ -845,6 +1022,9 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     st->gps_vn = vn;
     st->gps_speed = speed;
     st->gps_ok = speed - cfg->min_speed_ms;
+    if (speed > cfg->pedestrian_max_ms) { /* faster than people run: a vehicle until it rests */
+        st->flags = (float)((int)st->flags | DR_FUSED_FAST);
+    }
     st->dvx = 0.0f;
     st->dvy = 0.0f;
     st->dpx = 0.0f;

@@ -59,4 +59,25 @@ void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve,
 /* One GPS fix's Doppler velocity, m/s East and North (0, 0 when the receiver gives no course). */
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn);
 
+/* Each Kalman filter's steps, written out by hand (the tests hold them to the matrix forms F P F^T + Q and the Joseph
+ * update). Each checks the covariance after it: one gone wrong (a negative variance, a value not finite) is reset to
+ * the filter's prior, counted in st->cov_repairs, and the function returns 0; 1 otherwise.
+ * The tilt/offset filter (5 states: gravity leak East, North in m/s^2, offsets x, y, z in m/s^2): the process noise
+ * over st->kf_t s and st->turn rad; the update with z = d + h b + noise (variance r per axis), x the correction, fed
+ * back into the offsets and the attitude. */
+int dr_fused_kf_predict(const dr_fused_config *cfg, dr_fused_state *st);
+int dr_fused_kf_update(const dr_fused_config *cfg, dr_fused_state *st, float z0, float z1, const float h[2][3],
+                       float r, float x[5]);
+/* The lateral filter (speed error m/s, lateral leak, folded offsets x, y in m/s^2): F = I + (row 0: f2, f3 in
+ * columns 2, 3; s), Q = diag(q_speed, q_leak, 0, 0); the update with z = h . x + noise (variance r), innovation y,
+ * x the correction K y (not fed back here). */
+int dr_fused_lateral_predict(const dr_fused_config *cfg, dr_fused_state *st, float f2, float f3, float q_speed,
+                             float q_leak);
+int dr_fused_lateral_correct(const dr_fused_config *cfg, dr_fused_state *st, const float h[4], float r, float y,
+                             float x[4]);
+/* The position filter (per axis: position, receiver error, m): predict over t s (*phi the error's decay), the
+ * update with y = x + e (gain: K, not applied to the estimates here). */
+int dr_fused_position_predict(const dr_fused_config *cfg, dr_fused_state *st, float t, float *phi);
+int dr_fused_position_correct(const dr_fused_config *cfg, dr_fused_state *st, float gain[2]);
+
 #endif /* DR_FUSED_H */

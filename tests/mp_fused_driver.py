@@ -2,7 +2,9 @@
 # Drives the fused algorithm of dr_fallback or dr_native as the app does and prints one JSON line: the state after
 # fused_init (and the starting state, if given) or after fused_calibrate, then out and the whole fused state after
 # every step. Steps: ["p", samples, dt_us] fused_process; ["g", ve, vn, de, dn] fused_position then fused_gps (a fix);
-# ["v", ve, vn] fused_gps alone; ["x", ve, vn, de, dn] fused_position alone.
+# ["v", ve, vn] fused_gps alone; ["x", ve, vn, de, dn] fused_position alone. With "observe" (per filter, the state
+# indices of its covariance) and a module that has the observer hook (dr_fallback), also "observed": [filter, step,
+# those values] after every step of every Kalman filter.
 import json
 import sys
 from array import array
@@ -17,6 +19,14 @@ if "params" in data:
 else:
     dr.fused_init(st)
 answer = {"moved": None, "steps": []}
+if "observe" in data and hasattr(dr, "_observer"):
+    answer["observed"] = []
+    entries = data["observe"]
+
+    def _record(buf, which, step):
+        answer["observed"].append([which, step, [buf[i] for i in entries[which]]])
+
+    dr._observer = _record
 if "state" in data:
     for i, x in enumerate(data["state"]):
         st[i] = x

@@ -139,9 +139,12 @@ def fused_compare(rec, board, origin, eps=EPS32):
             k = to
 
     taken = [n for n, f in enumerate(rec.fixes) if not f.test_mode]
-    for ci, c in enumerate(rec.calls):
-        end = c.start + c.m
-        while j < len(fixes) and fixes[j][0] <= end:
+
+    def take_fixes(before_end):
+        """The fixes up to the call's end (before it: before_end; at it: after the call, as the app takes them, a
+        fix may set a flag: FAST)."""
+        nonlocal j, prev
+        while j < len(fixes) and (fixes[j][0] < end if before_end else fixes[j][0] == end):
             idx, n = fixes[j]
             advance(idx)
             fix = rec.fixes[n]
@@ -152,9 +155,14 @@ def fused_compare(rec, board, origin, eps=EPS32):
             F.gps_update(st, float(fix.vel[0]), float(fix.vel[1]), fcfg)
             base[n] = (st.pe, st.pn, st.fix_ae, st.fix_an, path)
             j += 1
+
+    for ci, c in enumerate(rec.calls):
+        end = c.start + c.m
+        take_fixes(True)
         advance(end)
         assert int(c.before[0]) == int(st.flags), f"call {ci}: the app's flags {int(c.before[0])} differ from the " \
                                                   f"reference's {int(st.flags)}: a threshold decided differently"
+        take_fixes(False)
         a = c.fix
         if a is None or a not in base:
             offsets.append(None)

@@ -116,7 +116,7 @@ def test_fallback_fused_matches_reference_on_micropython(tmp_path):
     assert _compare(answer, calib, steps) & 4  # the walker turned (from 59 s): the turn hold's both branches ran
     assert np.hypot(*answer["steps"][-1][1][F.IDX["pe"]:F.IDX["pn"] + 1]) > 5.0  # it walked
     seen = [(int(got[F.IDX["flags"]]), got[F.IDX["speed"]]) for _, got in answer["steps"]]
-    assert any(f0 == 2 and f1 == 0 and v1 == 0.0 for (f0, _), (f1, v1) in zip(seen, seen[1:]))  # and stopped (34.9 s)
+    assert any(f0 & 2 and not f1 & 3 and v1 == 0.0 for (f0, _), (f1, v1) in zip(seen, seen[1:]))  # and stopped (34.9 s)
 
 
 @pytest.mark.parametrize("median", [False, True])
@@ -131,6 +131,7 @@ def test_fallback_fused_matches_c(tmp_path, median):
     c = load_fused().session(params)
     c.calibrate(calib)
     n = 0
+    filled = 0.0  # the most the median ring held
     for s, (out, got) in zip(steps, answer["steps"]):
         if s[0] == "p":
             c.process(s[1], s[2])
@@ -139,11 +140,12 @@ def test_fallback_fused_matches_c(tmp_path, median):
             c.position(s[1], s[2], s[3], s[4])
             c.gps(s[1], s[2])
         want = c.state_vector()
+        filled = max(filled, float(want[F.IDX["med_n"]]))
         _assert_close(got, want, n, float(np.hypot(want[F.IDX["pe"]], want[F.IDX["pn"]])) + 10.0)
     initial = (FCFG.kf_bias_init_g * 9.80665) ** 2
     assert want[F.IDX["p22"]] < 0.5 * initial and want[F.IDX["bax"]] != 0.0  # the filter did update
-    if median:  # the ring was in use, and holds the same values
-        assert want[F.IDX["med_n"]] > 0
+    if median:  # the ring was in use (until the car's stop at 69 s, a rest, restarted it), and holds the same values
+        assert filled == BOARD.algorithm.block
         ring = [F.IDX[f"med{k}"] for k in range(BOARD.algorithm.block)]
         np.testing.assert_allclose(np.asarray(got)[ring], want[ring], atol=1e-4)
 

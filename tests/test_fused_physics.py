@@ -200,6 +200,148 @@ def test_a_stopped_vehicle_with_its_engine_running_comes_to_rest(impl, tmp_path)
     assert not np.any(trace.series("flags").astype(int) & F.AT_REST)
 
 
+def _idle(n, vertical_g, seed=0):
+    """_engine's idle with its shake along Up `vertical_g` rms at 27 Hz and 54 Hz (the firing frequency and its
+    harmonic, 2:1): |f| then varies by that much (the horizontal part, under 0.1 m/s^2, stays within the deadband)."""
+    samples, dt = _engine(n, seed)
+    t = np.arange(n) * 0.005
+    wave = (2.0 * np.sin(2 * np.pi * 27.0 * t) + np.sin(2 * np.pi * 54.0 * t + 1.0)) / math.sqrt(2.5)
+    samples[:, 2] = np.round(ONE_G * (1.0 + vertical_g * wave)).astype(np.int16)
+    return samples, dt
+
+
+def test_an_idling_engine_at_25_mg_is_rest_and_creeping_traffic_is_not(impl, tmp_path):
+    """A vehicle stopped in an outage with its engine idling harder than the rest limit (|f| 25 mg rms against
+    rest_accel_g's 10 mg; a real car idled at 14.5 mg): the shake is above the gait band (27 and 54
+    Hz: its share above vibration_hz is ~90 %), its 0.5 s average rate ~0, its speed below rest_speed_ms after the
+    braking: at rest (up to idle_accel_g, 30 mg) within 2 s, speed 0. The same shake while the vehicle creeps at 2 m/s (its speed before says it
+    moves; constant speed feels exactly like a stop) is no rest, and the speed is kept."""
+    samples, dt = _idle(800, 0.025)
+    f = samples[:, :3].astype(float) / ONE_G
+    assert np.std(np.linalg.norm(f, axis=1)) == pytest.approx(0.025, abs=0.002)
+    start = _still(speed=0.4, zr_v=0.4, flags=float(F.VEHICLE), vib_tot=(0.03 * G) ** 2, vib_var=(0.025 * G) ** 2,
+                   var_f=(0.025 * G) ** 2)
+    trace = run(impl, chunks(samples, dt, 20), tmp_path, start=start)
+    flags = trace.series("flags").astype(int)
+    assert np.all(flags[-10:] & F.AT_REST) and trace.at(-1, "speed") == 0.0
+    assert int(np.argmax(flags & F.AT_REST)) * 20 * 0.005 < 2.0
+    quiet = run(impl, chunks(samples, dt, 20), tmp_path, start=start, params=replace(FCFG, idle_accel_g=0.0))
+    assert not np.any(quiet.series("flags").astype(int) & F.AT_REST)  # the amplitude alone: never at rest
+    creeping = run(impl, chunks(samples, dt, 20), tmp_path, start=_still(
+        speed=2.0, zr_v=2.0, flags=float(F.VEHICLE), vib_tot=(0.03 * G) ** 2, vib_var=(0.025 * G) ** 2,
+        var_f=(0.025 * G) ** 2))
+    assert not np.any(creeping.series("flags").astype(int) & F.AT_REST)
+    assert creeping.at(-1, "speed") == pytest.approx(2.0, abs=1e-3)
+
+
+def _hand(n, seed=0, accel_g=0.03):
+    """n samples of a hand holding the device still, level: |f| varies by `accel_g` rms, 60 % of its power in the
+    sway (0.3-0.8 Hz) and 40 % in the physiological tremor (8-12 Hz); the horizontal specific force by a third of
+    that (tilt wobble); the rate 1.5 degree/s rms of tremor (which a 0.5 s average takes out) plus the arm's sway,
+    0.2 degree/s rms at 0.2-0.5 Hz (+-0.1 degree: the accelerometer's share of it is under 2 mg)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.005
+
+    def band(lo, hi, count):
+        f = rng.uniform(lo, hi, count)
+        wave = np.sum(np.sin(2 * np.pi * f[:, None] * t[None, :] + rng.uniform(0, 2 * np.pi, count)[:, None]), axis=0)
+        return wave / np.std(wave)
+
+    vertical = accel_g * (math.sqrt(0.6) * band(0.3, 0.8, 4) + math.sqrt(0.4) * band(8.0, 12.0, 6))
+    horizontal = np.stack([band(0.3, 12.0, 8), band(0.3, 12.0, 8)], axis=-1) * accel_g / 3.0
+    accel = np.column_stack([horizontal, 1.0 + vertical])
+    gyro = np.stack([1.5 * band(8.0, 12.0, 6) + 0.2 * band(0.2, 0.5, 2) for _ in range(3)], axis=-1)
+    gyro *= KCFG.gyro_lsb_per_dps
+    samples = np.hstack([np.round(accel * ONE_G), np.round(gyro)]).astype(np.int16)
+    return samples, np.full(n, DT_US, dtype=np.int32)
+
+
+def _slow_walk(n, speed_ms, seed=0):
+    """n samples of a slow walk (0.5-1 m/s) with the device in the hand: steps at 1.4-1.8 Hz that shake |f| by
+    only 38 mg rms (above walk_accel_g, within still_accel_g: the amplitude would allow a rest), a forward surge of the walking speed by +-15 % of it at the step
+    frequency, and the hand's swing about Up at half of it (+-8 degrees)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.005
+    step = rng.uniform(1.4, 1.8)
+    phase = 2 * np.pi * step * t
+    vertical = 0.038 * math.sqrt(2) * np.sin(phase)
+    surge = 0.15 * speed_ms * 2 * np.pi * step * np.cos(phase) / G  # d/dt of 0.15 v sin(phase), in g
+    swing = math.radians(8.0) * np.pi * step * np.cos(phase / 2)  # rad/s
+    accel = np.column_stack([surge, np.zeros(n), 1.0 + vertical])
+    gyro = np.column_stack([np.zeros(n), np.zeros(n), np.degrees(swing) * KCFG.gyro_lsb_per_dps])
+    samples = np.hstack([np.round(accel * ONE_G), np.round(gyro)]).astype(np.int16)
+    return samples, np.full(n, DT_US, dtype=np.int32)
+
+
+def test_a_hand_holding_the_device_still_at_30_mg_is_rest(impl, tmp_path):
+    """A walker stopped at a waypoint, the device in the hand (|f| 30 mg rms: real hand-held stands shook
+    11-27 mg): its horizontal specific force stays within the deadband and the tremor averages out of the rate, so
+    it comes to rest (up to still_accel_g, 40 mg), speed 0. With the amplitude alone (still_accel_g 0) it would not."""
+    samples, dt = _hand(1000)
+    f = np.linalg.norm(samples[:, :3].astype(float) / ONE_G, axis=1)
+    assert np.std(f) == pytest.approx(0.03, abs=0.003)
+    start = _still(flags=float(F.WALKED), var_f=(0.03 * G) ** 2, vib_tot=(0.03 * G) ** 2)
+    trace = run(impl, chunks(samples, dt, 20), tmp_path, start=start)
+    flags = trace.series("flags").astype(int)
+    assert np.all(flags[-10:] & F.AT_REST) and not np.any(flags & F.WALKING) and trace.at(-1, "speed") == 0.0
+    assert int(np.argmax(flags & F.AT_REST)) * 20 * 0.005 < 2.5
+    quiet = run(impl, chunks(samples, dt, 20), tmp_path, start=start, params=replace(FCFG, still_accel_g=0.0))
+    assert not np.any(quiet.series("flags").astype(int) & F.AT_REST)
+
+
+@pytest.mark.parametrize("speed_ms", [0.5, 1.0])
+def test_slow_walking_is_not_rest(impl, tmp_path, speed_ms):
+    """A slow walk shaking |f| little (38 mg rms, within still_accel_g) is never at rest: its surge
+    (+-15 % of the speed at the step frequency) breaks the steady horizontal force within a step, and the hand's
+    swing keeps the averaged rate above rest_gyro_dps; it stays a walk at the walking speed."""
+    samples, dt = _slow_walk(1200, speed_ms)
+    start = _still(flags=float(F.WALKING | F.WALKED), walk_speed=speed_ms, speed=speed_ms,
+                   var_f=(0.038 * G) ** 2, vib_tot=(0.038 * G) ** 2)
+    trace = run(impl, chunks(samples, dt, 20), tmp_path, start=start)
+    flags = trace.series("flags").astype(int)
+    assert not np.any(flags & F.AT_REST)
+    assert np.mean(flags & F.WALKING > 0) > 0.9 and trace.at(-1, "speed") == pytest.approx(speed_ms)
+
+
+def test_a_car_slowed_to_5_ms_after_gps_said_15_is_never_a_walker(impl, tmp_path):
+    """A car (level, heading East, unknown yet: no flags) speeds up from 5 to 15 m/s and slows to 5 again by GPS,
+    smoothly, then drives at 5 m/s through a car park whose surface shakes it in the gait band (2 Hz, 0.06 g rms: its
+    share above vibration_hz ~0.3 %, below the 4 % a vehicle needs; a real car park had 2-4 %), 3 s
+    under GPS and 8 s in an outage. A pedestrian does not go 15 m/s (pedestrian_max_ms, 6), so it is a vehicle
+    until it rests: never a walk, its speed never reset to a walker's (or to 0 when the "steps" stop). Without that
+    bound the same samples are a walk and the speed is lost."""
+    shaking, dt = _shaken("steps", 200, accel_g=0.06)
+    steps, previous = [], 5.0
+    for v in (5.0, 10.0, 15.0, 15.0, 10.0, 5.0):  # the along-track acceleration the GPS speeds show
+        steps += [("p", *_samples(200, accel_g=((v - previous) / G, 0.0, 1.0))), ("g", v, 0.0, v, 0.0)]
+        previous = v
+    steps += [("p", shaking, dt), ("g", 5.0, 0.0, 5.0, 0.0)] * 3 + [("p", shaking, dt)] * 8
+    start = _still(since_fix=0.5, walk_speed=1.2, speed=5.0)
+    trace = run(impl, steps, tmp_path, start=start)
+    flags = trace.series("flags").astype(int)
+    assert not np.any(flags & F.WALKING) and np.all(flags[3:] & (F.VEHICLE | F.FAST) == F.VEHICLE | F.FAST)
+    assert trace.at(-1, "speed") == pytest.approx(5.0, abs=0.5)
+    unbounded = run(impl, steps, tmp_path, start=start, params=replace(FCFG, pedestrian_max_ms=100.0))
+    assert np.any(unbounded.series("flags").astype(int) & F.WALKING)
+    assert abs(unbounded.at(-1, "speed") - 5.0) > 1.0
+
+
+def test_a_pedestrian_who_stops_stepping_without_rest_slows_to_0(impl, tmp_path):
+    """A pedestrian whose steps stopped (flags: walked since the last rest) with 1.5 m/s from the last fix, the hand
+    turning the device slowly (1 degree/s: no rest) and tilted by 3 degrees (0.5 m/s^2 of gravity along the track,
+    which integrated would reach 3 m/s in 3 s): the speed decays over stand_tau_s (1 s) to 1.5 e^-3 in 3 s, and the
+    position moves 1.5 tau (1 - e^-3) ~ 1.4 m, never integrating the leak."""
+    n = 600
+    tilt = math.radians(3.0)
+    samples, dt = _samples(n, accel_g=(math.sin(tilt), 0.0, math.cos(tilt)), gyro=(round(KCFG.gyro_lsb_per_dps), 0, 0))
+    start = _still(flags=float(F.WALKED), speed=1.5, walk_speed=1.4)
+    trace = run(impl, chunks(samples, dt, 200), tmp_path, start=start)
+    speed = trace.series("speed")
+    assert np.all(np.diff(speed) < 0) and speed[-1] == pytest.approx(1.5 * math.exp(-3.0), rel=0.02)
+    assert np.hypot(trace.at(-1, "pe"), trace.at(-1, "pn")) == pytest.approx(1.5 * (1 - math.exp(-3.0)), rel=0.02)
+    assert not np.any(trace.series("flags").astype(int) & (F.AT_REST | F.WALKING))
+
+
 def test_a_vehicle_quiet_after_shaking_comes_to_rest_and_levels_its_tilt(impl, tmp_path):
     """A vehicle (flags: broadband shaking seen, shaken since its last rest) stops after a 90 degree turn in an
     outage with its kernel tilt 2 degrees off: its horizontal specific force is g sin 2 = 0.34 m/s^2, beyond the
@@ -307,12 +449,12 @@ def test_a_turn_in_an_outage_shows_the_offsets_folded_into_the_tilt(impl, tmp_pa
 
 
 # ------------------------------------------------------------------------------------------------ steps or a vehicle
-def _shaken(kind, n=1200, seed=0):
-    """n samples of a level device whose |f| swings 0.1 g rms: "steps", a 2 Hz sine (a walker's bob), or "road",
-    white noise (broadband, as a vehicle's road, wheels and engine)."""
+def _shaken(kind, n=1200, seed=0, accel_g=0.1):
+    """n samples of a level device whose |f| swings `accel_g` rms: "steps", a 2 Hz sine (a walker's bob), or
+    "road", white noise (broadband, as a vehicle's road, wheels and engine)."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) * 0.005
-    swing = 0.1 * math.sqrt(2) * np.sin(2 * np.pi * 2.0 * t) if kind == "steps" else 0.1 * rng.standard_normal(n)
+    swing = accel_g * (math.sqrt(2) * np.sin(2 * np.pi * 2.0 * t) if kind == "steps" else rng.standard_normal(n))
     zero = np.zeros(n)
     samples = np.stack([zero, zero, np.round(ONE_G * (1.0 + swing)), zero, zero, zero], axis=-1).astype(np.int16)
     return samples, np.full(n, DT_US, dtype=np.int32)
@@ -392,7 +534,7 @@ def test_walker_stops_when_the_steps_stop(impl, tmp_path):
     the hand still turns the device slowly (1 degree/s about its x axis, which a 0.5 s average of the rate keeps:
     no rest). Walking, the device goes 1.4 m/s; the speed drops to 0 with the steps (the variance of |f|, a 0.5 s
     moving average, falls below the walking limit ~1.3 s after the last step), and in the last second nothing
-    moves; it never counted as at rest."""
+    moves; it never counted as at rest, and stays a pedestrian (WALKED) whose speed is never integrated."""
     t = np.arange(1600) * 0.005
     f = np.round(ONE_G * (1.0 + np.where(t < 5.0, 0.15 * np.sin(2 * np.pi * 2.0 * t), 0.0)))
     rate = np.full_like(t, np.round(KCFG.gyro_lsb_per_dps))
@@ -403,10 +545,10 @@ def test_walker_stops_when_the_steps_stop(impl, tmp_path):
     trace = run(impl, [("p", samples[:1000], dt[:1000]), ("p", samples[1000:1400], dt[1000:1400]),
                        ("p", samples[1400:], dt[1400:])], tmp_path, start=start)
     walked, fading, still = trace.outs
-    assert int(trace.at(0, "flags")) == F.WALKING and trace.at(0, "speed") == pytest.approx(1.4, rel=1e-6)
+    assert int(trace.at(0, "flags")) == F.WALKING | F.WALKED and trace.at(0, "speed") == pytest.approx(1.4, rel=1e-6)
     assert walked[0] == pytest.approx(1.4 * 5.0, rel=1e-3) and abs(walked[1]) < 1e-3
-    assert int(trace.at(1, "flags")) == 0 and trace.at(1, "speed") == 0.0
-    assert int(trace.at(2, "flags")) == 0 and np.hypot(still[0], still[1]) < 1e-6
+    assert int(trace.at(1, "flags")) == F.WALKED and trace.at(1, "speed") == 0.0  # a pedestrian, not walking
+    assert int(trace.at(2, "flags")) == F.WALKED and np.hypot(still[0], still[1]) < 1e-6
 
 
 # ------------------------------------------------------------------------------------------------ speed

@@ -22,7 +22,7 @@ from dataclasses import field, make_dataclass
 
 import numpy as np
 
-from codegen.kernel.layout import FUSED, FUSED_MEDIAN_MAX
+from codegen.kernel.layout import COVARIANCE_FILTERS, FILTER_STEPS, FUSED, FUSED_MEDIAN_MAX
 from codegen.kernel.reference import (
     STANDARD_GRAVITY,
     KernelConfig,
@@ -30,9 +30,13 @@ from codegen.kernel.reference import (
     tilt_from_gravity,
 )
 
-AT_REST, WALKING, TURNING, VEHICLE, SHAKEN = (next(f.value for f in FUSED.flags if f.name == name)
-                                              for name in ("AT_REST", "WALKING", "TURNING", "VEHICLE", "SHAKEN"))
+AT_REST, WALKING, TURNING, VEHICLE, SHAKEN, FAST, WALKED = (
+    next(f.value for f in FUSED.flags if f.name == name)
+    for name in ("AT_REST", "WALKING", "TURNING", "VEHICLE", "SHAKEN", "FAST", "WALKED"))
 PLATFORM_PEDESTRIAN, PLATFORM_VEHICLE = (FUSED.param("platform").code(name) for name in ("pedestrian", "vehicle"))
+FILTER_TILT, FILTER_LATERAL, FILTER_POSITION = (COVARIANCE_FILTERS.index(n) for n in ("TILT", "LATERAL", "POSITION"))
+STEP_START, STEP_PREDICT, STEP_UPDATE = (FILTER_STEPS.index(n) for n in ("START", "PREDICT", "UPDATE"))
+COV_MAX = 1e30  # a covariance entry beyond this in magnitude (or not a number) is broken (float32 ends at 3.4e38)
 
 
 def _from_board(cls, board) -> "FusedConfig":
@@ -114,6 +118,9 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     kp_dark = 1.0 / fcfg.tilt_tau_dark_s if fcfg.tilt_tau_dark_s > 0.0 else 0.0
     deadband = kcfg.deadband_ms2
     rest_var = (fcfg.rest_accel_g * g) ** 2
+    still_var = (fcfg.still_accel_g * g) ** 2
+    idle_var = (fcfg.idle_accel_g * g) ** 2
+    inv_stand = 1.0 / fcfg.stand_tau_s if fcfg.stand_tau_s > 0.0 else 0.0
     rest_w2 = math.radians(fcfg.rest_gyro_dps) ** 2
     walk_var = (fcfg.walk_accel_g * g) ** 2
     vib_rate = fcfg.vibration_hz * 2.0 * math.pi
@@ -131,6 +138,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     was_walking = bool(int(st.flags) & WALKING)
     vehicle = platform == PLATFORM_VEHICLE or bool(int(st.flags) & VEHICLE)
     driven = bool(int(st.flags) & SHAKEN)
+    fast = bool(int(st.flags) & FAST) and platform != PLATFORM_PEDESTRIAN
+    walked = bool(int(st.flags) & WALKED)
     turning = bool(int(st.flags) & TURNING)
     hold_rate = 1.0 / fcfg.turn_hold_tau_s if fcfg.turn_hold_tau_s > 0.0 else 0.0
     turn_start = math.radians(fcfg.turn_start_dps)
@@ -184,29 +193,27 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
         ae = r00 * fx + r01 * fy + r02 * fz
         an = r10 * fx + r11 * fy + r12 * fz
-        # walking: shaken (the steps), by a pedestrian; on auto, only while the shaking stays in the gait band. A
-        # vehicle: shaken far above it (its road, wheels and engine), or the platform says so; until the steps.
         shaken = st.var_f > walk_var
         broadband = st.vib_var > fcfg.vibration_ratio * st.vib_tot
-        steps = platform != PLATFORM_VEHICLE and shaken and (platform == PLATFORM_PEDESTRIAN or not broadband)
-        st.walk_s = st.walk_s + dt if steps else 0.0
-        walking = steps and (was_walking or st.walk_s >= fcfg.walk_time_s)
-        if walking:
-            vehicle = False
-        elif shaken and broadband and platform != PLATFORM_PEDESTRIAN:
-            vehicle = True
         # rest: still (variance, smoothed rate: an idling engine's shake averages out), the horizontal acceleration
         # steady within the deadband (a push, a start or a stop is no rest), not while fixes arrive that say the
         # device moves (a smooth cruise is no rest), and the horizontal acceleration itself within the deadband;
         # but a vehicle stopped in an outage may have a larger tilt error: any, if it shook (drove) since its last
         # rest and went quiet, or while its speed is below rest_speed_ms (a quiet, steady start from a rest has
-        # neither: it gathers speed)
+        # neither: it gathers speed). Still: |f| varies by less than rest_accel_g, or where more than the amplitude
+        # says rest by less than still_accel_g for a pedestrian's hand (the steadiness and the rate above tell it
+        # from steps, whose surges and swings break both) and idle_accel_g for a vehicle's idling engine (its
+        # shaking above the gait band, its speed below rest_speed_ms: creeping traffic has speed)
         st.ah_e += alpha * (ae - st.ah_e)
         st.ah_n += alpha * (an - st.ah_n)
         de, dn = ae - st.ah_e, an - st.ah_n
         ah2 = ae * ae + an * an
         gps_moving = st.since_fix < fcfg.gps_timeout_s and st.gps_ok > 0.0
-        if (st.var_f < rest_var and st.wsx * st.wsx + st.wsy * st.wsy + st.wsz * st.wsz < rest_w2
+        if vehicle:
+            still = st.var_f < rest_var or st.var_f < idle_var and broadband and st.speed < fcfg.rest_speed_ms
+        else:
+            still = st.var_f < rest_var or st.var_f < still_var
+        if (still and st.wsx * st.wsx + st.wsy * st.wsy + st.wsz * st.wsz < rest_w2
                 and de * de + dn * dn < deadband * deadband
                 and (ah2 < deadband * deadband or vehicle and (driven or st.speed < fcfg.rest_speed_ms))
                 and not gps_moving):
@@ -214,8 +221,24 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         else:
             st.rest_s = 0.0
         rest = st.rest_s >= fcfg.rest_time_s
-        if rest:
-            driven = False
+        # walking: shaken (the steps), by a pedestrian, not at rest; on auto, only while the shaking stays in the gait
+        # band and nothing says a vehicle: a fix faster than people run since the last rest (fast), or the vehicle's
+        # own speed beyond that (a vehicle does not become a pedestrian without stopping). A vehicle: shaken far
+        # above the gait band (its road, wheels and engine) unless it walked (a hand's tremor is broadband too: a
+        # pedestrian becomes a vehicle by a fast fix), a fast fix, or the platform says so; until the steps.
+        steps = platform != PLATFORM_VEHICLE and shaken and not rest and (platform == PLATFORM_PEDESTRIAN or not (
+            broadband or fast or vehicle and st.speed > fcfg.pedestrian_max_ms))
+        st.walk_s = st.walk_s + dt if steps else 0.0
+        walking = steps and (was_walking or st.walk_s >= fcfg.walk_time_s)
+        if walking:
+            vehicle = False
+            walked = True
+        elif fast or shaken and broadband and platform != PLATFORM_PEDESTRIAN and not walked:
+            vehicle = True  # a walker's hand tremor (8-12 Hz) is broadband too
+        if vehicle:
+            walked = False
+        if rest:  # a walker's stop keeps him a pedestrian (walked): his hand's tremor is broadband, no engine
+            driven = fast = False
         elif shaken and vehicle:
             driven = True
         if was_walking and not walking:
@@ -241,7 +264,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
             da += st.held
             st.held = 0.0
         flags[k] = ((AT_REST if rest else 0) | (WALKING if walking else 0) | (TURNING if turning else 0)
-                    | (VEHICLE if vehicle else 0) | (SHAKEN if driven else 0))
+                    | (VEHICLE if vehicle else 0) | (SHAKEN if driven else 0) | (FAST if fast else 0)
+                    | (WALKED if walked else 0))
         # u rotated by da (to second order: a turn's held part can be tens of degrees)
         cd = 1.0 - 0.5 * da * da
         sd = da * (1.0 - da * da * (1.0 / 6.0))
@@ -251,7 +275,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         st.ux = ux * inv
         st.uy = uy * inv
         # speed along u
-        if rest or walking:
+        if rest or walking or walked:
             st.med_i = st.med_n = 0.0  # the median ring restarts when the vehicle branch is entered again
             st.acc_lp = 0.0
         if rest:
@@ -265,8 +289,14 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
                 st.pn += st.zr_cn - k * st.zr_pn
             st.speed = 0.0
             st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_v = st.zr_turn = 0.0
-        elif walking:
-            st.speed = st.walk_speed
+        elif walking or walked:
+            # walking: the learned walking speed; a pedestrian whose steps stopped without a rest (the hand still
+            # moves): the speed decays to 0 over stand_tau_s, never integrated (what the along-track acceleration
+            # less a bias gives a standing hand is a drift, 29 m/s in 18 s on a real stand)
+            if walking:
+                st.speed = st.walk_speed
+            else:
+                st.speed -= st.speed * min(1.0, dt * inv_stand)
             st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_turn = 0.0
             st.zr_v = st.speed
         else:
@@ -322,7 +352,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
         un = st.sin_t * st.ux + st.cos_t * st.uy
         st.pe += st.speed * ue * dt
         st.pn += st.speed * un * dt
-        if not (rest or walking):  # the integrals a zero-velocity update corrects the position by
+        if not (rest or walking or walked):  # the integrals a zero-velocity update corrects the position by
             st.zr_turn += abs(r) * dt
             st.zr_t += (1.0 + st.zr_turn * fcfg.zupt_turn_weight) * dt
             st.zr_pe += st.zr_t * ue * dt
@@ -423,40 +453,67 @@ def _nhc_update(st: FusedState, var: float, fcfg: FusedConfig) -> None:
     dux = st.nh_u0x - st.nh_ix * inv_t  # u0 - ubar
     duy = st.nh_u0y - st.nh_iy * inv_t
     dnx, dny = -duy, dux  # n0 - nbar
+    if _lateral_predict(st, t * dux, t * duy, fcfg.nhc_speed_noise * fcfg.nhc_speed_noise * t,
+                        (fcfg.nhc_leak_turn * st.nh_r) ** 2, fcfg):
+        h = (-rbar, 1.0, dnx, dny)
+        y = z - st.nh_b - dnx * st.nh_fx - dny * st.nh_fy
+        x = _lateral_correct(st, h, var * inv_t + unseen * st.nh_pss, y, fcfg)
+        if x is not None:
+            _lateral_feed_back(st, x, fcfg)
+    st.nh_t = st.nh_z = st.nh_r = st.nh_ix = st.nh_iy = 0.0
+
+
+def _lateral_predict(st: FusedState, f2: float, f3: float, q_speed: float, q_leak: float, fcfg: FusedConfig) -> bool:
+    """The lateral filter's predict, P <- F P F^T + Q: F = I + (row 0: f2, f3 in columns 2, 3; the speed error grows
+    by T (u0 - ubar) . (f - f_estimated)), Q = diag(q_speed, q_leak, 0, 0). With A = F - I (row 0 only),
+    F P F^T = P + A P + P A^T + A P A^T: row and column 0 gain (A P)[0], the corner twice that and A P A^T.
+    Returns False if the covariance went wrong (reset to the prior)."""
     n = NHC_STATES
     p = [[getattr(st, _NHC_PIJ[(min(i, j), max(i, j))]) for j in range(n)] for i in range(n)]
-    # predict: e += T du . (f - f_est): F = I + T du in row 0, columns 2, 3
-    fr = (0.0, 0.0, t * dux, t * duy)
-    fp = [sum(fr[k] * p[k][j] for k in range(n)) for j in range(n)]  # row 0 of (F - I) P
-    for j in range(n):
-        p[0][j] += fp[j]
-        p[j][0] = p[0][j]
-    p[0][0] += sum(fp[k] * fr[k] for k in range(n))
-    turn = fcfg.nhc_leak_turn * st.nh_r
-    p[0][0] += fcfg.nhc_speed_noise * fcfg.nhc_speed_noise * t
-    p[1][1] += turn * turn
-    h = (-rbar, 1.0, dnx, dny)
+    ap = [f2 * p[2][j] + f3 * p[3][j] for j in range(n)]  # row 0 of A P
+    for j in range(1, n):
+        setattr(st, _NHC_PIJ[(0, j)], p[0][j] + ap[j])
+    st.nh_pss = p[0][0] + 2.0 * ap[0] + (f2 * ap[2] + f3 * ap[3]) + q_speed
+    st.nh_pbb = p[1][1] + q_leak
+    return _covariance_checked(st, FILTER_LATERAL, STEP_PREDICT, fcfg)
+
+
+def _lateral_correct(st: FusedState, h, r: float, y: float, fcfg: FusedConfig):
+    """The lateral filter's update with z = h . x + noise (variance r), innovation y: P <- P - K S K^T, K = P h / S,
+    S = h P h + r (the Joseph form's value for this optimal gain), the upper triangle. Returns the correction K y
+    (speed error, leak, folded offsets x, y), or None if the covariance went wrong (reset to the prior)."""
+    n = NHC_STATES
+    p = [[getattr(st, _NHC_PIJ[(min(i, j), max(i, j))]) for j in range(n)] for i in range(n)]
     ph = [sum(p[i][k] * h[k] for k in range(n)) for i in range(n)]
-    inv_s = 1.0 / (sum(h[i] * ph[i] for i in range(n)) + var * inv_t + unseen * p[0][0])
-    y = z - st.nh_b - dnx * st.nh_fx - dny * st.nh_fy
+    s = sum(h[i] * ph[i] for i in range(n)) + r
+    if not 0.0 < s <= COV_MAX:
+        _covariance_checked(st, FILTER_LATERAL, STEP_UPDATE, fcfg, innovation_ok=False)
+        return None
+    inv_s = 1.0 / s
     gain = [ph[i] * inv_s for i in range(n)]
-    e = gain[0] * y
+    for (i, j), name in _NHC_PIJ.items():
+        setattr(st, name, p[i][j] - gain[i] * ph[j])
+    if not _covariance_checked(st, FILTER_LATERAL, STEP_UPDATE, fcfg):
+        return None
+    return [g * y for g in gain]
+
+
+def _lateral_feed_back(st: FusedState, x, fcfg: FusedConfig) -> None:
+    """The lateral update's correction x: the speed error out of the speed at once and, as the zero-velocity update
+    takes it (grown at the rate w(t) since the speed was last known), its integral out of the position
+    (nhc_position, 1: all of it); the leak and the folded offsets into their estimates."""
+    e = x[0]
     st.speed -= e
     st.zr_v -= e
     if fcfg.nhc_position > 0.0 and st.zr_t > 0.0:
-        # the speed error found is taken as grown as the zero-velocity update takes it (at the rate w(t) since the
-        # speed was last known): the position moved by its integral along the way, taken back as that update does
         k = fcfg.nhc_position * e / st.zr_t
         st.pe -= k * st.zr_pe
         st.pn -= k * st.zr_pn
     if st.speed < 0.0:
         st.speed = 0.0
-    st.nh_b += gain[1] * y
-    st.nh_fx += gain[2] * y
-    st.nh_fy += gain[3] * y
-    for (i, j), name in _NHC_PIJ.items():
-        setattr(st, name, p[i][j] - gain[i] * ph[j])
-    st.nh_t = st.nh_z = st.nh_r = st.nh_ix = st.nh_iy = 0.0
+    st.nh_b += x[1]
+    st.nh_fx += x[2]
+    st.nh_fy += x[3]
 
 
 def _ring_median(st: FusedState, ring: list, a: float, b: int) -> float:
@@ -492,16 +549,12 @@ def position_update(st: FusedState, ve: float, vn: float, de: float, dn: float, 
     if sigma2 <= 0.0:
         return
     if not (st.fix_pxx > 0.0 and 0.0 < t < fcfg.gps_timeout_s):
-        st.fix_ae = st.fix_an = st.fix_ee = st.fix_en = 0.0
-        st.fix_pxx = st.fix_pee = sigma2
-        st.fix_pxe = -sigma2
+        _position_prior(st, fcfg)
+        _covariance_checked(st, FILTER_POSITION, STEP_START, fcfg)
         return
-    x = t / fcfg.pos_tau_s
-    phi = 1.0 - x * (1.0 - x * (0.5 - x * (1.0 / 6.0)))
-    step = fcfg.pos_step_sigma_ms * t
-    pxx = st.fix_pxx + step * step
-    pxe = phi * st.fix_pxe
-    pee = phi * phi * st.fix_pee + sigma2 * (1.0 - phi * phi)
+    phi = _position_predict(st, t, fcfg)
+    if phi is None:
+        return
     # the IMU's correction to the trapezoid: what the acceleration adds to T (v0 + v1) / 2, true ENU
     cx = st.dpx - 0.5 * t * st.dvx
     cy = st.dpy - 0.5 * t * st.dvy
@@ -511,16 +564,54 @@ def position_update(st: FusedState, ve: float, vn: float, de: float, dn: float, 
     an = st.fix_an + 0.5 * t * (st.gps_vn + vn) + cn - dn
     ee = phi * st.fix_ee
     en = phi * st.fix_en
-    s = pxx + 2.0 * pxe + pee
-    kx = (pxx + pxe) / s
-    ke = (pxe + pee) / s
+    gain = _position_correct(st, fcfg)
+    if gain is None:
+        return
+    kx, ke = gain
     st.fix_ae = ae - kx * (ae + ee)  # innovation y - x_hat- - e_hat- = -(a + e)
     st.fix_an = an - kx * (an + en)
     st.fix_ee = ee - ke * (ae + ee)
     st.fix_en = en - ke * (an + en)
+
+
+def _position_prior(st: FusedState, fcfg: FusedConfig) -> None:
+    """The position filter (re)started at the fix itself: x_hat = y, e_hat = 0, their errors +-pos_sigma_m,
+    perfectly anti-correlated (their sum is the fix, known)."""
+    sigma2 = fcfg.pos_sigma_m * fcfg.pos_sigma_m
+    st.fix_ae = st.fix_an = st.fix_ee = st.fix_en = 0.0
+    st.fix_pxx = st.fix_pee = sigma2
+    st.fix_pxe = -sigma2
+
+
+def _position_predict(st: FusedState, t: float, fcfg: FusedConfig):
+    """The position filter's predict over t s, P <- F P F^T + Q: F = diag(1, phi), Q = diag((pos_step_sigma_ms t)^2,
+    pos_sigma_m^2 (1 - phi^2)), phi = exp(-t / pos_tau_s) by its cubic Taylor polynomial. Returns phi, or None if
+    the covariance went wrong (restarted at the fix)."""
+    sigma2 = fcfg.pos_sigma_m * fcfg.pos_sigma_m
+    x = t / fcfg.pos_tau_s
+    phi = 1.0 - x * (1.0 - x * (0.5 - x * (1.0 / 6.0)))
+    step = fcfg.pos_step_sigma_ms * t
+    st.fix_pxx = st.fix_pxx + step * step
+    st.fix_pxe = phi * st.fix_pxe
+    st.fix_pee = phi * phi * st.fix_pee + sigma2 * (1.0 - phi * phi)
+    return phi if _covariance_checked(st, FILTER_POSITION, STEP_PREDICT, fcfg) else None
+
+
+def _position_correct(st: FusedState, fcfg: FusedConfig):
+    """The position filter's update with the fix y = x + e (H = [1, 1], no noise of its own: the receiver's error
+    is the state e): P <- P - K S K^T, K = P H^T / S. Returns the gain (kx, ke), or None if the covariance went
+    wrong (restarted at the fix)."""
+    pxx, pxe, pee = st.fix_pxx, st.fix_pxe, st.fix_pee
+    s = pxx + 2.0 * pxe + pee
+    if not 0.0 < s <= COV_MAX:
+        _covariance_checked(st, FILTER_POSITION, STEP_UPDATE, fcfg, innovation_ok=False)
+        return None
+    kx = (pxx + pxe) / s
+    ke = (pxe + pee) / s
     st.fix_pxx = pxx - kx * kx * s
     st.fix_pxe = pxe - kx * ke * s
     st.fix_pee = pee - ke * ke * s
+    return (kx, ke) if _covariance_checked(st, FILTER_POSITION, STEP_UPDATE, fcfg) else None
 
 
 def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
@@ -555,8 +646,8 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
         norm = math.sqrt(ux * ux + uy * uy)
         if norm > 0.0:
             st.ux, st.uy = ux / norm, uy / norm
-        if int(st.flags) & WALKING:
-            st.walk_speed += fcfg.walk_speed_gain * (speed - st.walk_speed)
+        if int(st.flags) & WALKING:  # what people walk and run: a pedestrian's speed is bounded
+            st.walk_speed += fcfg.walk_speed_gain * (min(speed, fcfg.pedestrian_max_ms) - st.walk_speed)
     e = speed - st.speed
     st.speed += fcfg.speed_gain * e
     if t > 0.0 and not int(st.flags) & (AT_REST | WALKING):
@@ -578,6 +669,8 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
     st.gps_ve, st.gps_vn = ve, vn
     st.gps_speed = speed
     st.gps_ok = speed - fcfg.min_speed_ms
+    if speed > fcfg.pedestrian_max_ms:  # faster than people run: a vehicle until it rests (process)
+        st.flags = float(int(st.flags) | FAST)
     st.dvx = st.dvy = st.dpx = st.dpy = 0.0
     st.m00 = st.m01 = st.m10 = st.m11 = st.m02 = st.m12 = st.turn = 0.0
     st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_turn = 0.0
@@ -597,6 +690,50 @@ _NHC_PIJ = dict(zip([(i, j) for i in range(NHC_STATES) for j in range(i, NHC_STA
                     FUSED.field("nh_p").element_names()))
 NHC_FIELDS = ("nh_t", "nh_z", "nh_r", "nh_b") + tuple(
     n for f in ("nh_f", "nh_u0", "nh_i", "nh_p") for n in FUSED.field(f).element_names())
+POSITION_PIJ = {(0, 0): "fix_pxx", (0, 1): "fix_pxe", (1, 1): "fix_pee"}  # the position filter's (per axis)
+# each filter: its covariance's upper triangle, (row, column) -> field
+FILTER_COVARIANCES = {FILTER_TILT: _PIJ, FILTER_LATERAL: _NHC_PIJ, FILTER_POSITION: POSITION_PIJ}
+
+_observer = None
+
+
+def observe_covariances(callback):
+    """Call `callback(st, filter, step)` (FILTER_*, STEP_*) after every step of every Kalman filter, before its
+    covariance is checked; None stops it. For tests and benchmarks/consistency.py; returns the previous callback."""
+    global _observer
+    previous, _observer = _observer, callback
+    return previous
+
+
+def covariance_matrix(st: FusedState, which: int) -> np.ndarray:
+    """A filter's covariance (FILTER_*) as a full symmetric matrix, from its stored upper triangle."""
+    pij = FILTER_COVARIANCES[which]
+    n = max(j for _, j in pij) + 1
+    p = np.zeros((n, n))
+    for (i, j), name in pij.items():
+        p[i, j] = p[j, i] = getattr(st, name)
+    return p
+
+
+def _covariance_checked(st: FusedState, which: int, step: int, fcfg: FusedConfig, innovation_ok: bool = True) -> bool:
+    """After a step of filter `which`: its covariance usable (every entry a number within +-COV_MAX, every variance
+    >= 0, and, for an update, the innovation's covariance S positive definite: innovation_ok)? If not, it is reset
+    to its prior, counted in cov_repairs, and False returned: the caller uses nothing of this step (a gain from a
+    broken covariance has any sign; an update of one may even look healthy)."""
+    if _observer is not None:
+        _observer(st, which, step)
+    pij = FILTER_COVARIANCES[which]
+    if innovation_ok and all(-COV_MAX <= getattr(st, name) <= COV_MAX and (i != j or getattr(st, name) >= 0.0)
+           for (i, j), name in pij.items()):
+        return True
+    st.cov_repairs += 1.0
+    if which == FILTER_TILT:
+        _kf_prior(st, fcfg)
+    elif which == FILTER_LATERAL:
+        _nhc_restart(st, fcfg)
+    else:
+        _position_prior(st, fcfg)
+    return False
 
 
 def tilt_and_offset_update(st: FusedState, ve: float, vn: float, moving: bool, t: float, fcfg: FusedConfig) -> None:
@@ -611,9 +748,8 @@ def tilt_and_offset_update(st: FusedState, ve: float, vn: float, moving: bool, t
     starts with that correlation; a turn tells them apart (the offset along gravity stays unseen, and harmless).
     Measurement noise 2 kf_vel_sigma_ms^2 / T^2 per axis. At rest the same filter takes dv_gps = 0
     (rest_update)."""
-    if _kf_start(st, fcfg):
+    if _kf_start(st, fcfg) or not _kf_predict(st, fcfg):
         return
-    _kf_predict(st, fcfg)
     norm = math.sqrt(st.align_c * st.align_c + st.align_s * st.align_s)
     if not (st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s and norm >= fcfg.kf_align_min):
         return
@@ -623,7 +759,7 @@ def tilt_and_offset_update(st: FusedState, ve: float, vn: float, moving: bool, t
     z0 = (st.dvx - (st.cos_t * gx + st.sin_t * gy)) * inv_t
     z1 = (st.dvy - (-st.sin_t * gx + st.cos_t * gy)) * inv_t
     h = ((st.m00 * inv_t, st.m01 * inv_t, st.m02 * inv_t), (st.m10 * inv_t, st.m11 * inv_t, st.m12 * inv_t))
-    _kf_update(st, z0, z1, h, 2.0 * fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms * inv_t * inv_t)
+    _kf_update(st, z0, z1, h, 2.0 * fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms * inv_t * inv_t, fcfg)
 
 
 def rest_update(st: FusedState, gscale: float, fcfg: FusedConfig) -> None:
@@ -642,11 +778,14 @@ def rest_update(st: FusedState, gscale: float, fcfg: FusedConfig) -> None:
         st.bgz += k * st.wsz
     if fcfg.kf_bias_init_g <= 0.0 or fcfg.kf_rest_sigma_ms2 <= 0.0 or _kf_start(st, fcfg):
         return
-    _kf_predict(st, fcfg)
+    if not _kf_predict(st, fcfg):
+        return
     qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
     h = ((1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)),
          (2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)))
-    x = _kf_update(st, st.ah_e, st.ah_n, h, fcfg.kf_rest_sigma_ms2 * fcfg.kf_rest_sigma_ms2)
+    x = _kf_update(st, st.ah_e, st.ah_n, h, fcfg.kf_rest_sigma_ms2 * fcfg.kf_rest_sigma_ms2, fcfg)
+    if x is None:
+        return
     # the correction leaves the samples from now on: the smoothed value follows
     st.ah_e -= x[0] + h[0][0] * x[2] + h[0][1] * x[3] + h[0][2] * x[4]
     st.ah_n -= x[1] + h[1][0] * x[2] + h[1][1] * x[3] + h[1][2] * x[4]
@@ -659,6 +798,13 @@ def _kf_start(st: FusedState, fcfg: FusedConfig) -> bool:
     otherwise "observe" it from noise. Returns True if it started now (no update this time)."""
     if st.p22 > 0.0:
         return False
+    _kf_prior(st, fcfg)
+    _covariance_checked(st, FILTER_TILT, STEP_START, fcfg)
+    return True
+
+
+def _kf_prior(st: FusedState, fcfg: FusedConfig) -> None:
+    """The tilt/offset filter's covariance at its start (_kf_start), from the attitude now."""
     var = (fcfg.kf_bias_init_g * STANDARD_GRAVITY) ** 2
     qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
     rows = ((1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)),
@@ -673,12 +819,12 @@ def _kf_start(st: FusedState, fcfg: FusedConfig) -> bool:
             value = var * ((1.0 if i == j else 0.0) - rows[2][i - 2] * rows[2][j - 2])
         setattr(st, name, value)
     st.kf_t = st.turn = 0.0
-    return True
 
 
-def _kf_predict(st: FusedState, fcfg: FusedConfig) -> None:
-    """The filter's process noise over the kf_t seconds since its last prediction: kf_tilt_noise^2 T +
-    (kf_turn_noise turn)^2 on d, kf_bias_noise^2 T on b."""
+def _kf_predict(st: FusedState, fcfg: FusedConfig) -> bool:
+    """The filter's predict, P <- P + Q (F = I: the leak and the offsets are constants), Q the process noise over
+    the kf_t seconds since its last prediction: kf_tilt_noise^2 T + (kf_turn_noise turn)^2 on d, kf_bias_noise^2 T
+    on b. Returns False if the covariance went wrong (reset to the prior)."""
     t = st.kf_t
     qd = fcfg.kf_tilt_noise * fcfg.kf_tilt_noise * t + (fcfg.kf_turn_noise * st.turn) ** 2
     qb = fcfg.kf_bias_noise * fcfg.kf_bias_noise * t
@@ -688,12 +834,15 @@ def _kf_predict(st: FusedState, fcfg: FusedConfig) -> None:
     st.p33 += qb
     st.p44 += qb
     st.kf_t = st.turn = 0.0
+    return _covariance_checked(st, FILTER_TILT, STEP_PREDICT, fcfg)
 
 
-def _kf_update(st: FusedState, z0: float, z1: float, h, r: float) -> list:
-    """The filter's update with z = d + h b + noise (variance r per axis), h 2 x 3, fed back at once: b into bax,
-    bay, baz, d as a small rotation of q about the kernel frame's horizontal axes; the error state returns to 0.
-    Returns the correction x (d East, North, b x, y, z)."""
+def _kf_update(st: FusedState, z0: float, z1: float, h, r: float, fcfg: FusedConfig):
+    """The filter's update with z = d + h b + noise (variance r per axis), h 2 x 3, H = [I2 | h]: P <- P - K S K^T
+    (the Joseph form's value for the optimal gain K = P H^T S^-1), fed back at once: b into bax, bay, baz, d as a
+    small rotation of q about the kernel frame's horizontal axes; the error state returns to 0. Returns the
+    correction x (d East, North, b x, y, z), or None if the covariance went wrong (reset to the prior, nothing fed
+    back)."""
     n = KF_STATES
     p = [[getattr(st, _PIJ[(min(i, j), max(i, j))]) for j in range(n)] for i in range(n)]
     # PH^T (5 x 2): H = [I2 | h]
@@ -701,12 +850,18 @@ def _kf_update(st: FusedState, z0: float, z1: float, h, r: float) -> list:
     s00 = pht[0][0] + sum(h[0][c] * pht[2 + c][0] for c in range(3)) + r
     s01 = pht[0][1] + sum(h[0][c] * pht[2 + c][1] for c in range(3))
     s11 = pht[1][1] + sum(h[1][c] * pht[2 + c][1] for c in range(3)) + r
-    inv_det = 1.0 / (s00 * s11 - s01 * s01)
+    det = s00 * s11 - s01 * s01
+    if not (0.0 < s00 <= COV_MAX and 0.0 < det <= COV_MAX):
+        _covariance_checked(st, FILTER_TILT, STEP_UPDATE, fcfg, innovation_ok=False)
+        return None
+    inv_det = 1.0 / det
     i00, i01, i11 = s11 * inv_det, -s01 * inv_det, s00 * inv_det
     gain = [(row[0] * i00 + row[1] * i01, row[0] * i01 + row[1] * i11) for row in pht]  # K = PH^T S^-1
     x = [kr[0] * z0 + kr[1] * z1 for kr in gain]
     for (i, j), name in _PIJ.items():
         setattr(st, name, getattr(st, name) - (gain[i][0] * pht[j][0] + gain[i][1] * pht[j][1]))
+    if not _covariance_checked(st, FILTER_TILT, STEP_UPDATE, fcfg):
+        return None
     st.bax += x[2]
     st.bay += x[3]
     st.baz += x[4]

@@ -31,7 +31,19 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
                      const int32_t *dt_us, int32_t count, float out[6]);
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn);
 void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn);
+int dr_fused_kf_predict(const dr_fused_config *cfg, dr_fused_state *st);
+int dr_fused_kf_update(const dr_fused_config *cfg, dr_fused_state *st, float z0, float z1, const float h[2][3],
+                       float r, float x[5]);
+int dr_fused_lateral_predict(const dr_fused_config *cfg, dr_fused_state *st, float f2, float f3, float q_speed,
+                             float q_leak);
+int dr_fused_lateral_correct(const dr_fused_config *cfg, dr_fused_state *st, const float h[4], float r, float y,
+                             float x[4]);
+int dr_fused_position_predict(const dr_fused_config *cfg, dr_fused_state *st, float t, float *phi);
+int dr_fused_position_correct(const dr_fused_config *cfg, dr_fused_state *st, float gain[2]);
+extern "Python+C" void dr_fused_observed(const dr_fused_state *st, int filter, int step);
 """
+# the host build observes every filter step (dr_fused.c's DR_FUSED_OBSERVE; nothing on the device)
+DEFINES = ("DR_FUSED_OBSERVED",)
 
 C_SOURCE = '#include "dr_fused.h"\n'
 
@@ -54,6 +66,17 @@ class FusedSession:
         self.st = ffi.new("dr_fused_state *")
         lib.dr_fused_state_init(self.st)
         self.out = ffi.new("float[6]")
+        self.observer = None  # set: called as observer(filter, step, state vector) after every filter step
+
+    def observe(self, callback) -> None:
+        """Call `callback(filter, step, state)` (DR_FUSED_FILTER_*, DR_FUSED_STEP_*, the state vector then) after
+        every step of every Kalman filter in this session, before its covariance is checked; None: stop."""
+        self.observer = callback
+        address = int(self.fk.ffi.cast("uintptr_t", self.st))
+        if callback is None:
+            _OBSERVED.pop(address, None)
+        else:
+            _OBSERVED[address] = self
 
     def calibrate(self, samples) -> bool:
         raw = np.ascontiguousarray(np.asarray(samples).reshape(-1, 6), dtype=np.int16)
@@ -94,6 +117,7 @@ class HostFused:
     def __init__(self, module):
         self.ffi = module.ffi
         self.lib = module.lib
+        _attach_observer(module)
         floats = self.ffi.sizeof("dr_fused_state") // self.ffi.sizeof("float")
         if floats != STATE_LEN:  # dr_layout.h asserts its own sizes; this catches sources from another declaration
             raise UserError(f"the compiled dr_fused_state holds {floats} floats, the declaration {STATE_LEN}",
@@ -103,11 +127,30 @@ class HostFused:
         return FusedSession(self, params)
 
 
+_OBSERVED = {}  # the address of an observed session's state -> the session
+_HOOKED = set()  # the compiled modules whose dr_fused_observed is attached
+
+
+def _attach_observer(module) -> None:
+    """The C hook dr_fused_observed, once per compiled module: hands each step to its session's observer."""
+    if module.__name__ in _HOOKED:
+        return
+    ffi = module.ffi
+
+    @ffi.def_extern(name="dr_fused_observed")
+    def observed(st, filter_id, step):
+        session = _OBSERVED.get(int(ffi.cast("uintptr_t", st)))
+        if session is not None and session.observer is not None:
+            session.observer(filter_id, step, session.state_vector())
+
+    _HOOKED.add(module.__name__)
+
+
 def fused_sources(loaded=None) -> dict[str, bytes]:
     return hostkernel.kernel_sources(loaded, extra=("dr_fused.c",) + HEADERS)
 
 
 def load_fused(loaded=None) -> HostFused:
     """Compile (or find in the cache) the fused kernel for a board (None = the default board)."""
-    module, _ = hostkernel.build_module("_drfused", fused_sources(loaded), SOURCES, CDEF, C_SOURCE)
+    module, _ = hostkernel.build_module("_drfused", fused_sources(loaded), SOURCES, CDEF, C_SOURCE, DEFINES)
     return HostFused(module)

@@ -107,12 +107,13 @@ def _compiler() -> list[str]:
     return (os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc").split()
 
 
-def _compile_objects(folder: Path, sources: tuple[str, ...]) -> list[Path]:
-    """Compile each source alone with the strict flags; a failure is a UserError at the rendered line."""
+def _compile_objects(folder: Path, sources: tuple[str, ...], defines: tuple[str, ...] = ()) -> list[Path]:
+    """Compile each source alone with the strict flags (and -D each of `defines`); a failure is a UserError at the
+    rendered line."""
     objects = []
     for source in sources:
         obj = folder / (source[:-2] + ".o")
-        cmd = [*_compiler(), *C_FLAGS, "-I", str(folder), "-c", source, "-o", obj.name]
+        cmd = [*_compiler(), *C_FLAGS, *(f"-D{d}" for d in defines), "-I", str(folder), "-c", source, "-o", obj.name]
         done = subprocess.run(cmd, cwd=folder, capture_output=True, text=True)
         if done.returncode:
             found = _DIAGNOSTIC.search(done.stderr)
@@ -279,12 +280,14 @@ def _import(path: Path, name: str):
 _MODULES: dict[str, tuple[object, Path]] = {}
 
 
-def build_module(prefix: str, files: dict[str, bytes], sources: tuple[str, ...], cdef: str, c_source: str):
-    """Compile `sources` (from `files`, name -> content) and a cffi API-mode wrapper declaring `cdef`, or find the
-    result in the cache under the hash of everything that went in. Returns (module, path of the built library)."""
+def build_module(prefix: str, files: dict[str, bytes], sources: tuple[str, ...], cdef: str, c_source: str,
+                 defines: tuple[str, ...] = ()):
+    """Compile `sources` (from `files`, name -> content; with -D each of `defines`) and a cffi API-mode wrapper
+    declaring `cdef`, or find the result in the cache under the hash of everything that went in. Returns (module,
+    path of the built library)."""
     import cffi
 
-    key = _build_key(files, cdef + c_source)
+    key = _build_key(files, cdef + c_source + "\0".join(("",) + defines))
     if key in _MODULES:
         return _MODULES[key]
     name = f"{prefix}_{key}"
@@ -296,7 +299,7 @@ def build_module(prefix: str, files: dict[str, bytes], sources: tuple[str, ...],
         try:
             for file_name, content in files.items():
                 (work / file_name).write_bytes(content)
-            objects = _compile_objects(work, sources)
+            objects = _compile_objects(work, sources, defines)
             ffi = cffi.FFI()
             ffi.cdef(cdef)
             ffi.set_source(name, c_source, include_dirs=[str(work)], extra_objects=[str(o) for o in objects])

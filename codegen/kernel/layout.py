@@ -219,6 +219,12 @@ class Kernel:
         return tuple((f, i, float(v)) for f in self.state for i, v in enumerate(f.initial) if v)
 
 
+# The fused method's Kalman filters and the steps after which each one's covariance is checked (and, on the host,
+# observed): DR_FUSED_FILTER_* / DR_FUSED_STEP_* in C, _FILTER_* / _STEP_* in the fallback, FILTER_* / STEP_* in
+# codegen.kernel.fused.
+COVARIANCE_FILTERS = ("TILT", "LATERAL", "POSITION")
+FILTER_STEPS = ("START", "PREDICT", "UPDATE")
+
 RETURN_CODES = (
     Code("OK", 0, "done"),
     Code("MOVED", 1, "calibration: an accel axis' standard deviation exceeded the motion threshold"),
@@ -355,6 +361,9 @@ FUSED = Kernel(
         Field("nh_p", "", "the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, "
               "folded offsets x, y (m/s^2); all 0 until the outage's first sample", 10,
               ("nh_pss", "nh_psb", "nh_psx", "nh_psy", "nh_pbb", "nh_pbx", "nh_pby", "nh_pxx", "nh_pxy", "nh_pyy")),
+        Field("cov_repairs", "", "how often a filter's covariance went wrong (a negative variance, a value not finite, "
+              "an update's innovation variance not positive) and was reset to its prior instead of used (a whole "
+              "number)", public="COV_REPAIRS"),
     ),
     params=(
         Param("tilt_tau_s", "s", "tilt correction time constant while GPS fixes arrive", Store("kp", "1/s", "recip"),
@@ -466,6 +475,18 @@ FUSED = Kernel(
         Param("nhc_fold_scale", "", "a vehicle in an outage: the accelerometer offsets the tilt/offset filter has not told "
               "apart from the tilt (its covariance, times this) are estimated too; a turn turns them against the tilt, "
               "which shows them along and across the track (0: not estimated)", Store("nhc_fold_scale", ""), 1.0, ge=0),
+        Param("pedestrian_max_ms", "m/s", "auto: a fix faster than this (people walk at up to ~3 m/s and run at up to "
+              "~6) makes the device a vehicle, which no steps turn into a pedestrian until it has rested; nor do steps "
+              "while a vehicle's own speed is above it", Store("pedestrian_max_ms", "m/s"), 6.0, gt=0),
+        Param("still_accel_g", "g", "|f| standard deviation up to which a pedestrian may still be at rest if the rest "
+              "is more than quiet: a hand (steady horizontal force, averaged rate below fused_rest_gyro_dps)",
+              Store("still_var", "(m/s^2)^2", "square", "GRAVITY_MS2"), 0.04, ge=0),
+        Param("idle_accel_g", "g", "and a vehicle, if its shaking is above fused_vibration_hz (an idling engine) and "
+              "its speed below fused_rest_speed_ms (a real highway drive shook less than 30 mg with its averaged rate "
+              "below fused_rest_gyro_dps in 6.6 % of its samples, 40 mg in 40 %)",
+              Store("idle_var", "(m/s^2)^2", "square", "GRAVITY_MS2"), 0.03, ge=0),
+        Param("stand_tau_s", "s", "a pedestrian whose steps stopped without a rest: the speed decays to 0 with this "
+              "time constant, never integrated (0: held)", Store("inv_stand_tau", "1/s", "rate"), 1.0, ge=0),
     ),
     flags=(
         Flag("AT_REST", 1, "the last sample was at rest"),
@@ -473,6 +494,8 @@ FUSED = Kernel(
         Flag("TURNING", 4, "the walker was turning"),
         Flag("VEHICLE", 8, "the last shaking was a vehicle's (above vibration_hz), or the platform is a vehicle"),
         Flag("SHAKEN", 16, "a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped"),
+        Flag("FAST", 32, "a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests"),
+        Flag("WALKED", 64, "a pedestrian: walked, and no fast fix since (a walker's stops keep it)"),
     ),
 )
 
@@ -489,6 +512,8 @@ class Layout:
     out_floats: int = OUT_FLOATS
     median_max: int = FUSED_MEDIAN_MAX
     constants: dict = field(default_factory=lambda: dict(CONSTANTS))
+    filters: tuple[str, ...] = COVARIANCE_FILTERS
+    filter_steps: tuple[str, ...] = FILTER_STEPS
 
     @property
     def kernels(self) -> tuple[Kernel, ...]:

@@ -206,7 +206,7 @@ def push(count: int = 12, rest_s: float = 12.0, seed: int = 0, rate: float = TRU
 CARRIES = ("hand", "pocket", "backpack")
 
 
-HAND_TREMOR_MG = (11.0, 27.0)  # |f| shaking of a hand holding a device still: issue 26's 22 hand-held walks
+HAND_TREMOR_MG = (11.0, 27.0)  # |f| shaking of a hand holding a device still: 22 real hand-held walks outside ../shared/data
 HAND_TREMOR_HZ = (1.5, 12.0)  # the arm's postural sway up to physiological tremor (8-12 Hz)
 HAND_BOB_M = 0.006  # the step bob a holding arm passes on: gnss-imu-walk's |f| shaking while walking (~65 mg)
 
@@ -554,10 +554,10 @@ def _body_pitch_mode(a_long: np.ndarray, rate: float, hz: float = 1.3, damping: 
 
 # Calibration of car_town's shaking (docs/simulator.md: what each figure came from, the command that prints it)
 TOWN_HARSHNESS = 0.2  # the wheels' motion reaching the cabin past the springs: car-comma2k19's share above 8 Hz
-TOWN_STAND_MG = (10.0, 20.0)  # an idling engine's |f| shaking at a stand, mg: issue 26's real car waited at 14.5 mg
+TOWN_STAND_MG = (10.0, 20.0)  # an idling engine's |f| shaking at a stand, mg: a real car outside ../shared/data waited at 14.5 mg
 TOWN_BUMP_M = (0.05, 0.08)  # speed bumps' height (m) over 2.5-4 m; one in every other car park aisle
 TOWN_PARK_GD = (256e-6, 1024e-6)  # m^3: car park lanes, ISO 8608 class C..D
-TOWN_PEDAL_MS2 = 0.8  # m/s^2 rms, a creeping driver's surge: issue 26's car park share (0.02-0.04, fused's statistic)
+TOWN_PEDAL_MS2 = 0.8  # m/s^2 rms, a creeping driver's surge: a real car park's share (0.02-0.04, fused's statistic)
 TOWN_ROAD_GD = (16e-6, 64e-6)  # m^3: streets, ISO 8608 class A..B (car-comma2k19's shaking at 8-20 m/s)
 
 

@@ -379,8 +379,8 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(203)
-_F_KCFG = const(191)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(208)
+_F_KCFG = const(196)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
@@ -453,63 +453,79 @@ _F_NH_F = const(126)  # m/s^2: the accelerometer offsets folded into the tilt (t
 _F_NH_U0 = const(128)  # the travel direction u when the outage started (kernel frame)
 _F_NH_I = const(130)  # s: the integral of u over the time gathered towards the next lateral update
 _F_NH_P = const(132)  # the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, folded offsets x, y (m/s^2); all 0 until the outage's first sample
-_FC_KP = const(142)  # 1/s, from tilt_tau_s (s)
-_FC_REJECT_MS2 = const(143)  # m/s^2, from accel_reject_g (g)
-_FC_KP_DARK = const(144)  # 1/s, from tilt_tau_dark_s (s)
-_FC_STEADY_MS2 = const(145)  # m/s^2, from steady_accel_ms2 (m/s^2)
-_FC_INV_SPEED_TAU = const(146)  # 1/s, from speed_tau_s (s)
-_FC_GPS_TIMEOUT_S = const(147)  # s, from gps_timeout_s (s)
-_FC_INV_STAT_TAU = const(148)  # 1/s, from stat_tau_s (s)
-_FC_REST_VAR = const(149)  # (m/s^2)^2, from rest_accel_g (g)
-_FC_REST_W2 = const(150)  # (rad/s)^2, from rest_gyro_dps (degree/s)
-_FC_REST_TIME_S = const(151)  # s, from rest_time_s (s)
-_FC_INV_BIAS_TAU = const(152)  # 1/s, from bias_tau_s (s)
-_FC_WALK_VAR = const(153)  # (m/s^2)^2, from walk_accel_g (g)
-_FC_MIN_SPEED_MS = const(154)  # m/s, from min_speed_ms (m/s)
-_FC_HEADING_GAIN = const(155)  # per fix, from heading_gain (per fix)
-_FC_ALIGN_FORGET = const(156)  # per fix, from align_forget (per fix)
-_FC_SPEED_GAIN = const(157)  # per fix, from speed_gain (per fix)
-_FC_BIAS_GAIN = const(158)  # per fix, from bias_gain (per fix)
-_FC_WALK_SPEED_GAIN = const(159)  # per fix, from walk_speed_gain (per fix)
-_FC_KF_BIAS_VAR = const(160)  # (m/s^2)^2, from kf_bias_init_g (g)
-_FC_KF_BIAS_Q = const(161)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
-_FC_KF_TILT_Q = const(162)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
-_FC_KF_TURN_Q = const(163)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
-_FC_KF_VEL_R = const(164)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
-_FC_KF_ALIGN_MIN = const(165)  # (m/s)^2, from kf_align_min ((m/s)^2)
-_FC_MEDIAN = const(166)  # 1: on, from median
-_FC_POS_VAR = const(167)  # m^2, from pos_sigma_m (m)
-_FC_INV_POS_TAU = const(168)  # 1/s, from pos_tau_s (s)
-_FC_POS_STEP_Q = const(169)  # (m/s)^2, from pos_step_sigma_ms (m/s)
-_FC_HOLD_RATE = const(170)  # 1/s, from turn_hold_tau_s (s)
-_FC_TURN_START = const(171)  # rad/s, from turn_start_dps (degree/s)
-_FC_TURN_END = const(172)  # rad/s, from turn_end_dps (degree/s)
-_FC_PLATFORM = const(173)  # choice, from platform
-_FC_VIB_RATE = const(174)  # rad/s, from vibration_hz (Hz)
-_FC_VIB_RATIO = const(175)  # , from vibration_ratio
-_FC_INV_VIB_TAU = const(176)  # 1/s, from vibration_tau_s (s)
-_FC_WALK_TIME_S = const(177)  # s, from walk_time_s (s)
-_FC_REST_SPEED_MS = const(178)  # m/s, from rest_speed_ms (m/s)
-_FC_REST_UPDATE_S = const(179)  # s, from rest_update_s (s)
-_FC_KF_REST_R = const(180)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
-_FC_ZUPT_TURN_WEIGHT = const(181)  # 1/rad, from zupt_turn_weight (1/rad)
-_FC_INV_ACCEL_TAU = const(182)  # 1/s, from accel_tau_s (s)
-_FC_NHC_VAR = const(183)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
-_FC_NHC_PERIOD_S = const(184)  # s, from nhc_period_s (s)
-_FC_NHC_SPEED_Q = const(185)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
-_FC_NHC_LEAK_VAR = const(186)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
-_FC_NHC_MIN_RATE = const(187)  # rad/s, from nhc_min_rate (rad/s)
-_FC_NHC_POSITION = const(188)  # , from nhc_position
-_FC_NHC_LEAK_TURN = const(189)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
-_FC_NHC_FOLD_SCALE = const(190)  # , from nhc_fold_scale
+_F_COV_REPAIRS = const(142)  # how often a filter's covariance went wrong (a negative variance, a value not finite, an update's innovation variance not positive) and was reset to its prior instead of used (a whole number)
+COV_REPAIRS = const(142)  # public: cov_repairs
+_FC_KP = const(143)  # 1/s, from tilt_tau_s (s)
+_FC_REJECT_MS2 = const(144)  # m/s^2, from accel_reject_g (g)
+_FC_KP_DARK = const(145)  # 1/s, from tilt_tau_dark_s (s)
+_FC_STEADY_MS2 = const(146)  # m/s^2, from steady_accel_ms2 (m/s^2)
+_FC_INV_SPEED_TAU = const(147)  # 1/s, from speed_tau_s (s)
+_FC_GPS_TIMEOUT_S = const(148)  # s, from gps_timeout_s (s)
+_FC_INV_STAT_TAU = const(149)  # 1/s, from stat_tau_s (s)
+_FC_REST_VAR = const(150)  # (m/s^2)^2, from rest_accel_g (g)
+_FC_REST_W2 = const(151)  # (rad/s)^2, from rest_gyro_dps (degree/s)
+_FC_REST_TIME_S = const(152)  # s, from rest_time_s (s)
+_FC_INV_BIAS_TAU = const(153)  # 1/s, from bias_tau_s (s)
+_FC_WALK_VAR = const(154)  # (m/s^2)^2, from walk_accel_g (g)
+_FC_MIN_SPEED_MS = const(155)  # m/s, from min_speed_ms (m/s)
+_FC_HEADING_GAIN = const(156)  # per fix, from heading_gain (per fix)
+_FC_ALIGN_FORGET = const(157)  # per fix, from align_forget (per fix)
+_FC_SPEED_GAIN = const(158)  # per fix, from speed_gain (per fix)
+_FC_BIAS_GAIN = const(159)  # per fix, from bias_gain (per fix)
+_FC_WALK_SPEED_GAIN = const(160)  # per fix, from walk_speed_gain (per fix)
+_FC_KF_BIAS_VAR = const(161)  # (m/s^2)^2, from kf_bias_init_g (g)
+_FC_KF_BIAS_Q = const(162)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
+_FC_KF_TILT_Q = const(163)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
+_FC_KF_TURN_Q = const(164)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
+_FC_KF_VEL_R = const(165)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
+_FC_KF_ALIGN_MIN = const(166)  # (m/s)^2, from kf_align_min ((m/s)^2)
+_FC_MEDIAN = const(167)  # 1: on, from median
+_FC_POS_VAR = const(168)  # m^2, from pos_sigma_m (m)
+_FC_INV_POS_TAU = const(169)  # 1/s, from pos_tau_s (s)
+_FC_POS_STEP_Q = const(170)  # (m/s)^2, from pos_step_sigma_ms (m/s)
+_FC_HOLD_RATE = const(171)  # 1/s, from turn_hold_tau_s (s)
+_FC_TURN_START = const(172)  # rad/s, from turn_start_dps (degree/s)
+_FC_TURN_END = const(173)  # rad/s, from turn_end_dps (degree/s)
+_FC_PLATFORM = const(174)  # choice, from platform
+_FC_VIB_RATE = const(175)  # rad/s, from vibration_hz (Hz)
+_FC_VIB_RATIO = const(176)  # , from vibration_ratio
+_FC_INV_VIB_TAU = const(177)  # 1/s, from vibration_tau_s (s)
+_FC_WALK_TIME_S = const(178)  # s, from walk_time_s (s)
+_FC_REST_SPEED_MS = const(179)  # m/s, from rest_speed_ms (m/s)
+_FC_REST_UPDATE_S = const(180)  # s, from rest_update_s (s)
+_FC_KF_REST_R = const(181)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
+_FC_ZUPT_TURN_WEIGHT = const(182)  # 1/rad, from zupt_turn_weight (1/rad)
+_FC_INV_ACCEL_TAU = const(183)  # 1/s, from accel_tau_s (s)
+_FC_NHC_VAR = const(184)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
+_FC_NHC_PERIOD_S = const(185)  # s, from nhc_period_s (s)
+_FC_NHC_SPEED_Q = const(186)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
+_FC_NHC_LEAK_VAR = const(187)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
+_FC_NHC_MIN_RATE = const(188)  # rad/s, from nhc_min_rate (rad/s)
+_FC_NHC_POSITION = const(189)  # , from nhc_position
+_FC_NHC_LEAK_TURN = const(190)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
+_FC_NHC_FOLD_SCALE = const(191)  # , from nhc_fold_scale
+_FC_PEDESTRIAN_MAX_MS = const(192)  # m/s, from pedestrian_max_ms (m/s)
+_FC_STILL_VAR = const(193)  # (m/s^2)^2, from still_accel_g (g)
+_FC_IDLE_VAR = const(194)  # (m/s^2)^2, from idle_accel_g (g)
+_FC_INV_STAND_TAU = const(195)  # 1/s, from stand_tau_s (s)
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
 _VEHICLE = const(8)  # flags bit: the last shaking was a vehicle's (above vibration_hz), or the platform is a vehicle
 _SHAKEN = const(16)  # flags bit: a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped
+_FAST = const(32)  # flags bit: a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests
+_WALKED = const(64)  # flags bit: a pedestrian: walked, and no fast fix since (a walker's stops keep it)
 _PLATFORM_PEDESTRIAN = const(0)  # platform: pedestrian
 _PLATFORM_VEHICLE = const(1)  # platform: vehicle
 _PLATFORM_AUTO = const(2)  # platform: auto
+_FILTER_TILT = const(0)  # a Kalman filter, as the covariance observer is told
+_FILTER_LATERAL = const(1)  # a Kalman filter, as the covariance observer is told
+_FILTER_POSITION = const(2)  # a Kalman filter, as the covariance observer is told
+_STEP_START = const(0)  # a filter's step, as the covariance observer is told
+_STEP_PREDICT = const(1)  # a filter's step, as the covariance observer is told
+_STEP_UPDATE = const(2)  # a filter's step, as the covariance observer is told
+_COV_MAX = 1e30  # a covariance entry beyond this (or not a number) is broken
+_observer = None  # tests and benchmarks: called as _observer(fstate, filter, step) after every filter step
 _MEDIAN_MAX = const(32)
 _MEDIAN_WINDOW = array("f", bytes(4 * _MEDIAN_MAX))  # the median option's scratch, allocated once
 # the board's fused parameters (board algorithm.fused_*), in the declared order
@@ -563,11 +579,15 @@ _FUSED_PARAMS = (
     1.0,  # nhc_position
     0.3,  # nhc_leak_turn, m/s^2 per rad
     1.0,  # nhc_fold_scale
+    6.0,  # pedestrian_max_ms, m/s
+    0.04,  # still_accel_g, g
+    0.03,  # idle_accel_g, g
+    1.0,  # stand_tau_s, s
 )
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 49 values in the
+    """Reset the fused state and store the configuration: the board's, or 53 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -668,6 +688,14 @@ def fused_init(fstate, params=_FUSED_PARAMS):
         raise ValueError("nhc_leak_turn must be >= 0")
     if not (p[48] >= 0):
         raise ValueError("nhc_fold_scale must be >= 0")
+    if not (p[49] > 0):
+        raise ValueError("pedestrian_max_ms must be > 0")
+    if not (p[50] >= 0):
+        raise ValueError("still_accel_g must be >= 0")
+    if not (p[51] >= 0):
+        raise ValueError("idle_accel_g must be >= 0")
+    if not (p[52] >= 0):
+        raise ValueError("stand_tau_s must be >= 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
     fstate[_F_Q + 0] = 1.0
@@ -722,6 +750,10 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_NHC_POSITION] = p[46]
     fstate[_FC_NHC_LEAK_TURN] = p[47]
     fstate[_FC_NHC_FOLD_SCALE] = p[48]
+    fstate[_FC_PEDESTRIAN_MAX_MS] = p[49]
+    fstate[_FC_STILL_VAR] = p[50] * p[50] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_IDLE_VAR] = p[51] * p[51] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_INV_STAND_TAU] = 1.0 / p[52] if p[52] > 0 else 0.0
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -778,6 +810,10 @@ def fused_process(fstate, samples, dt_us, out):
     rest_w2 = st[_FC_REST_W2]
     rest_time = st[_FC_REST_TIME_S]
     rest_speed = st[_FC_REST_SPEED_MS]
+    still_var = st[_FC_STILL_VAR]
+    idle_var = st[_FC_IDLE_VAR]
+    pedestrian_max = st[_FC_PEDESTRIAN_MAX_MS]
+    inv_stand = st[_FC_INV_STAND_TAU]
     update_s = st[_FC_REST_UPDATE_S]
     gather_s = rest_time + update_s
     walk_var = st[_FC_WALK_VAR]
@@ -888,6 +924,8 @@ def fused_process(fstate, samples, dt_us, out):
     walking = flags & _WALKING
     vehicle = platform == _PLATFORM_VEHICLE or flags & _VEHICLE
     driven = flags & _SHAKEN
+    fast = flags & _FAST if platform != _PLATFORM_PEDESTRIAN else 0
+    walked = flags & _WALKED
     for k in range(count):
         i = 6 * k
         dt = dt_us[k] * _S_PER_US
@@ -948,10 +986,34 @@ def fused_process(fstate, samples, dt_us, out):
         r22 = 1.0 - xx - yy
         ae = r00 * fx + r01 * fy + r02 * fz
         an = r10 * fx + r11 * fy + r12 * fz
-        # walking: shaken, in the gait band (auto) for walk_time_s; a vehicle: shaken above it, or the platform
         shaken = var_f > walk_var
         broadband = vib_var > vib_ratio * vib_tot
-        if shaken and platform != _PLATFORM_VEHICLE and (platform == _PLATFORM_PEDESTRIAN or not broadband):
+        # rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
+        # deadband (a vehicle quiet after shaking, or below rest_speed_ms: any). Still: below rest_accel_g, or below
+        # still_accel_g for a pedestrian's hand, idle_accel_g for a vehicle's idling engine (broadband, slower than
+        # rest_speed_ms)
+        ah_e += alpha * (ae - ah_e)
+        ah_n += alpha * (an - ah_n)
+        de = ae - ah_e
+        dn = an - ah_n
+        if var_f < rest_var:
+            still = True
+        elif vehicle:
+            still = var_f < idle_var and broadband and speed < rest_speed
+        else:
+            still = var_f < still_var
+        if (still and wsx * wsx + wsy * wsy + wsz * wsz < rest_w2 and de * de + dn * dn < db2
+                and (ae * ae + an * an < db2 or vehicle and (driven or speed < rest_speed))
+                and not (since < timeout and gps_ok)):
+            rest_s += dt
+        else:
+            rest_s = 0.0
+        rest = rest_s >= rest_time
+        # walking: shaken, not at rest, in the gait band (auto) for walk_time_s, and nothing says a vehicle (a fast
+        # fix since the last rest, its own speed beyond a runner's); a vehicle: shaken above it, a fast fix, or the
+        # platform
+        if shaken and not rest and platform != _PLATFORM_VEHICLE and (platform == _PLATFORM_PEDESTRIAN or not (
+                broadband or fast or vehicle and speed > pedestrian_max)):
             walk_s += dt
             now_walking = walking or walk_s >= walk_time
         else:
@@ -959,23 +1021,13 @@ def fused_process(fstate, samples, dt_us, out):
             now_walking = False
         if now_walking:
             vehicle = False
-        elif shaken and broadband and platform != _PLATFORM_PEDESTRIAN:
-            vehicle = True
-        # rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
-        # deadband (a vehicle quiet after shaking, or below rest_speed_ms: any)
-        ah_e += alpha * (ae - ah_e)
-        ah_n += alpha * (an - ah_n)
-        de = ae - ah_e
-        dn = an - ah_n
-        if (var_f < rest_var and wsx * wsx + wsy * wsy + wsz * wsz < rest_w2 and de * de + dn * dn < db2
-                and (ae * ae + an * an < db2 or vehicle and (driven or speed < rest_speed))
-                and not (since < timeout and gps_ok)):
-            rest_s += dt
-        else:
-            rest_s = 0.0
-        rest = rest_s >= rest_time
-        if rest:
-            driven = 0
+            walked = _WALKED
+        elif fast or shaken and broadband and platform != _PLATFORM_PEDESTRIAN and not walked:
+            vehicle = True  # a walker's hand tremor is broadband too: a fast fix or a rest ends a walker
+        if vehicle:
+            walked = 0
+        if rest:  # a walker's stop keeps him a pedestrian (walked)
+            driven = fast = 0
         elif shaken and vehicle:
             driven = _SHAKEN
         if walking and not now_walking:
@@ -1005,7 +1057,7 @@ def fused_process(fstate, samples, dt_us, out):
                 da += held
                 held = 0.0
         flags = ((_AT_REST if rest else 0) | (_WALKING if walking else 0) | turning | (_VEHICLE if vehicle else 0)
-                 | driven)
+                 | driven | (_FAST if fast else 0) | walked)
         # u rotated by da, to second order
         da2 = da * da
         cd = 1.0 - 0.5 * da2
@@ -1018,7 +1070,7 @@ def fused_process(fstate, samples, dt_us, out):
         ue = cos_t * ux - sin_t * uy
         un = sin_t * ux + cos_t * uy
         # speed along u
-        if rest or walking:
+        if rest or walking or walked:
             if median:  # the median ring restarts when the vehicle branch is entered again
                 st[_F_MED_I] = st[_F_MED_N] = 0.0
             acc_lp = 0.0
@@ -1033,8 +1085,12 @@ def fused_process(fstate, samples, dt_us, out):
                 zr_v = 0.0
                 if rest_s >= gather_s:
                     zt += dt  # a rest update every rest_update_s, after the rest's first (the end of the braking)
-            else:
+            elif walking:
                 speed = walk_speed
+                zr_v = speed
+            else:  # a pedestrian whose steps stopped without a rest: the speed decays to 0, never integrated
+                decay = dt * inv_stand
+                speed -= speed * (decay if decay < 1.0 else 1.0)
                 zr_v = speed
             zr_t = zr_turn = zr_pe = zr_pn = zr_ce = zr_cn = 0.0
             if nhc and not nh_fresh:
@@ -1096,6 +1152,8 @@ def fused_process(fstate, samples, dt_us, out):
                     e = _nhc_update(st, nh_t, nh_z, nh_r, nh_ix, nh_iy)
                     nh_fx = st[_F_NH_F]
                     nh_fy = st[_F_NH_F + 1]
+                    nh_u0x = st[_F_NH_U0]  # 0 if its covariance went wrong: it starts again
+                    nh_u0y = st[_F_NH_U0 + 1]
                     speed -= e
                     zr_v -= e
                     if nhc_position > 0.0 and zr_t > 0.0:
@@ -1296,11 +1354,61 @@ def _pidx(i, j):
     return _F_P + 4 * i - (i * (i - 1)) // 2 + j - i
 
 
+def _covariance_checked(st, which, step, innovation_ok=True):
+    # after a step of filter `which` (codegen.kernel.fused's _covariance_checked): its covariance usable (every entry
+    # a number within +-_COV_MAX, every variance >= 0; an update's innovation covariance positive definite)? If not:
+    # reset to its prior, counted, False (nothing of the step is used)
+    if _observer is not None:
+        _observer(st, which, step)
+    if which == _FILTER_TILT:
+        first = _F_P
+        n = 4
+        extra = _F_PZ
+    elif which == _FILTER_LATERAL:
+        first = _F_NH_P
+        n = 4
+        extra = -1
+    else:
+        first = _F_FIX_PXX  # fix_pxx, fix_pxe, fix_pee: a 2 x 2 upper triangle
+        n = 2
+        extra = -1
+    usable = innovation_ok
+    k = first
+    for i in range(n):
+        for j in range(i, n):
+            v = st[k]
+            if not (-_COV_MAX <= v <= _COV_MAX) or (i == j and not v >= 0.0):
+                usable = False
+            k += 1
+    if extra >= 0:  # the tilt/offset filter's fifth column, its variance last
+        for k in range(extra, extra + 5):
+            v = st[k]
+            if not (-_COV_MAX <= v <= _COV_MAX) or (k == extra + 4 and not v >= 0.0):
+                usable = False
+    if usable:
+        return True
+    st[_F_COV_REPAIRS] += 1.0
+    if which == _FILTER_TILT:
+        _kf_prior(st)
+    elif which == _FILTER_LATERAL:
+        _nhc_restart(st)
+    else:
+        _position_prior(st)
+    return False
+
+
 def _kf_start(st):
-    # the tilt/offset filter's start on its first use after calibration (codegen.kernel.fused's _kf_start): b across
-    # gravity, d = -R_h b. True if it started now.
+    # the tilt/offset filter's start on its first use after calibration (codegen.kernel.fused's _kf_start). True if
+    # it started now.
     if st[_F_P + 7] > 0.0:
         return False
+    _kf_prior(st)
+    _covariance_checked(st, _FILTER_TILT, _STEP_START)
+    return True
+
+
+def _kf_prior(st):
+    # the tilt/offset filter's covariance at its start: b across gravity, d = -R_h b
     var = st[_FC_KF_BIAS_VAR]
     r = [0.0] * 9
     _rotation_rows(st, r)
@@ -1315,11 +1423,11 @@ def _kf_start(st):
             st[_pidx(i, j)] = value
     st[_F_KF_T] = 0.0
     st[_F_TURN] = 0.0
-    return True
 
 
 def _kf_predict(st):
-    # the filter's process noise over the kf_t seconds since its last prediction
+    # the filter's predict P <- P + Q, Q the process noise over the kf_t seconds since its last prediction; False if
+    # the covariance went wrong (reset to the prior)
     t = st[_F_KF_T]
     turn = st[_F_TURN]
     qd = st[_FC_KF_TILT_Q] * t + st[_FC_KF_TURN_Q] * turn * turn
@@ -1331,11 +1439,13 @@ def _kf_predict(st):
     st[_F_PZ + 4] += qb
     st[_F_KF_T] = 0.0
     st[_F_TURN] = 0.0
+    return _covariance_checked(st, _FILTER_TILT, _STEP_PREDICT)
 
 
 def _kf_update(st, z0, z1, h, r):
-    # the filter's update with z = d + h b + noise (variance r per axis; h: 6 values, 2 rows), fed back at once;
-    # returns the correction x (d East, North, b x, y, z)
+    # the filter's update with z = d + h b + noise (variance r per axis; h: 6 values, 2 rows), P <- P - K S K^T, fed
+    # back at once; returns the correction x (d East, North, b x, y, z), or None if the covariance went wrong (reset
+    # to the prior, nothing fed back)
     pht = []  # P H^T, H = [I2 | h]
     for i in range(5):
         p2 = st[_pidx(i, 2)]
@@ -1346,7 +1456,11 @@ def _kf_update(st, z0, z1, h, r):
     s00 = pht[0][0] + h[0] * pht[2][0] + h[1] * pht[3][0] + h[2] * pht[4][0] + r
     s01 = pht[0][1] + h[0] * pht[2][1] + h[1] * pht[3][1] + h[2] * pht[4][1]
     s11 = pht[1][1] + h[3] * pht[2][1] + h[4] * pht[3][1] + h[5] * pht[4][1] + r
-    inv_det = 1.0 / (s00 * s11 - s01 * s01)
+    det = s00 * s11 - s01 * s01
+    if not (0.0 < s00 <= _COV_MAX and 0.0 < det <= _COV_MAX):
+        _covariance_checked(st, _FILTER_TILT, _STEP_UPDATE, False)
+        return None
+    inv_det = 1.0 / det
     i00 = s11 * inv_det
     i01 = -s01 * inv_det
     i11 = s00 * inv_det
@@ -1355,6 +1469,8 @@ def _kf_update(st, z0, z1, h, r):
     for i in range(5):
         for j in range(i, 5):
             st[_pidx(i, j)] -= gain[i][0] * pht[j][0] + gain[i][1] * pht[j][1]
+    if not _covariance_checked(st, _FILTER_TILT, _STEP_UPDATE):
+        return None
     st[_F_BAX] += x[2]
     st[_F_BAY] += x[3]
     st[_F_BAZ] += x[4]
@@ -1389,12 +1505,13 @@ def _rest_update(st):
         st[_F_GYRO_BIAS_LSB] += k * st[_F_WS]
         st[_F_GYRO_BIAS_LSB + 1] += k * st[_F_WS + 1]
         st[_F_GYRO_BIAS_LSB + 2] += k * st[_F_WS + 2]
-    if not (st[_FC_KF_BIAS_VAR] > 0.0 and st[_FC_KF_REST_R] > 0.0) or _kf_start(st):
+    if not (st[_FC_KF_BIAS_VAR] > 0.0 and st[_FC_KF_REST_R] > 0.0) or _kf_start(st) or not _kf_predict(st):
         return
-    _kf_predict(st)
     h = [0.0] * 9
     _rotation_rows(st, h)
     x = _kf_update(st, st[_F_AH], st[_F_AH + 1], h, st[_FC_KF_REST_R])
+    if x is None:
+        return
     # the correction leaves the samples from now on: the smoothed value follows
     st[_F_AH] -= x[0] + h[0] * x[2] + h[1] * x[3] + h[2] * x[4]
     st[_F_AH + 1] -= x[1] + h[3] * x[2] + h[4] * x[3] + h[5] * x[4]
@@ -1446,46 +1563,68 @@ def _nhc_update(st, t, z, rsum, ix, iy):
         rbar = 0.0
     dux = st[_F_NH_U0] - ix * inv_t  # u0 - ubar; n0 - nbar = (-duy, dux)
     duy = st[_F_NH_U0 + 1] - iy * inv_t
+    e = 0.0
+    if _lateral_predict(st, t * dux, t * duy, st[_FC_NHC_SPEED_Q] * t, (st[_FC_NHC_LEAK_TURN] * rsum) ** 2):
+        h = (-rbar, 1.0, -duy, dux)
+        y = z - st[_F_NH_B] - h[2] * st[_F_NH_F] - h[3] * st[_F_NH_F + 1]
+        x = _lateral_correct(st, h, st[_FC_NHC_VAR] * inv_t + unseen * st[_F_NH_P], y)
+        if x is not None:
+            st[_F_NH_B] += x[1]
+            st[_F_NH_F] += x[2]
+            st[_F_NH_F + 1] += x[3]
+            e = x[0]
+    st[_F_NH_T] = st[_F_NH_Z] = st[_F_NH_R] = st[_F_NH_I] = st[_F_NH_I + 1] = 0.0
+    return e
+
+
+def _lateral_predict(st, f2, f3, q_speed, q_leak):
+    # the lateral filter's predict P <- F P F^T + Q (codegen.kernel.fused's _lateral_predict): F = I + A, A only in
+    # row 0 (f2, f3 in columns 2, 3): row and column 0 gain (A P)[0], the corner twice that plus A P A^T;
+    # Q = diag(q_speed, q_leak, 0, 0). nh_p: 0 ss, 1 sb, 2 sx, 3 sy, 4 bb, 5 bx, 6 by, 7 xx, 8 xy, 9 yy
+    p = _F_NH_P
+    ap0 = f2 * st[p + 2] + f3 * st[p + 3]  # row 0 of A P
+    ap2 = f2 * st[p + 7] + f3 * st[p + 8]
+    ap3 = f2 * st[p + 8] + f3 * st[p + 9]
+    st[p] += 2.0 * ap0 + (f2 * ap2 + f3 * ap3) + q_speed
+    st[p + 1] += f2 * st[p + 5] + f3 * st[p + 6]
+    st[p + 2] += ap2
+    st[p + 3] += ap3
+    st[p + 4] += q_leak
+    return _covariance_checked(st, _FILTER_LATERAL, _STEP_PREDICT)
+
+
+def _lateral_correct(st, h, r, y):
+    # the lateral filter's update with z = h . x + noise (variance r), innovation y: P <- P - K S K^T, K = P h / S;
+    # returns the correction K y, or None if the covariance went wrong (the filter restarted)
     p = [[0.0] * 4 for _ in range(4)]
     n = _F_NH_P
     for i in range(4):
         for j in range(i, 4):
             p[i][j] = p[j][i] = st[n]
             n += 1
-    f2 = t * dux  # predict: F = I + (row 0: T du in columns 2, 3)
-    f3 = t * duy
-    fp = [f2 * p[2][j] + f3 * p[3][j] for j in range(4)]
-    for j in range(4):
-        p[0][j] += fp[j]
-        p[j][0] = p[0][j]
-    p[0][0] += fp[2] * f2 + fp[3] * f3 + st[_FC_NHC_SPEED_Q] * t
-    turn = st[_FC_NHC_LEAK_TURN] * rsum
-    p[1][1] += turn * turn
-    h = (-rbar, 1.0, -duy, dux)
     ph = [p[i][0] * h[0] + p[i][1] * h[1] + p[i][2] * h[2] + p[i][3] * h[3] for i in range(4)]
-    s = st[_FC_NHC_VAR] * inv_t + unseen * p[0][0]
+    s = r
     for i in range(4):
         s += h[i] * ph[i]
+    if not 0.0 < s <= _COV_MAX:
+        _covariance_checked(st, _FILTER_LATERAL, _STEP_UPDATE, False)
+        return None
     inv_s = 1.0 / s
-    y = z - st[_F_NH_B] - h[2] * st[_F_NH_F] - h[3] * st[_F_NH_F + 1]
     gain = [ph[i] * inv_s for i in range(4)]
-    st[_F_NH_B] += gain[1] * y
-    st[_F_NH_F] += gain[2] * y
-    st[_F_NH_F + 1] += gain[3] * y
     n = _F_NH_P
     for i in range(4):
         for j in range(i, 4):
             st[n] = p[i][j] - gain[i] * ph[j]
             n += 1
-    st[_F_NH_T] = st[_F_NH_Z] = st[_F_NH_R] = st[_F_NH_I] = st[_F_NH_I + 1] = 0.0
-    return gain[0] * y
+    if not _covariance_checked(st, _FILTER_LATERAL, _STEP_UPDATE):
+        return None
+    return [g * y for g in gain]
 
 
 def _fused_filter(st, ve, vn, moving, t):
     # the GPS-aided update of the tilt/offset filter at a fix (codegen.kernel.fused's tilt_and_offset_update)
-    if _kf_start(st):
+    if _kf_start(st) or not _kf_predict(st):
         return
-    _kf_predict(st)
     ac = st[_F_ALIGN_C]
     als = st[_F_ALIGN_S]
     need = st[_FC_KF_ALIGN_MIN]
@@ -1514,16 +1653,12 @@ def fused_position(fstate, ve, vn, de, dn):
     if not var > 0.0:
         return
     if not (st[_F_FIX_PXX] > 0.0 and 0.0 < t < st[_FC_GPS_TIMEOUT_S]):  # (re)start at the fix itself
-        st[_F_FIX_AE] = st[_F_FIX_AN] = st[_F_FIX_EE] = st[_F_FIX_EN] = 0.0
-        st[_F_FIX_PXX] = var
-        st[_F_FIX_PXE] = -var
-        st[_F_FIX_PEE] = var
+        _position_prior(st)
+        _covariance_checked(st, _FILTER_POSITION, _STEP_START)
         return
-    x = t * st[_FC_INV_POS_TAU]
-    phi = 1.0 - x * (1.0 - x * (0.5 - x * (1.0 / 6.0)))
-    pxx = st[_F_FIX_PXX] + st[_FC_POS_STEP_Q] * t * t
-    pxe = phi * st[_F_FIX_PXE]
-    pee = phi * phi * st[_F_FIX_PEE] + var * (1.0 - phi * phi)
+    phi = _position_predict(st, t)
+    if phi is None:
+        return
     # the IMU's correction to the trapezoid T (v0 + v1) / 2, rotated into true ENU
     cx = st[_F_DPX] - 0.5 * t * st[_F_DVX]
     cy = st[_F_DPY] - 0.5 * t * st[_F_DVY]
@@ -1533,16 +1668,52 @@ def fused_position(fstate, ve, vn, de, dn):
     an = st[_F_FIX_AN] + 0.5 * t * (st[_F_GPS_VN] + vn) + (sin_t * cx + cos_t * cy) - dn
     ee = phi * st[_F_FIX_EE]
     en = phi * st[_F_FIX_EN]
-    s = pxx + 2.0 * pxe + pee
-    kx = (pxx + pxe) / s
-    ke = (pxe + pee) / s
+    gain = _position_correct(st)
+    if gain is None:
+        return
+    kx, ke = gain
     st[_F_FIX_AE] = ae - kx * (ae + ee)
     st[_F_FIX_AN] = an - kx * (an + en)
     st[_F_FIX_EE] = ee - ke * (ae + ee)
     st[_F_FIX_EN] = en - ke * (an + en)
+
+
+def _position_prior(st):
+    # the position filter (re)started at the fix itself (codegen.kernel.fused's _position_prior)
+    var = st[_FC_POS_VAR]
+    st[_F_FIX_AE] = st[_F_FIX_AN] = st[_F_FIX_EE] = st[_F_FIX_EN] = 0.0
+    st[_F_FIX_PXX] = var
+    st[_F_FIX_PXE] = -var
+    st[_F_FIX_PEE] = var
+
+
+def _position_predict(st, t):
+    # the position filter's predict over t s: P <- F P F^T + Q, F = diag(1, phi), Q = diag(pos_step_q t^2,
+    # pos_var (1 - phi^2)); returns phi, or None if the covariance went wrong (restarted at the fix)
+    x = t * st[_FC_INV_POS_TAU]
+    phi = 1.0 - x * (1.0 - x * (0.5 - x * (1.0 / 6.0)))
+    st[_F_FIX_PXX] += st[_FC_POS_STEP_Q] * t * t
+    st[_F_FIX_PXE] *= phi
+    st[_F_FIX_PEE] = phi * phi * st[_F_FIX_PEE] + st[_FC_POS_VAR] * (1.0 - phi * phi)
+    return phi if _covariance_checked(st, _FILTER_POSITION, _STEP_PREDICT) else None
+
+
+def _position_correct(st):
+    # the position filter's update with the fix y = x + e (H = [1, 1], no noise of its own): P <- P - K S K^T;
+    # returns the gain (kx, ke), or None if the covariance went wrong (restarted at the fix)
+    pxx = st[_F_FIX_PXX]
+    pxe = st[_F_FIX_PXE]
+    pee = st[_F_FIX_PEE]
+    s = pxx + 2.0 * pxe + pee
+    if not 0.0 < s <= _COV_MAX:
+        _covariance_checked(st, _FILTER_POSITION, _STEP_UPDATE, False)
+        return None
+    kx = (pxx + pxe) / s
+    ke = (pxe + pee) / s
     st[_F_FIX_PXX] = pxx - kx * kx * s
     st[_F_FIX_PXE] = pxe - kx * ke * s
     st[_F_FIX_PEE] = pee - ke * ke * s
+    return (kx, ke) if _covariance_checked(st, _FILTER_POSITION, _STEP_UPDATE) else None
 
 
 def fused_gps(fstate, ve, vn):
@@ -1599,8 +1770,9 @@ def fused_gps(fstate, ve, vn):
         if norm > 0.0:
             st[_F_UX] = ux / norm
             st[_F_UY] = uy / norm
-        if flags & _WALKING:
-            st[_F_WALK_SPEED] += st[_FC_WALK_SPEED_GAIN] * (speed - st[_F_WALK_SPEED])
+        if flags & _WALKING:  # what people walk and run: a pedestrian's speed is bounded
+            bounded = speed if speed < st[_FC_PEDESTRIAN_MAX_MS] else st[_FC_PEDESTRIAN_MAX_MS]
+            st[_F_WALK_SPEED] += st[_FC_WALK_SPEED_GAIN] * (bounded - st[_F_WALK_SPEED])
     e = speed - st[_F_SPEED]
     st[_F_SPEED] += st[_FC_SPEED_GAIN] * e
     if t > 0.0 and not flags & (_AT_REST | _WALKING):
@@ -1609,6 +1781,8 @@ def fused_gps(fstate, ve, vn):
     st[_F_GPS_VN] = vn
     st[_F_GPS_SPEED] = speed
     st[_F_GPS_OK] = speed - min_speed
+    if speed > st[_FC_PEDESTRIAN_MAX_MS]:  # faster than people run: a vehicle until it rests
+        st[_F_FLAGS] = float(int(st[_F_FLAGS]) | _FAST)
     st[_F_DVX] = 0.0
     st[_F_DVY] = 0.0
     st[_F_DPX] = 0.0

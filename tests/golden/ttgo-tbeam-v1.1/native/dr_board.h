@@ -78,5 +78,9 @@
 #define DR_FUSED_NHC_POSITION (1.0f) /* 1: on, 0: off */
 #define DR_FUSED_NHC_LEAK_TURN (0.3f) /* m/s^2 per rad */
 #define DR_FUSED_NHC_FOLD_SCALE (1.0f) /* 1: on, 0: off */
+#define DR_FUSED_PEDESTRIAN_MAX_MS (6.0f) /* m/s */
+#define DR_FUSED_STILL_ACCEL_G (0.04f) /* g */
+#define DR_FUSED_IDLE_ACCEL_G (0.03f) /* g */
+#define DR_FUSED_STAND_TAU_S (1.0f) /* s */
 
 #endif /* DR_BOARD_H */

@@ -28,6 +28,13 @@
 
 #define DR_OUT_FLOATS (6) /* floats *_process writes: displacement E, N, U (m), velocity (m/s) */
 #define DR_FUSED_MEDIAN_MAX (32) /* samples: the longest block the fused median option keeps */
+/* The fused method's Kalman filters, and the steps after which each one's covariance is checked. */
+#define DR_FUSED_FILTER_TILT (0)
+#define DR_FUSED_FILTER_LATERAL (1)
+#define DR_FUSED_FILTER_POSITION (2)
+#define DR_FUSED_STEP_START (0)
+#define DR_FUSED_STEP_PREDICT (1)
+#define DR_FUSED_STEP_UPDATE (2)
 
 /* ---- the seed kernel (dr_kernel.c, codegen/kernel/reference.py) ---- */
 
@@ -122,6 +129,8 @@ static inline void dr_state_start(dr_state *st) {
 #define DR_FUSED_TURNING (4) /* dr_fused_state.flags bit: the walker was turning */
 #define DR_FUSED_VEHICLE (8) /* dr_fused_state.flags bit: the last shaking was a vehicle's (above vibration_hz), or the platform is a vehicle */
 #define DR_FUSED_SHAKEN (16) /* dr_fused_state.flags bit: a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped */
+#define DR_FUSED_FAST (32) /* dr_fused_state.flags bit: a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests */
+#define DR_FUSED_WALKED (64) /* dr_fused_state.flags bit: a pedestrian: walked, and no fast fix since (a walker's stops keep it) */
 
 /* The configuration the loop reads, each parameter in the form it is used in. */
 typedef struct {
@@ -174,6 +183,10 @@ typedef struct {
     float nhc_position; /* from nhc_position */
     float nhc_leak_turn; /* m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad) */
     float nhc_fold_scale; /* from nhc_fold_scale */
+    float pedestrian_max_ms; /* m/s, from pedestrian_max_ms (m/s) */
+    float still_var; /* (m/s^2)^2, from still_accel_g (g) */
+    float idle_var; /* (m/s^2)^2, from idle_accel_g (g) */
+    float inv_stand_tau; /* 1/s, from stand_tau_s (s) */
 } dr_fused_config;
 
 /* The state. */
@@ -253,11 +266,14 @@ typedef struct {
     /* the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, folded offsets x,
      * y (m/s^2); all 0 until the outage's first sample */
     float nh_p[10];
+    /* how often a filter's covariance went wrong (a negative variance, a value not finite, an update's innovation
+     * variance not positive) and was reset to its prior instead of used (a whole number) */
+    float cov_repairs;
 } dr_fused_state;
 
-#define DR_FUSED_STATE_FLOATS (142) /* floats in dr_fused_state */
-#define DR_FUSED_CONFIG_FLOATS (49) /* floats in dr_fused_config */
-#define DR_FUSED_PARAMS (49) /* parameters dr_fused_config_set takes */
+#define DR_FUSED_STATE_FLOATS (143) /* floats in dr_fused_state */
+#define DR_FUSED_CONFIG_FLOATS (53) /* floats in dr_fused_config */
+#define DR_FUSED_PARAMS (53) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
 #define DR_FUSED_STATE_Q (0)
 #define DR_FUSED_STATE_GYRO_BIAS_LSB (4)
@@ -330,12 +346,16 @@ typedef struct {
 #define DR_FUSED_STATE_NH_U0 (128)
 #define DR_FUSED_STATE_NH_I (130)
 #define DR_FUSED_STATE_NH_P (132)
-typedef char dr_fused_state_is_142_floats[
-    sizeof(dr_fused_state) == 142 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_49_floats[
-    sizeof(dr_fused_config) == 49 * sizeof(float) ? 1 : -1];
+#define DR_FUSED_STATE_COV_REPAIRS (142)
+typedef char dr_fused_state_is_143_floats[
+    sizeof(dr_fused_state) == 143 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_53_floats[
+    sizeof(dr_fused_config) == 53 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
+    ? 1 : -1];
+typedef char dr_fused_cov_repairs_at_142[
+    offsetof(dr_fused_state, cov_repairs) == DR_FUSED_STATE_COV_REPAIRS * sizeof(float)
     ? 1 : -1];
 /* platform's choices */
 #define DR_FUSED_PLATFORM_PEDESTRIAN (0)
@@ -426,6 +446,19 @@ typedef char dr_fused_fix_ae_at_50[
  * covariance, times this) are estimated too; a turn turns them against the tilt, which shows them along and across
  * the track (0: not estimated) */
 #define DR_FUSED_P_NHC_FOLD_SCALE (48)
+/* m/s: auto: a fix faster than this (people walk at up to ~3 m/s and run at up to ~6) makes the device a vehicle,
+ * which no steps turn into a pedestrian until it has rested; nor do steps while a vehicle's own speed is above it */
+#define DR_FUSED_P_PEDESTRIAN_MAX_MS (49)
+/* g: |f| standard deviation up to which a pedestrian may still be at rest if the rest is more than quiet: a hand
+ * (steady horizontal force, averaged rate below fused_rest_gyro_dps) */
+#define DR_FUSED_P_STILL_ACCEL_G (50)
+/* g: and a vehicle, if its shaking is above fused_vibration_hz (an idling engine) and its speed below
+ * fused_rest_speed_ms (a real highway drive shook less than 30 mg with its averaged rate below fused_rest_gyro_dps
+ * in 6.6 % of its samples, 40 mg in 40 %) */
+#define DR_FUSED_P_IDLE_ACCEL_G (51)
+/* s: a pedestrian whose steps stopped without a rest: the speed decays to 0 with this time constant, never
+ * integrated (0: held) */
+#define DR_FUSED_P_STAND_TAU_S (52)
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
@@ -582,6 +615,18 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     if (!(p[DR_FUSED_P_NHC_FOLD_SCALE] >= 0.0f)) { /* nhc_fold_scale must be >= 0 */
         return DR_ERR_RANGE;
     }
+    if (!(p[DR_FUSED_P_PEDESTRIAN_MAX_MS] > 0.0f)) { /* pedestrian_max_ms must be > 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_STILL_ACCEL_G] >= 0.0f)) { /* still_accel_g must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_IDLE_ACCEL_G] >= 0.0f)) { /* idle_accel_g must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_STAND_TAU_S] >= 0.0f)) { /* stand_tau_s must be >= 0 */
+        return DR_ERR_RANGE;
+    }
     return DR_OK;
 }
 
@@ -636,6 +681,10 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->nhc_position = p[DR_FUSED_P_NHC_POSITION];
     cfg->nhc_leak_turn = p[DR_FUSED_P_NHC_LEAK_TURN];
     cfg->nhc_fold_scale = p[DR_FUSED_P_NHC_FOLD_SCALE];
+    cfg->pedestrian_max_ms = p[DR_FUSED_P_PEDESTRIAN_MAX_MS];
+    cfg->still_var = p[DR_FUSED_P_STILL_ACCEL_G] * p[DR_FUSED_P_STILL_ACCEL_G] * (DR_GRAVITY_MS2 * DR_GRAVITY_MS2);
+    cfg->idle_var = p[DR_FUSED_P_IDLE_ACCEL_G] * p[DR_FUSED_P_IDLE_ACCEL_G] * (DR_GRAVITY_MS2 * DR_GRAVITY_MS2);
+    cfg->inv_stand_tau = p[DR_FUSED_P_STAND_TAU_S] > 0.0f ? dr_recip(p[DR_FUSED_P_STAND_TAU_S]) : 0.0f;
 }
 
 /* p <- the board's parameters (dr_board.h), in the order of DR_FUSED_P_*. */
@@ -689,6 +738,10 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_NHC_POSITION] = DR_FUSED_NHC_POSITION;
     p[DR_FUSED_P_NHC_LEAK_TURN] = DR_FUSED_NHC_LEAK_TURN;
     p[DR_FUSED_P_NHC_FOLD_SCALE] = DR_FUSED_NHC_FOLD_SCALE;
+    p[DR_FUSED_P_PEDESTRIAN_MAX_MS] = DR_FUSED_PEDESTRIAN_MAX_MS;
+    p[DR_FUSED_P_STILL_ACCEL_G] = DR_FUSED_STILL_ACCEL_G;
+    p[DR_FUSED_P_IDLE_ACCEL_G] = DR_FUSED_IDLE_ACCEL_G;
+    p[DR_FUSED_P_STAND_TAU_S] = DR_FUSED_STAND_TAU_S;
 }
 
 /* st <- every field 0, then the declared starting values. */
@@ -706,8 +759,8 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
 /* The buffers dr_native hands the app, in floats: the seed's dr_state | dr_config | scratch (3 * block), the fused
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
-#define DR_FUSED_CONFIG_AT (142)
-#define DR_FUSED_KERNEL_CONFIG_AT (191)
-#define DR_FUSED_BUFFER_FLOATS (203)
+#define DR_FUSED_CONFIG_AT (143)
+#define DR_FUSED_KERNEL_CONFIG_AT (196)
+#define DR_FUSED_BUFFER_FLOATS (208)
 
 #endif /* DR_LAYOUT_H */
