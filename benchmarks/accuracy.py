@@ -172,7 +172,7 @@ def _platform_name(board) -> str:
 
 
 def platform_goal_lines(results) -> list[str]:
-    """Issue 26's goals per vehicle scenario (simulated and the real car) and per walk with stops, for each fused
+    """The vehicle and walk goals per vehicle scenario (simulated and the real car) and per walk with stops, for each fused
     variant present."""
     lines = []
     variants = ("fused",) + tuple(f"fused-{p}" for p in PLATFORMS)
