@@ -60,7 +60,7 @@ def test_bash_completion():
     assert complete(["deadreckon", "sim"]) == ["simulate"]
     assert complete(["deadreckon", "--ver"]) == ["--version"]
     assert complete(["deadreckon", "build", "out", "--req"]) == ["--require-native"]
-    assert complete(["deadreckon", "simulate", "--scenario", "walk-"]) == ["walk-pocket", "walk-backpack"]
+    assert complete(["deadreckon", "simulate", "--scenario", "walk-"]) == ["walk-pocket", "walk-backpack", "walk-stand"]
     assert sorted(complete(["deadreckon", "pull", "--"])) == sorted(
         ["--port", "--output", "--folder", "--delete", "--post", "--help"])
     assert complete(["deadreckon", "completion", ""]) == ["bash"]

@@ -130,3 +130,16 @@ def test_a_report_with_unknowns_names_each_reason():
     assert value == {"a": None, "b": [1.0, None], "c": {"d": None}, "e": 2.5, "f": 3}
     assert unknown["a"] == "why a" and set(unknown) == {"a", "b", "c"}
     json.dumps(value, allow_nan=False)
+
+
+def test_the_yaw_band_breaks_where_the_yaw_wraps():
+    """A yaw near +-180 whose band edges wrap at other intervals than the yaw itself: the band is broken at the yaw's
+    own wraps, so its edges keep the yaw's length (they did not, and the angles plot raised ValueError)."""
+    from codegen.post.outputs import _break_wraps
+
+    t = np.arange(6.0)
+    yaw = np.array([170.0, 176.0, 179.0, -179.0, -176.0, -170.0])
+    x, y, lo, hi = _break_wraps(t, yaw, yaw - 5.0, yaw + 5.0)
+    assert len(x) == len(y) == len(lo) == len(hi) == 7
+    assert np.isnan(y[3]) and np.isnan(lo[3]) and np.isnan(hi[3])
+    assert y[4] == -179.0 and lo[4] == -184.0

@@ -82,6 +82,9 @@ def _finite_max(values: np.ndarray) -> float:
     return float(finite.max()) if finite.size else float("nan")
 
 
+HALF_TURN_DEG = 180.0  # an angle's 1-sigma above this says nothing about the angle
+
+
 def _column_medians(values: np.ndarray) -> list[float]:
     """Median of each column's finite values (NaN for a column without any), without numpy's all-NaN warning."""
     return [float(np.median(c[np.isfinite(c)])) if np.isfinite(c).any() else float("nan") for c in values.T]
@@ -232,6 +235,7 @@ def summary(result: PostResult) -> dict:
     valid = o.valid
     e = np.degrees(o.euler[valid])
     sig = np.degrees(o.sigma[valid])
+    sig[sig > HALF_TURN_DEG] = np.nan  # a 1-sigma beyond half a turn leaves the angle undetermined: no figure
     flags = {name: int(sum(name in f for f in o.flags)) for name in
              (FLAG_YAW_HELD, FLAG_STATIONARY, FLAG_POOR_FIT, FLAG_LM_WAHBA, FLAG_NO_IMU, FLAG_GPS_GAP, FLAG_GIMBAL)}
     res = result.velocity_residual
@@ -305,7 +309,8 @@ def _unknown_reasons(result: PostResult) -> dict[str, str]:
     held = np.array([FLAG_YAW_HELD in f for f in o.flags])
     reasons["angle_sigma_median_deg"] = (
         f"the yaw was held (too little horizontal acceleration: carried over, not solved) on {int(held.sum())} of "
-        f"{int(o.valid.sum())} solved intervals, and no fit of the others determined it: it has no 1-sigma")
+        f"{int(o.valid.sum())} solved intervals, and no fit of the others determined it (a 1-sigma beyond "
+        f"{HALF_TURN_DEG:g} deg counts as undetermined): it has no 1-sigma")
     reasons["mounting_sigma_deg"] = "the whole-run mounting fit does not determine this angle (too little motion)"
     reasons["mounting_fit_chi2"] = "the whole-run mounting fit has no residual degrees of freedom"
     reasons["lm_vs_wahba_max_deg"] = "no interval was solved by both methods"
@@ -414,10 +419,11 @@ def _shade(ax, stretches: list[Stretch], t0: float, color: str, label: str | Non
         ax.axvspan(s.t0 - t0, s.t1 - t0, color=color, alpha=0.25, lw=0, label=label if i == 0 else None)
 
 
-def _break_wraps(x: np.ndarray, y: np.ndarray, limit: float = 180.0) -> tuple[np.ndarray, np.ndarray]:
-    """NaN between consecutive points that jump by more than half a turn (a wrap, not a motion)."""
+def _break_wraps(x: np.ndarray, y: np.ndarray, *along: np.ndarray, limit: float = 180.0) -> tuple[np.ndarray, ...]:
+    """NaN between consecutive points of `y` that jump by more than half a turn (a wrap, not a motion), in x, y and
+    each array of `along` at the same places (a band drawn around y breaks where y does)."""
     jump = np.flatnonzero(np.abs(np.diff(y)) > limit)
-    return np.insert(x.astype(float), jump + 1, np.nan), np.insert(y.astype(float), jump + 1, np.nan)
+    return tuple(np.insert(a.astype(float), jump + 1, np.nan) for a in (x, y, *along))
 
 
 def plots(result: PostResult) -> dict[str, bytes]:
@@ -470,9 +476,7 @@ def _angles_png(plt, result: PostResult, zero: TimeZero, gaps: list[Stretch], fl
         _shade(ax, gaps, t0, "tab:orange", "GPS gap (bridged)")
         if name == "yaw":
             # the band is drawn per stretch between wraps so it never spans the +-180 jump
-            x, y = _break_wraps(o.t - t0, e)
-            _, lo = _break_wraps(o.t - t0, e - s)
-            _, hi = _break_wraps(o.t - t0, e + s)
+            x, y, lo, hi = _break_wraps(o.t - t0, e, e - s, e + s)
             band = np.isfinite(lo) & np.isfinite(hi)
             ax.fill_between(x, np.where(band, lo, np.nan), np.where(band, hi, np.nan), color="tab:blue", alpha=0.35,
                             lw=0, label="1 sigma")

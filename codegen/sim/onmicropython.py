@@ -50,11 +50,12 @@ def screen_positions(trace_run, origin):
 
 
 def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: int = 0, quality: str = "open-sky",
-                       work: Path | None = None, stream=sys.stdout, t_loss: float | None = None,
+                       work: Path | None = None, stream=None, t_loss: float | None = None,
                        traj: trajectory.Trajectory | None = None):
     """Run the generated app for one outage of `scenario` (GPS lost at t_loss s, default a few fixes after
     calibration and the start of motion); print and return {method: horizontal errors (m) at the horizons}.
     `traj` replaces the scenario's standard trajectory (e.g. a shorter one for a quick test)."""
+    stream = sys.stdout if stream is None else stream  # looked up per call: a caller may have replaced sys.stdout
     if scenario not in trajectory.SCENARIOS:
         raise UserError(f"--on-micropython runs the simulated scenarios ({', '.join(trajectory.SCENARIOS)}), "
                         f"not {scenario!r}")
