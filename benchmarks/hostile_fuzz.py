@@ -1,5 +1,5 @@
 """Fuzz the CLI with seeded mutations of its inputs: the bundled board files (`validate`), a device log, and a
-run's CSV pair, NMEA and GPX logs (`post`), in this process (tests/fuzzkit.py says how each input is made).
+run's CSV pair, NMEA and GPX logs (`post`), and a raw REPL's replies (`upload`), in this process (tests/fuzzkit.py says how each input is made).
 
     python benchmarks/hostile_fuzz.py [--count 1000] [--seed 1] [--kind board --kind nmea ...]
 
@@ -27,7 +27,8 @@ def main() -> int:
     parser.add_argument("--count", type=int, default=1000, help="inputs per kind (default 1000)")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--kind", action="append", choices=fuzzkit.KINDS, help="only this kind (repeatable)")
-    parser.add_argument("--bound", type=float, default=fuzzkit.BOUND_S, help="seconds one run may take")
+    parser.add_argument("--bound", type=float, default=None,
+                        help=f"seconds one run may take (default {fuzzkit.BOUND_S:g}, a REPL upload {fuzzkit.BOUNDS['repl']:g})")
     args = parser.parse_args()
     tallies = []
     with tempfile.TemporaryDirectory(prefix="deadreckon-fuzz-") as folder:

@@ -1,6 +1,7 @@
 """Generative fuzzing of the CLI (tests/test_hostile_fuzz.py runs a few hundred inputs, benchmarks/hostile_fuzz.py
-thousands): seeded mutations of the bundled board files, of a device log, and of a run's CSV pair, NMEA and GPX
-logs, each run through `deadreckon validate` or `deadreckon post` in this process.
+thousands): seeded mutations of the bundled board files, of a device log, of a run's CSV pair, NMEA and GPX
+logs, each run through `deadreckon validate` or `deadreckon post` in this process, and of a raw REPL's replies to
+`deadreckon upload` (a peer on loopback TCP that speaks the protocol but answers each command with a mutated reply).
 
 The oracle, for every input: no exception escapes the CLI (a traceback), the exit status is 0 or 2 (2 with an
 `error:` on stderr), and the run ends within BOUND_S. Mutations are drawn from a `random.Random(seed)`, so a
@@ -24,7 +25,9 @@ from typing import Callable, Iterator
 from codegen.paths import board_configs_dir
 
 BOUND_S = 20.0  # one in-process run (a valid 12 s log posts in 0.2 s; a board validates in 0.1 s)
-KINDS = ("board", "devicelog", "csv", "nmea", "gpx")
+# an upload to a REPL that misbehaves may wait out a reply's deadline (10 s, up to 3x while the port still talks)
+BOUNDS = {"repl": 90.0}
+KINDS = ("board", "devicelog", "csv", "nmea", "gpx", "repl")
 HOSTILE_TOKENS = (".inf", "-.inf", ".nan", "nan", "inf", "-inf", "1e-320", "1e308", "-1e309", "-1", "0", "0.0",
                   "99999999999999999999999", "-99999999999999999999999", "0x7fffffffffffffff", "''", "[]", "{}",
                   "null", "true", "~", '"\\0"', "a" * 300, "../../../../etc/passwd", "*nowhere", "!!binary AAAA",
@@ -268,14 +271,80 @@ def gpx_inputs(rng):
     return _text_inputs(rng, lambda: (_absolute_imu(), _gpx()), "gps.gpx", "\"<>", GPX_DAMAGE)
 
 
+@lru_cache(maxsize=1)
+def _built_tree() -> dict[str, bytes]:
+    """The default board's generated and built tree, as relative path -> bytes (made once per process)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="deadreckon-fuzz-tree-") as folder:
+        status, stderr, _ = run_cli(["generate", "-o", "out"], Path(folder))
+        assert status == 0, stderr
+        status, stderr, _ = run_cli(["build", "out"], Path(folder))
+        assert status == 0, stderr
+        root = Path(folder)
+        return {str(path.relative_to(root)): path.read_bytes() for path in sorted(root.rglob("*")) if path.is_file()}
+
+
+ERRNOS = (2, 5, 12, 13, 17, 19, 21, 22, 28, 30, 39, 110)
+
+
+def _repl_reply(rng: random.Random, command: bytes) -> bytes:
+    """A raw REPL's answer to `command`, damaged: the OK, the output, the error text or the terminators."""
+    hex64 = "".join(rng.choice("0123456789abcdef") for _ in range(64))
+    outputs = (b"", bytes(rng.randrange(256) for _ in range(rng.randrange(1, 300))),
+               f"/main.py {hex64}\r\n/app.py -\r\n".encode(), f"{hex64} ?\r\n".encode() * rng.randint(1, 40),
+               b"\xff\xfe" * rng.randint(1, 500), b"x" * rng.randrange(100000), rng.choice(HOSTILE_TOKENS).encode(),
+               command[:rng.randrange(len(command) + 1)])
+    errors = (b"", f"Traceback (most recent call last):\r\n  File \"<stdin>\", line {rng.randint(1, 99)}\r\n"
+                   f"OSError: [Errno {rng.choice(ERRNOS)}] E\r\n".encode(),
+              b"MemoryError: memory allocation failed\r\n", bytes(rng.randrange(256) for _ in range(40)))
+    ok = rng.choice((b"OK", b"OK", b"OK", b"", b"ok", b"O"))
+    reply = ok + rng.choice(outputs) + b"\x04" + rng.choice(errors) + b"\x04>"
+    if rng.random() < 0.1:  # terminators lost: the client's deadline must end it
+        reply = reply[:rng.randrange(len(reply) + 1)]
+    return reply
+
+
+def repl_inputs(rng: random.Random) -> Iterator[tuple[dict[str, bytes], list[str]]]:
+    from peers.bad_ports import BadPort
+
+    class MutatingRepl(BadPort):
+        """A raw REPL on loopback whose every reply is mutated (after `honest` commands answered like a liar)."""
+
+        def __init__(self, seed: int):
+            super().__init__("liar")
+            self.behaviour = "mutating"
+            self.seed = seed
+
+        def _mutating(self, conn) -> None:
+            replies = random.Random(self.seed)
+            honest = replies.randrange(6)
+            for count, command in enumerate(self._commands(conn)):
+                if count < honest:
+                    conn.sendall(b"OK\x04\x04>")
+                elif replies.random() < 0.03:
+                    conn.shutdown(2)  # unplugged mid-transfer
+                    return
+                else:
+                    conn.sendall(_repl_reply(replies, command))
+
+    tree = _built_tree()
+    while True:
+        seed = rng.randrange(2**32)
+        with MutatingRepl(seed) as port:  # the peer's seed first: a failure's sample names the replies
+            yield {"peer-seed.txt": f"{seed}\n".encode(), **tree}, ["upload", "out", "--port", port.url]
+
+
 GENERATORS = {"board": board_inputs, "devicelog": devicelog_inputs, "csv": csv_inputs, "nmea": nmea_inputs,
-              "gpx": gpx_inputs}
+              "gpx": gpx_inputs, "repl": repl_inputs}
 
 
-def fuzz(kind: str, count: int, seed: int, folder: Path, bound_s: float = BOUND_S) -> Tally:
-    """Run `count` inputs of `kind` (seeded) in fresh subfolders of `folder`; the oracle's verdict in a Tally."""
+def fuzz(kind: str, count: int, seed: int, folder: Path, bound_s: float | None = None) -> Tally:
+    """Run `count` inputs of `kind` (seeded) in fresh subfolders of `folder`; the oracle's verdict in a Tally.
+    `bound_s`: seconds one run may take (default the kind's own bound, else BOUND_S)."""
     import shutil
 
+    bound_s = BOUNDS.get(kind, BOUND_S) if bound_s is None else bound_s
     tally = Tally(kind)
     inputs = GENERATORS[kind](random.Random(f"{kind}:{seed}"))
     started = time.monotonic()
@@ -284,6 +353,7 @@ def fuzz(kind: str, count: int, seed: int, folder: Path, bound_s: float = BOUND_
         work = folder / f"{kind}-{index}"
         work.mkdir(parents=True)
         for name, data in files.items():
+            (work / name).parent.mkdir(parents=True, exist_ok=True)  # a tree's files sit in folders
             (work / name).write_bytes(data)
         status, stderr, seconds = run_cli(argv, work)
         tally.inputs += 1
