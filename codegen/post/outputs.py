@@ -414,10 +414,12 @@ def _shade(ax, stretches: list[Stretch], t0: float, color: str, label: str | Non
         ax.axvspan(s.t0 - t0, s.t1 - t0, color=color, alpha=0.25, lw=0, label=label if i == 0 else None)
 
 
-def _break_wraps(x: np.ndarray, y: np.ndarray, limit: float = 180.0) -> tuple[np.ndarray, np.ndarray]:
-    """NaN between consecutive points that jump by more than half a turn (a wrap, not a motion)."""
+def _break_wraps(x: np.ndarray, y: np.ndarray, *along: np.ndarray,
+                 limit: float = 180.0) -> tuple[np.ndarray, ...]:
+    """NaN between consecutive points of y that jump by more than half a turn (a wrap, not a motion); the arrays
+    `along` (a band around y) are broken at y's wraps, so every array returned has x's new length."""
     jump = np.flatnonzero(np.abs(np.diff(y)) > limit)
-    return np.insert(x.astype(float), jump + 1, np.nan), np.insert(y.astype(float), jump + 1, np.nan)
+    return tuple(np.insert(a.astype(float), jump + 1, np.nan) for a in (x, y, *along))
 
 
 def plots(result: PostResult) -> dict[str, bytes]:
@@ -470,9 +472,7 @@ def _angles_png(plt, result: PostResult, zero: TimeZero, gaps: list[Stretch], fl
         _shade(ax, gaps, t0, "tab:orange", "GPS gap (bridged)")
         if name == "yaw":
             # the band is drawn per stretch between wraps so it never spans the +-180 jump
-            x, y = _break_wraps(o.t - t0, e)
-            _, lo = _break_wraps(o.t - t0, e - s)
-            _, hi = _break_wraps(o.t - t0, e + s)
+            x, y, lo, hi = _break_wraps(o.t - t0, e, e - s, e + s)
             band = np.isfinite(lo) & np.isfinite(hi)
             ax.fill_between(x, np.where(band, lo, np.nan), np.where(band, hi, np.nan), color="tab:blue", alpha=0.35,
                             lw=0, label="1 sigma")
