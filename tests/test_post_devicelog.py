@@ -33,8 +33,9 @@ class Blocks:
             self.block = bytearray()
 
 
-def write_device_log(path, log, latency=0.25, seed=0, axes="+0+1+2"):
-    """IMU counts at their device time; each fix logged when its NMEA would have arrived (time + latency)."""
+def write_device_log(path, log, latency=0.25, seed=0, axes="+0+1+2", clock_rate=1.0):
+    """IMU counts at their device time; each fix logged when its NMEA would have arrived (time + latency).
+    The device clock runs at clock_rate device seconds per true second."""
     rng = np.random.default_rng(seed)
     header = f"deadreckon=1;board=synthetic;imu_rate_hz=200;log_every=4;accel_lsb_per_g=16384;gyro_lsb_per_dps=131;axes={axes};kernel=python"
     b = Blocks()
@@ -47,7 +48,7 @@ def write_device_log(path, log, latency=0.25, seed=0, axes="+0+1+2"):
     events.sort()
     v = log.gps.vel
     for t, kind, i in events:
-        t_us = int(round((t - t0 + 5.0) * 1e6)) & 0xFFFFFFFF
+        t_us = int(round((t - t0 + 5.0) * clock_rate * 1e6)) & 0xFFFFFFFF
         if kind == "I":
             ax, ay, az = counts[i]
             b.add(struct.pack("<BI6h", 0x49, t_us, ax, ay, az, 0, 0, 0))
@@ -79,11 +80,34 @@ def test_device_log_reads_onto_utc(run):
     assert dev.time_scale == "utc"
     assert len(dev.imu) == len(log.imu) and len(dev.gps) == len(log.gps)
     assert np.allclose(dev.imu.acc, log.imu.acc, atol=2 * STANDARD_GRAVITY / 16384)
-    # UTC fix times exact; the IMU clock mapped through the early edge of arrivals that jitter by 0..150 ms: the
-    # rate is known to ~1e-5, so the map drifts by a few ms over the 300 s, under half an IMU sample
+    # UTC fix times exact; the IMU on the device clock's own rate, offset to the early edge of arrivals that jitter
+    # by 0..150 ms: no drift over the 300 s
     assert np.allclose(np.diff(dev.gps.t), 1.0)
     offset = (dev.imu.t - dev.imu.t[0]) - (log.imu.t - log.imu.t[0])
-    assert np.ptp(offset) < 0.01
+    assert np.ptp(offset) < 1e-5
+
+
+def test_short_log_keeps_the_device_clock_rate(tmp_path):
+    """30 s with fix receipts jittering by 0..150 ms: a line fitted to them would put the rate ~1e-3 off (the IMU
+    times drifting a millisecond per second against the truth); the device's own clock rate keeps them exact."""
+    log, _ = make_run(Scenario(duration=30.0, seed=3))
+    dev = load_log(write_device_log(tmp_path / "dr00001.bin", log, seed=4))
+    lateness = dev.imu.t - (START_UTC + log.imu.t)
+    assert np.ptp(lateness) < 1e-5
+    assert np.allclose(np.diff(dev.imu.t), np.diff(log.imu.t), atol=1e-6)
+    # the offset sits on the early edge: the IMU early by the 250 ms latency plus the least jitter of ~30 fixes
+    assert -0.25 - 0.03 <= lateness[0] <= -0.25 + 0.001
+    assert any("the device's rate" in note for note in dev.notes)
+
+
+def test_a_clock_proven_off_by_the_fixes_is_followed(tmp_path):
+    """A device clock 1 % fast (an MPU-6050 oscillator at its tolerance), 120 s of fixes: the fixes show the rate far
+    beyond their jitter, and the IMU times follow them instead of drifting 1.2 s."""
+    log, _ = make_run(Scenario(duration=120.0, seed=3))
+    dev = load_log(write_device_log(tmp_path / "dr00001.bin", log, seed=4, clock_rate=1.01))
+    lateness = dev.imu.t - (START_UTC + log.imu.t)
+    assert np.ptp(lateness) < 0.05
+    assert any("runs off its nominal rate" in note for note in dev.notes)
 
 
 def test_device_log_end_to_end(run, tmp_path, capsys):

@@ -2,8 +2,9 @@
 
 Kept apart from the other readers so a new log version only touches this module. A file's clock is the device's
 microseconds since the file was opened; GPS records also carry the fix's UTC time. When they do, both streams go
-onto UTC: GPS epochs at their fix times, IMU samples through a straight-line map of the device clock fitted to the
-epochs (the fixed part of the NMEA latency is left to the delay estimate). Without UTC the device clock is used.
+onto UTC: GPS epochs at their fix times, IMU samples through the device clock at its own rate (unless the fixes
+prove it off), offset to the earliest fix receipts (the fixed part of the NMEA latency is left to the delay
+estimate). Without UTC the device clock is used.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ UERE = 2.5  # m, horizontal 1-sigma per unit HDOP
 CLIMB_UNKNOWN_SIGMA = 1.0  # m/s, vertical velocity when the log has no climb rate
 BLOCK_BYTES_RANGE = (256, 65536)  # logging.block_bytes' range in the board schema
 LSB_RANGE = (1.0, 1.0e6)  # counts per g or per degree/s a header may give (the MPU-6050's: 2048..16384, 16.4..131)
+CLOCK_RATE_TOLERANCE = 0.002  # a clock this far off its nominal rate is believed from the fixes (MPU-6050's is +-1 %)
+CLOCK_RATE_SIGMAS = 4.0  # ... when the fixes also show it by this many of their 1-sigma
 YEARS = (1980, 2200)  # a GPS fix's year (the receiver's week rollover aside, nothing else is a date it gives)
 
 
@@ -171,6 +174,25 @@ def _check_fixes(path: Path, year, month, day, utc_ms, lat, lon, known) -> None:
                 location=Location(str(path), 1, 1), hint="the log is damaged there")
 
 
+def _clock_rate(g_dev: np.ndarray, utc: np.ndarray) -> tuple[float, float, float]:
+    """UTC seconds per device second, with the rate the fixes alone give and its 1-sigma.
+
+    The device clock counts IMU sample periods at the header's imu_rate_hz (FIFO) or the ESP32's crystal ticks, so
+    its rate is 1 to the chip's tolerance. The fixes' receipt times jitter by tens of milliseconds, which on a short
+    file puts a fitted rate 1e-3 off (a drift of a millisecond per second); they override the device only when they
+    prove it off by more than CLOCK_RATE_TOLERANCE and CLOCK_RATE_SIGMAS of their own uncertainty.
+    """
+    if len(utc) < 3 or np.ptp(g_dev) <= 0:
+        return 1.0, 1.0, float("inf")
+    fitted, intercept = np.polyfit(g_dev, utc, 1)
+    resid = utc - (fitted * g_dev + intercept)
+    spread = float(np.sqrt(np.sum(resid ** 2) / (len(utc) - 2)))
+    sigma = spread / float(np.sqrt(np.sum((g_dev - g_dev.mean()) ** 2)))
+    off = abs(fitted - 1.0)
+    rate = float(fitted) if off > CLOCK_RATE_TOLERANCE and off > CLOCK_RATE_SIGMAS * sigma else 1.0
+    return rate, float(fitted), sigma
+
+
 def to_post_log(raw: RawDeviceLog) -> PostLog:
     path = raw.path
     notes = [f"{path.name}: device log, board {raw.header.get('board', '?')}, kernel {raw.header.get('kernel', '?')}"]
@@ -220,17 +242,18 @@ def to_post_log(raw: RawDeviceLog) -> PostLog:
         utc = np.array([calendar.timegm((int(y), int(m), int(d), 0, 0, 0)) for y, m, d in
                         zip(year[valid], month[valid], day[valid])], dtype=float) + utc_ms[valid] / 1000.0
         if len(np.unique(utc)) >= 2:
-            # fixes are received after they happen: fit the early edge (least squares, then the earliest fifth)
-            rate, offset = np.polyfit(g_dev, utc, 1)
-            for _ in range(3):
-                resid = utc - (rate * g_dev + offset)
-                edge = resid >= np.percentile(resid, 80)
-                if edge.sum() >= 2 and np.ptp(g_dev[edge]) > 0:
-                    rate, offset = np.polyfit(g_dev[edge], utc[edge], 1)
-            offset += np.percentile(utc - (rate * g_dev + offset), 99)
+            rate, fitted, sigma = _clock_rate(g_dev, utc)
+            # fixes are received after they happen, late by a varying amount: the earliest receipts (the top
+            # percentile of UTC minus the mapped device time) are the ones nearest the fix
+            offset = float(np.percentile(utc - rate * g_dev, 99))
             t_gps, t_imu = utc, rate * t_dev + offset
             time_scale = "utc"
-            notes.append(f"{path.name}: device clock mapped to UTC through {len(utc)} fixes (rate {rate:.6f} s/s)")
+            if rate == 1.0:
+                notes.append(f"{path.name}: device clock mapped to UTC through {len(utc)} fixes (the device's rate; "
+                             f"the fixes alone say {fitted:.6f} +- {sigma:.6f} s/s)")
+            else:
+                notes.append(f"{path.name}: device clock mapped to UTC through {len(utc)} fixes at their rate "
+                             f"{rate:.6f} +- {sigma:.6f} s/s: the device's clock runs off its nominal rate")
     sog_ms, cog_deg = sog[valid] / 1000.0, np.where(cog[valid] == UNKNOWN_U16, 0.0, cog[valid] / 100.0)
     climb_known = climb[valid] != UNKNOWN_I32
     v_up = np.where(climb_known, climb[valid] / 1000.0, 0.0)

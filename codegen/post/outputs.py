@@ -419,9 +419,10 @@ def _shade(ax, stretches: list[Stretch], t0: float, color: str, label: str | Non
         ax.axvspan(s.t0 - t0, s.t1 - t0, color=color, alpha=0.25, lw=0, label=label if i == 0 else None)
 
 
-def _break_wraps(x: np.ndarray, y: np.ndarray, *along: np.ndarray, limit: float = 180.0) -> tuple[np.ndarray, ...]:
-    """NaN between consecutive points of `y` that jump by more than half a turn (a wrap, not a motion), in x, y and
-    each array of `along` at the same places (a band drawn around y breaks where y does)."""
+def _break_wraps(x: np.ndarray, y: np.ndarray, *along: np.ndarray,
+                 limit: float = 180.0) -> tuple[np.ndarray, ...]:
+    """NaN between consecutive points of y that jump by more than half a turn (a wrap, not a motion); the arrays
+    `along` (a band around y) are broken at y's wraps, so every array returned has x's new length."""
     jump = np.flatnonzero(np.abs(np.diff(y)) > limit)
     return tuple(np.insert(a.astype(float), jump + 1, np.nan) for a in (x, y, *along))
 
