@@ -15,7 +15,7 @@ Suspension: the two-mass quarter-car (sprung body mass, unsprung wheel mass, spr
 classic model of vehicle-dynamics texts, e.g. Gillespie, Fundamentals of Vehicle Dynamics, ch. 5). The passenger
 car's parameters put the body mode at ~1.3 Hz and wheel hop at ~11 Hz, the textbook ranges. The four corners' body
 heights give heave, pitch (front - rear over the wheelbase) and roll (left - right over the track width). Through
-this model a class A..B road at 10-15 m/s gives 0.025-0.06 g rms of vertical body acceleration; the issue's real
+this model a class A..B road at 10-15 m/s gives 0.025-0.06 g rms of vertical body acceleration; a real
 roof-mounted drive measured 0.048 g (median standard deviation of |f| while driving), which the bundled figures are
 checked against (tests/test_sim_vibration.py).
 
