@@ -33,7 +33,12 @@ def geodetic_to_enu(lat_deg, lon_deg, h, origin: tuple[float, float, float]) -> 
 
 def enu_to_geodetic(enu: np.ndarray, origin: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Inverse of `geodetic_to_enu` (Bowring's iteration on ECEF): lat, lon in degrees and h in metres."""
-    ecef = np.asarray(enu) @ _enu_matrix(origin[0], origin[1]) + geodetic_to_ecef(*origin)
+    return ecef_to_geodetic(np.asarray(enu) @ _enu_matrix(origin[0], origin[1]) + geodetic_to_ecef(*origin))
+
+
+def ecef_to_geodetic(ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """WGS-84 ECEF (..., 3) m -> latitude, longitude (deg), ellipsoidal height (m): Bowring's iteration on the
+    latitude; five rounds reach well under a millimetre near the surface."""
     x, y, z = ecef[..., 0], ecef[..., 1], ecef[..., 2]
     lon = np.arctan2(y, x)
     p = np.hypot(x, y)

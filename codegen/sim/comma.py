@@ -21,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen.kernel.reference import STANDARD_GRAVITY, WGS84_A, WGS84_E2
+from codegen.kernel.reference import STANDARD_GRAVITY
+from codegen.post.geodesy import ecef_to_geodetic
 from codegen.sim.neo6m import COURSE_MIN_SPEED, GpsTrack, enu_to_geodetic, geodetic_to_enu
 
 CAR_DIR = ("car-comma2k19",)
@@ -30,20 +31,6 @@ CAR_DIR = ("car-comma2k19",)
 def default_car_dir() -> Path:
     """../shared/data/car-comma2k19 relative to the project checkout."""
     return Path(__file__).resolve().parents[3].joinpath("shared", "data", *CAR_DIR)
-
-
-def ecef_to_geodetic(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """WGS-84 ECEF (..., 3) m -> latitude, longitude (deg), ellipsoidal height (m) (fixed-point iteration on the
-    latitude; five rounds reach well under a millimetre near the surface)."""
-    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
-    p = np.hypot(x, y)
-    lat = np.arctan2(z, p * (1.0 - WGS84_E2))
-    for _ in range(5):
-        n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-        h = p / np.cos(lat) - n
-        lat = np.arctan2(z, p * (1.0 - WGS84_E2 * n / (n + h)))
-    n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-    return np.degrees(lat), np.degrees(np.arctan2(y, x)), p / np.cos(lat) - n
 
 
 def ecef_to_enu_rotation(lat_deg: float, lon_deg: float) -> np.ndarray:
