@@ -7,6 +7,8 @@
     circuitpython-mpy-cross
                          CircuitPython's own mpy-cross (its .mpy start with b'C'), the compiler `deadreckon build`
                          uses for a CircuitPython board
+    qemu-arm             MicroPython's QEMU port per ARM board (its Product is made by codegen/natmod/qemu_arm.py,
+                         one per board's flags)
 
 The make lines are the ones the trees' SOURCE.txt give. A source tree may be read-only (the shared trees are, in
 CI), so each build copies the folders it reads into $DEADRECKON_CACHE/PRODUCT/KEY/src, builds there, keeps the one

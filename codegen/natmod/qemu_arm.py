@@ -6,9 +6,9 @@
     MPS2_AN500   Cortex-M7 with FPU, built with single-precision floats (armv7emsp natmods): the benchmark's stand-in
                  for a core with hardware float, as the ESP32 has
 
-The firmware is built (Debian gcc-arm-none-eabi + picolibc) from a copy of a MicroPython tree, keyed by the tree's
-content, the board, the flags and the compiler, in $DEADRECKON_CACHE/qemu-arm/KEY/firmware.elf; the copy is removed
-after the build. `Session` runs it under qemu-system-arm with `-icount shift=0` (one instruction per virtual
+The firmware is built (Debian gcc-arm-none-eabi + picolibc) by codegen/portbuild.py from a copy of a MicroPython
+tree, keyed by the tree's content, the board, the flags and the compiler, in $DEADRECKON_CACHE/qemu-arm/KEY/
+firmware.elf; the copy is removed after the build. `Session` runs it under qemu-system-arm with `-icount shift=0` (one instruction per virtual
 nanosecond: a virtual clock is an exact instruction counter) and talks MicroPython's raw REPL over the emulated UART;
 files (the .mpy) are sent in chunks into a RAM filesystem mounted at /mem. `CLOCK_SOURCE[board]` is MicroPython code
 defining `clock()`, a hardware timer of the emulated SoC read through machine.mem32, and `CLOCK_NS[board]`
@@ -18,8 +18,6 @@ the virtual nanoseconds (= instructions) per count.
 from __future__ import annotations
 
 import base64
-import fcntl
-import hashlib
 import os
 import select
 import shutil
@@ -29,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
+from codegen import portbuild
 from codegen.errors import UserError
 
 HEAP = "MICROPY_HEAP_SIZE=196608"  # 192 KiB, about what MicroPython has on an RP2040 or an ESP32 without PSRAM
@@ -95,64 +94,20 @@ class QemuError(UserError):
     pass
 
 
-def _cache() -> Path:
-    root = os.environ.get("DEADRECKON_CACHE")
-    return (Path(root) if root else Path.home() / ".cache" / "deadreckon") / "qemu-arm"
-
-
-def tree_digest(tree: Path) -> str:
-    """SHA-256 over the paths and contents of the tree's files the port's build reads."""
-    h = hashlib.sha256()
-    for top in PORT_DIRS:
-        for path in sorted((tree / top).rglob("*")):
-            if path.is_file() and "__pycache__" not in path.parts:
-                h.update(path.relative_to(tree).as_posix().encode() + b"\0")
-                h.update(path.read_bytes())
-    return h.hexdigest()
-
-
-def _compiler_version() -> str:
-    gcc = shutil.which("arm-none-eabi-gcc")
-    if gcc is None:
-        raise QemuError("arm-none-eabi-gcc is not installed", hint="apt-get install gcc-arm-none-eabi "
-                        "picolibc-arm-none-eabi")
-    return subprocess.run([gcc, "--version"], capture_output=True, text=True).stdout.splitlines()[0]
-
-
 def firmware(tree: Path, board: str, log=None) -> Path:
-    """The QEMU port's firmware.elf for `board`, built from `tree` into the cache on first use."""
+    """The QEMU port's firmware.elf for `board`, built from `tree` into the cache on first use (codegen/portbuild.py:
+    keyed by the tree's content, the board, the flags and the compiler)."""
     spec = BOARDS[board]
-    make_args = spec.get("make", [])
-    key = hashlib.sha256(f"{tree_digest(tree)} {board} {spec['cflags']} {make_args} {_compiler_version()}"
-                         .encode()).hexdigest()
-    home = _cache() / key[:24]
-    elf = home / "firmware.elf"
-    if elf.is_file():
-        return elf
-    home.mkdir(parents=True, exist_ok=True)
-    with open(home / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be building the same firmware
-        if elf.is_file():
-            return elf
-        source = home / "src"
-        if source.exists():
-            shutil.rmtree(source)
-        for top in PORT_DIRS:
-            shutil.copytree(tree / top, source / top, symlinks=True)
-        for path in source.rglob("*"):  # the shared tree is read-only; the copy must take build output
-            path.chmod(path.stat().st_mode | 0o200)
-        if log:
-            log(f"building MicroPython's QEMU port for {board} in {source} (once; cached by content)")
-        command = ["make", "-C", str(source / "ports" / "qemu"), f"BOARD={board}", "FROZEN_MANIFEST=",
-                   f"CFLAGS_EXTRA={spec['cflags']}", *make_args, f"-j{os.cpu_count() or 1}"]
-        done = subprocess.run(command, capture_output=True, text=True)
-        built = source / "ports" / "qemu" / f"build-{board}" / "firmware.elf"
-        if done.returncode or not built.is_file():
-            raise QemuError(f"the QEMU port did not build for {board}:\n{(done.stderr or done.stdout)[-3000:]}")
-        shutil.copy2(built, home / "firmware.tmp")
-        (home / "firmware.tmp").rename(elf)
-        shutil.rmtree(source)
-    return elf
+    product = portbuild.Product(
+        name="qemu-arm",
+        dirs=PORT_DIRS,
+        make_dir="ports/qemu",
+        make_args=(f"BOARD={board}", "FROZEN_MANIFEST=", f"CFLAGS_EXTRA={spec['cflags']}", *spec.get("make", [])),
+        built=f"build-{board}/firmware.elf",
+        needs="arm-none-eabi-gcc",
+        hint="apt-get install gcc-arm-none-eabi picolibc-arm-none-eabi",
+    )
+    return portbuild.build(product, Path(tree), log=log)
 
 
 @dataclass
