@@ -28,7 +28,8 @@ from typing import Callable, Optional
 from codegen.board.chips import CHIPS
 from codegen.board.flashlayout import FlashLayout
 from codegen.board.model import Board
-from codegen.deploy.ports import BUSY_HINT, DIALOUT_HINT, check_port, is_url, ports_hint, rfc2217_refused
+from codegen.deploy.ports import (BUSY_HINT, DIALOUT_HINT, check_port, is_url, open_failure, ports_hint,
+                                  rfc2217_refused)
 from codegen.errors import UserError
 
 FAST_BAUD = 460800
@@ -314,6 +315,10 @@ def classify(output: str, port: str, board: Board, regions: list[Region]) -> Opt
             f"the connection to the board on {port} was lost while flashing",
             hint="check the cable and run the same command again; the write starts over and is verified",
         )
+    if "could not open" in lower and is_url(port):
+        known = open_failure(port, text)  # an unresolved host, a bad URL option: said as upload says them
+        if not known.message.startswith("cannot open"):
+            return known
     if "could not open" in lower:
         reason = re.search(r"could not open [^\n]*\n\(?([^\n)]+)", text, re.IGNORECASE)
         return UserError(f"cannot open {port}" + (f": {reason[1].strip()}" if reason else ""),

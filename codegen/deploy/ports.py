@@ -140,10 +140,8 @@ def check_port_url(port: str) -> None:
         serial.serial_for_url(port, do_not_open=True)  # checks the scheme (hwgrep:// also looks for the port)
     except (ValueError, serial.SerialException) as exc:
         if "not known" not in str(exc):
-            raise UserError(f"cannot use port {port}: {exc}") from None
-        raise UserError(f"unknown port URL scheme {scheme + '://'!r} in {port}",
-                        hint="ports are device paths (/dev/ttyUSB0, COM3) or pyserial URLs: socket://HOST:PORT, "
-                             "rfc2217://HOST:PORT") from None
+            raise open_failure(port, str(exc)) from None
+        raise UserError(f"unknown port URL scheme {scheme + '://'!r} in {port}", hint=URL_HINT) from None
     if scheme.lower() in ("socket", "rfc2217"):
         parts = urllib.parse.urlsplit(port)
         try:
@@ -177,12 +175,7 @@ def check_port(port: str) -> None:
         handle.open()
         handle.close()
     except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException, OSError, ValueError
-        text = str(exc)
-        if "busy" in text.lower() or "lock" in text.lower():
-            raise UserError(f"port {port} is busy", hint=BUSY_HINT)
-        if "inappropriate ioctl" in text.lower():
-            raise not_a_port(port) from None
-        raise UserError(f"cannot open {port}: {text}")
+        raise open_failure(port, str(exc)) from None
 
 
 def open_port(port: str, baud: int = 115200):
@@ -213,21 +206,46 @@ def open_port(port: str, baud: int = 115200):
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         return handle
     except (serial.SerialException, OSError, ValueError) as exc:
-        text = str(exc)
-        lower = text.lower()
-        if "no such file" in lower or "could not open port" in lower and "errno 2]" in lower:
-            raise UserError(f"no such port {port}", hint=ports_hint())
-        if "permission denied" in lower or "errno 13]" in lower:
-            raise UserError(f"permission denied on {port}", hint=DIALOUT_HINT)
-        if "busy" in lower or "lock" in lower:
-            raise UserError(f"port {port} is busy", hint=BUSY_HINT)
-        if "refused" in lower:
-            raise UserError(f"nothing answers at {port}", hint="is the bridge or telnet server running?")
-        if "inappropriate ioctl" in lower:  # termios on /dev/null, /dev/zero and other non-terminals
-            raise not_a_port(port)
-        if "does not seem to support rfc2217" in lower:
-            raise rfc2217_refused(port)
-        raise UserError(f"cannot open {port}: {text}")
+        raise open_failure(port, str(exc)) from None
+
+
+URL_HINT = ("ports are device paths (/dev/ttyUSB0, COM3) or pyserial URLs: socket://HOST:PORT, rfc2217://HOST:PORT; "
+            "socket:// takes only ?logging=LEVEL, rfc2217:// also ign_set_control, poll_modem and timeout=SECONDS")
+
+
+def open_failure(port: str, text: str) -> UserError:
+    """What pyserial's message `text` on opening `port` means, said plainly with the fix (its own words stay in the
+    message for what this does not know)."""
+    lower = text.lower()
+    if is_url(port):
+        import urllib.parse
+
+        host = urllib.parse.urlsplit(port).hostname or port
+        # getaddrinfo's failures: EAI_NONAME (-2), EAI_AGAIN (-3), EAI_NODATA (-5); Windows' WSAHOST_NOT_FOUND
+        if any(mark in lower for mark in ("name or service not known", "nodename nor servname", "errno -2]",
+                                           "errno -3]", "errno -5]", "errno 11001]", "temporary failure in name")):
+            return UserError(f"cannot find the host {host} of {port}: its name does not resolve",
+                             hint="check the name, or give the bridge's IP address (socket://192.168.4.1:23)")
+        if "unknown option" in lower or "expected a string in the form" in lower or "debug|info" in lower:
+            return UserError(f"bad option in the port URL {port}", hint=URL_HINT)
+        if "timed out" in lower:
+            return UserError(f"no answer from {host} ({port}) in time",
+                             hint="is the bridge on this network and switched on?")
+    if "no such file" in lower or "could not open port" in lower and "errno 2]" in lower:
+        return UserError(f"no such port {port}", hint=ports_hint())
+    if "permission denied" in lower or "errno 13]" in lower:
+        return UserError(f"permission denied on {port}", hint=DIALOUT_HINT)
+    if "busy" in lower or "exclusively lock" in lower:
+        return UserError(f"port {port} is busy", hint=BUSY_HINT)
+    if "refused" in lower:
+        return UserError(f"nothing answers at {port}", hint="is the bridge or telnet server running?")
+    if "inappropriate ioctl" in lower:  # termios on /dev/null, /dev/zero and other non-terminals
+        return not_a_port(port)
+    if "does not seem to support rfc2217" in lower:
+        return rfc2217_refused(port)
+    return UserError(f"cannot open {port}: {text}",
+                     hint="check the cable and that the board is powered; " + ports_hint() if not is_url(port)
+                     else URL_HINT)
 
 
 def close_quietly(handle) -> None:
