@@ -24,6 +24,7 @@ import numpy as np
 from codegen.kernel.reference import STANDARD_GRAVITY
 from codegen.post.geodesy import ecef_to_geodetic
 from codegen.sim.neo6m import COURSE_MIN_SPEED, GpsTrack, enu_to_geodetic, geodetic_to_enu
+from codegen.sim.trajectory import SampledTruth
 
 CAR_DIR = ("car-comma2k19",)
 
@@ -42,7 +43,7 @@ def ecef_to_enu_rotation(lat_deg: float, lon_deg: float) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class PoseTruth:
+class PoseTruth(SampledTruth):
     """The pose as truth, with the interface of a Trajectory that the metrics use."""
 
     t: np.ndarray  # (K,) s
@@ -54,14 +55,6 @@ class PoseTruth:
     @property
     def duration(self) -> float:
         return float(self.t[-1])
-
-    def at(self, times) -> np.ndarray:
-        times = np.asarray(times, dtype=float)
-        return np.stack([np.interp(times, self.t, self.pos[:, i]) for i in range(3)], axis=-1)
-
-    def velocity_at(self, times) -> np.ndarray:
-        times = np.asarray(times, dtype=float)
-        return np.stack([np.interp(times, self.t, self.vel[:, i]) for i in range(3)], axis=-1)
 
     def trusted(self, times) -> np.ndarray:
         times = np.asarray(times, dtype=float)

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from codegen.sim.neo6m import geodetic_to_enu
+from codegen.sim.trajectory import SampledTruth
 
 WALK_DIR = ("gnss-imu-walk",)
 IMU_FILE = "imu_1730_sf.csv"
@@ -25,7 +26,7 @@ POS_FILE = "gnss_1730_sf.pos"
 
 
 @dataclass(frozen=True)
-class RecordedTruth:
+class RecordedTruth(SampledTruth):
     """Truth from the RTK solution, with the interface of a Trajectory that the GPS model and metrics use."""
 
     t: np.ndarray  # (K,) s from the first IMU sample
@@ -45,14 +46,6 @@ class RecordedTruth:
     @property
     def duration(self) -> float:
         return float(self.t[-1])
-
-    def at(self, times) -> np.ndarray:
-        times = np.asarray(times, dtype=float)
-        return np.stack([np.interp(times, self.t, self.pos[:, i]) for i in range(3)], axis=-1)
-
-    def velocity_at(self, times) -> np.ndarray:
-        times = np.asarray(times, dtype=float)
-        return np.stack([np.interp(times, self.t, self.vel[:, i]) for i in range(3)], axis=-1)
 
     def trusted(self, times) -> np.ndarray:
         """True where both neighbouring epochs are RTK solutions (the truth there is good to decimetres)."""

@@ -30,8 +30,27 @@ GRADE_GRID_M = 0.012  # m of road per sample of the car's grade profile (its 20 
 SCENARIOS = SIMULATED
 
 
+class SampledTruth:
+    """Position and velocity between the samples of a truth (`t`, `pos`, `vel`: linear interpolation), shared by the
+    simulated trajectory and the recorded truths (codegen/sim/replay.py, codegen/sim/comma.py)."""
+
+    t: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+
+    def at(self, times) -> np.ndarray:
+        """ENU position at arbitrary times, (len(times), 3)."""
+        times = np.asarray(times, dtype=float)
+        return np.stack([np.interp(times, self.t, self.pos[:, i]) for i in range(3)], axis=-1)
+
+    def velocity_at(self, times) -> np.ndarray:
+        """ENU velocity at arbitrary times, (len(times), 3)."""
+        times = np.asarray(times, dtype=float)
+        return np.stack([np.interp(times, self.t, self.vel[:, i]) for i in range(3)], axis=-1)
+
+
 @dataclass(frozen=True)
-class Trajectory:
+class Trajectory(SampledTruth):
     """Exact truth on a uniform grid. Arrays are float64; `t` in s from the start of the run."""
 
     name: str
@@ -62,15 +81,6 @@ class Trajectory:
         f_enu = self.acc.copy()
         f_enu[:, 2] += STANDARD_GRAVITY
         return np.einsum("nji,nj->ni", self.rotation(), f_enu)
-
-    def at(self, times: np.ndarray) -> np.ndarray:
-        """Truth ENU position at arbitrary times (linear interpolation on the fine grid), (len(times), 3)."""
-        times = np.asarray(times, dtype=float)
-        return np.stack([np.interp(times, self.t, self.pos[:, i]) for i in range(3)], axis=-1)
-
-    def velocity_at(self, times: np.ndarray) -> np.ndarray:
-        times = np.asarray(times, dtype=float)
-        return np.stack([np.interp(times, self.t, self.vel[:, i]) for i in range(3)], axis=-1)
 
 
 def euler_to_matrix(euler: np.ndarray) -> np.ndarray:
