@@ -195,6 +195,11 @@ class Kernel:
     def element_offsets(self) -> dict[str, int]:
         return {name: i for i, name in enumerate(self.element_names())}
 
+    def named_elements(self) -> tuple[tuple[Field, int, str], ...]:
+        """(field, index, name) of every element an array field names (`elements`): the C index constant
+        `<C_PREFIX>_<NAME>` into the field (st->p[DR_FUSED_P22]), the fallback's offset `<py_prefix>_<NAME>`."""
+        return tuple((f, i, name) for f in self.state if f.elements for i, name in enumerate(f.elements))
+
     @property
     def param_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.params)
@@ -581,6 +586,11 @@ def check(kernel: Kernel) -> None:
             raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: unknown return code {p.error!r}")
         if kernel.board_prefix and p.default is None:
             raise ValueError(f"{kernel.c_prefix}: parameter {p.name} has a board key but no default")
+    taken = {n.upper() for n in names + list(params) + [fl.name for fl in kernel.flags]}
+    clash = sorted(name for _, _, name in kernel.named_elements() if name.upper() in taken)
+    if clash:
+        raise ValueError(f"{kernel.c_prefix}: element names that are also a field, parameter or flag (their index "
+                         f"constants would clash): {', '.join(clash)}")
     if any(f.ctype != "float" for f in kernel.state):
         raise ValueError(f"{kernel.c_prefix}: state fields are floats (the reference's flat view)")
 

@@ -347,6 +347,62 @@ typedef struct {
 #define DR_FUSED_STATE_NH_I (130)
 #define DR_FUSED_STATE_NH_P (132)
 #define DR_FUSED_STATE_COV_REPAIRS (142)
+/* each named element's index into its array field (st->p[DR_FUSED_P22], not st->p[7]) */
+#define DR_FUSED_QW (0) /* q[0] */
+#define DR_FUSED_QX (1) /* q[1] */
+#define DR_FUSED_QY (2) /* q[2] */
+#define DR_FUSED_QZ (3) /* q[3] */
+#define DR_FUSED_BGX (0) /* gyro_bias_lsb[0] */
+#define DR_FUSED_BGY (1) /* gyro_bias_lsb[1] */
+#define DR_FUSED_BGZ (2) /* gyro_bias_lsb[2] */
+#define DR_FUSED_M00 (0) /* m[0] */
+#define DR_FUSED_M01 (1) /* m[1] */
+#define DR_FUSED_M10 (2) /* m[2] */
+#define DR_FUSED_M11 (3) /* m[3] */
+#define DR_FUSED_P00 (0) /* p[0] */
+#define DR_FUSED_P01 (1) /* p[1] */
+#define DR_FUSED_P02 (2) /* p[2] */
+#define DR_FUSED_P03 (3) /* p[3] */
+#define DR_FUSED_P11 (4) /* p[4] */
+#define DR_FUSED_P12 (5) /* p[5] */
+#define DR_FUSED_P13 (6) /* p[6] */
+#define DR_FUSED_P22 (7) /* p[7] */
+#define DR_FUSED_P23 (8) /* p[8] */
+#define DR_FUSED_P33 (9) /* p[9] */
+#define DR_FUSED_M02 (0) /* m2[0] */
+#define DR_FUSED_M12 (1) /* m2[1] */
+#define DR_FUSED_P04 (0) /* pz[0] */
+#define DR_FUSED_P14 (1) /* pz[1] */
+#define DR_FUSED_P24 (2) /* pz[2] */
+#define DR_FUSED_P34 (3) /* pz[3] */
+#define DR_FUSED_P44 (4) /* pz[4] */
+#define DR_FUSED_VIB_LP1 (0) /* vib_lp[0] */
+#define DR_FUSED_VIB_LP2 (1) /* vib_lp[1] */
+#define DR_FUSED_WSX (0) /* ws[0] */
+#define DR_FUSED_WSY (1) /* ws[1] */
+#define DR_FUSED_WSZ (2) /* ws[2] */
+#define DR_FUSED_AH_E (0) /* ah[0] */
+#define DR_FUSED_AH_N (1) /* ah[1] */
+#define DR_FUSED_ZR_PE (0) /* zr_p[0] */
+#define DR_FUSED_ZR_PN (1) /* zr_p[1] */
+#define DR_FUSED_ZR_CE (0) /* zr_c[0] */
+#define DR_FUSED_ZR_CN (1) /* zr_c[1] */
+#define DR_FUSED_NH_FX (0) /* nh_f[0] */
+#define DR_FUSED_NH_FY (1) /* nh_f[1] */
+#define DR_FUSED_NH_U0X (0) /* nh_u0[0] */
+#define DR_FUSED_NH_U0Y (1) /* nh_u0[1] */
+#define DR_FUSED_NH_IX (0) /* nh_i[0] */
+#define DR_FUSED_NH_IY (1) /* nh_i[1] */
+#define DR_FUSED_NH_PSS (0) /* nh_p[0] */
+#define DR_FUSED_NH_PSB (1) /* nh_p[1] */
+#define DR_FUSED_NH_PSX (2) /* nh_p[2] */
+#define DR_FUSED_NH_PSY (3) /* nh_p[3] */
+#define DR_FUSED_NH_PBB (4) /* nh_p[4] */
+#define DR_FUSED_NH_PBX (5) /* nh_p[5] */
+#define DR_FUSED_NH_PBY (6) /* nh_p[6] */
+#define DR_FUSED_NH_PXX (7) /* nh_p[7] */
+#define DR_FUSED_NH_PXY (8) /* nh_p[8] */
+#define DR_FUSED_NH_PYY (9) /* nh_p[9] */
 typedef char dr_fused_state_is_143_floats[
     sizeof(dr_fused_state) == 143 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_config_is_53_floats[
