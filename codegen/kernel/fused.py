@@ -426,7 +426,7 @@ def _lateral_update(lp: _Loop, st: FusedState) -> None:
         _nhc_restart(st, fcfg)
         return
     if st.nh_u0x == 0.0 and st.nh_u0y == 0.0:
-        _nhc_start(st, (st.qw, st.qx, st.qy, st.qz), fcfg)
+        _nhc_start(st, fcfg)
     dt = lp.dt
     st.nh_t += dt
     st.nh_z += (lp.an * st.ux - lp.ae * st.uy - st.speed * lp.r) * dt
@@ -532,13 +532,13 @@ def _nhc_restart(st: FusedState, fcfg: FusedConfig) -> None:
         setattr(st, name, 0.0)
 
 
-def _nhc_start(st: FusedState, q, fcfg: FusedConfig) -> None:
+def _nhc_start(st: FusedState, fcfg: FusedConfig) -> None:
     """The lateral filter's start on an outage's first sample of a moving vehicle: the speed known, the lateral leak
     0 +- nhc_leak_sigma_ms2 (the tilt/offset filter has just taken out what it knew), the folded offsets 0 with what
     that filter does not know of the offsets seen horizontally, R_h P_bb R_h^T (times nhc_fold_scale), and the
-    travel direction they turn from. q: the attitude now (the loop's, not yet stored)."""
+    travel direction they turn from."""
     st.nh_pbb = fcfg.nhc_leak_sigma_ms2 * fcfg.nhc_leak_sigma_ms2
-    qw, qx, qy, qz = q
+    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
     rh = ((1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)),
           (2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)))
     pb = [[getattr(st, _PIJ[(min(i, j) + 2, max(i, j) + 2)]) for j in range(3)] for i in range(3)]
