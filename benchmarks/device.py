@@ -1,6 +1,6 @@
 """Instructions per window on the boards' instruction sets, for benchmarks/kernel.py (seed) and fused.py (fused).
 
-    python3 benchmarks/device.py [--algorithm seed|fused] [--windows N]
+    python3 benchmarks/device.py [--algorithm seed|fused] [--windows N] [--before REV]
 
 ARM: MicroPython 1.28's QEMU port (codegen.natmod.qemu_arm; MICROBIT = Cortex-M0, the RP2040's armv6m; MPS2_AN385 =
 Cortex-M3, armv7m) runs the board's dr_native.mpy built for that arch and the generated dr_fallback compiled by
@@ -166,8 +166,9 @@ def xtensa_count(files, algorithm: str, steps: list, state_floats: int, folder: 
     return per_window(answers, steps), ""
 
 
-def device_table(loaded, algorithm: str, windows: int = 4, fallback_windows: int = 2) -> None:
-    """Print the device-ISA table of one algorithm for the board `loaded`."""
+def device_table(loaded, algorithm: str, windows: int = 4, fallback_windows: int = 2, before: str = "") -> None:
+    """Print the device-ISA table of one algorithm for the board `loaded`; `before` (a git revision): its fallback
+    (plain) in a column beside today's, run in the same sessions."""
     from codegen.generate import render_tree
     from codegen.kernel import fused as F
 
@@ -183,6 +184,15 @@ def device_table(loaded, algorithm: str, windows: int = 4, fallback_windows: int
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         variants = fallback_variants(files["app/dr_fallback.py"].content.decode(), algorithm)
+        if before:
+            sys.path.insert(0, str(Path(__file__).resolve().parent))
+            from mpbench import fallback_at, short_revision
+
+            old, note = fallback_at(loaded, before)
+            if old is None:
+                print(f"(fallback before: {note})")
+            else:
+                variants = {f"before {short_revision(before)}": old, **variants}
         for label in variants:
             header += f" {'fallback ' + label:>20s}"
         print(header + f" {'best fallback / natmod':>23s}")
@@ -200,7 +210,8 @@ def device_table(loaded, algorithm: str, windows: int = 4, fallback_windows: int
                 if why:
                     notes.append(f"{label}: {why}")
             natmod_count = row["natmod"][0]
-            best = min((v for label, (v, _) in row.items() if label != "natmod" and v), default=None)
+            best = min((v for label, (v, _) in row.items() if label != "natmod" and not label.startswith("before")
+                        and v), default=None)
             line += f" {best / natmod_count:>22.0f}x" if best and natmod_count else f" {'-':>23s}"
             print(line + (f"   ({'; '.join(notes)})" if notes else ""))
         count, why = xtensa_count(files, algorithm, steps, state_floats, folder)
@@ -219,12 +230,14 @@ def main(argv=None) -> int:
     parser.add_argument("--algorithm", choices=("seed", "fused"), default=None, help="default: both")
     parser.add_argument("--windows", type=int, default=4, help="natmod windows per run (the median is reported)")
     parser.add_argument("--fallback-windows", type=int, default=2, help="fallback windows per run")
+    parser.add_argument("--before", default="", help="git revision whose fallback template (plain) to run beside "
+                        "today's in the same QEMU sessions (default: none)")
     args = parser.parse_args(argv)
     from codegen.board.loader import load_board
 
     loaded = load_board(args.board)
     for algorithm in ([args.algorithm] if args.algorithm else ["seed", "fused"]):
-        device_table(loaded, algorithm, args.windows, args.fallback_windows)
+        device_table(loaded, algorithm, args.windows, args.fallback_windows, args.before)
     return 0
 
 

@@ -10,7 +10,7 @@ the bytes it allocates per window (benchmarks/mpbench.py says how they are count
 instruction count of the C harness native_ext/tests/bench_fused.c per window and what it means at 240 MHz (as
 benchmarks/kernel.py does for the seed kernel: x86-64 instructions as a proxy for the ESP32's single-issue LX6),
 measured on the x86-64 host; then the boards' instruction sets (benchmarks/device.py: QEMU counts of the natmod and
-the fallback on ARM cores, the natmod's ESP32 code on Xtensa).
+the fallback on ARM cores, REV's fallback beside today's, the natmod's ESP32 code on Xtensa).
 """
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ def main(argv=None) -> int:
     if not args.no_device:
         from device import device_table
 
-        device_table(loaded, "fused")
+        device_table(loaded, "fused", before=args.before)
     return 0
 
 

@@ -85,8 +85,8 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
     st->var_f = 0.0f;
     st->vib_var = 0.0f;
     st->vib_tot = 0.0f;
-    st->vib_lp[0] = st->mean_f;
-    st->vib_lp[1] = 0.0f;
+    st->vib_lp[DR_FUSED_VIB_LP1] = st->mean_f;
+    st->vib_lp[DR_FUSED_VIB_LP2] = 0.0f;
     for (i = 0; i < 3; i++) {
         st->ws[i] = 0.0f;
     }
@@ -206,8 +206,9 @@ static int dr_fused_covariance_checked(const dr_fused_config *cfg, dr_fused_stat
     if (!innovation_ok) {
         usable = 0;
     } else if (filter == DR_FUSED_FILTER_TILT) {
-        usable = dr_fused_triangle_usable(st->p, 4) && dr_fused_bounded(st->pz[0]) && dr_fused_bounded(st->pz[1]) &&
-                 dr_fused_bounded(st->pz[2]) && dr_fused_bounded(st->pz[3]) && dr_fused_triangle_usable(st->pz + 4, 1);
+        usable = dr_fused_triangle_usable(st->p, 4) && dr_fused_bounded(st->pz[DR_FUSED_P04]) &&
+                 dr_fused_bounded(st->pz[DR_FUSED_P14]) && dr_fused_bounded(st->pz[DR_FUSED_P24]) &&
+                 dr_fused_bounded(st->pz[DR_FUSED_P34]) && dr_fused_triangle_usable(st->pz + DR_FUSED_P44, 1);
     } else if (filter == DR_FUSED_FILTER_LATERAL) {
         usable = dr_fused_triangle_usable(st->nh_p, 4);
     } else {
@@ -231,7 +232,7 @@ static int dr_fused_covariance_checked(const dr_fused_config *cfg, dr_fused_stat
 /* Starts the tilt/offset filter on its first use after calibration (codegen.fused's _kf_start). Returns 1 if it
  * started now (no update this time). */
 static int dr_fused_kf_start(const dr_fused_config *cfg, dr_fused_state *st) {
-    if (st->p[7] > 0.0f) {
+    if (st->p[DR_FUSED_P22] > 0.0f) {
         return 0;
     }
     dr_fused_kf_prior(cfg, st);
@@ -244,11 +245,11 @@ static int dr_fused_kf_start(const dr_fused_config *cfg, dr_fused_state *st) {
 int dr_fused_kf_predict(const dr_fused_config *cfg, dr_fused_state *st) {
     float qd = cfg->kf_tilt_q * st->kf_t + cfg->kf_turn_q * st->turn * st->turn;
     float qb = cfg->kf_bias_q * st->kf_t;
-    st->p[0] += qd;
-    st->p[4] += qd;
-    st->p[7] += qb;
-    st->p[9] += qb;
-    st->pz[4] += qb;
+    st->p[DR_FUSED_P00] += qd;
+    st->p[DR_FUSED_P11] += qd;
+    st->p[DR_FUSED_P22] += qb;
+    st->p[DR_FUSED_P33] += qb;
+    st->pz[DR_FUSED_P44] += qb;
     st->kf_t = 0.0f;
     st->turn = 0.0f;
     return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_PREDICT, 1);
@@ -314,16 +315,16 @@ int dr_fused_kf_update(const dr_fused_config *cfg, dr_fused_state *st, float z0,
     hx = 0.5f * x[1] * DR_INV_GRAVITY;
     hy = -0.5f * x[0] * DR_INV_GRAVITY;
     {
-        float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
+        float qw = st->q[DR_FUSED_QW], qx = st->q[DR_FUSED_QX], qy = st->q[DR_FUSED_QY], qz = st->q[DR_FUSED_QZ];
         float nw = qw - hx * qx - hy * qy;
         float nx = qx + hx * qw + hy * qz;
         float ny = qy + hy * qw - hx * qz;
         float nz = qz + hx * qy - hy * qx;
         float inv = dr_inv_sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
-        st->q[0] = nw * inv;
-        st->q[1] = nx * inv;
-        st->q[2] = ny * inv;
-        st->q[3] = nz * inv;
+        st->q[DR_FUSED_QW] = nw * inv;
+        st->q[DR_FUSED_QX] = nx * inv;
+        st->q[DR_FUSED_QY] = ny * inv;
+        st->q[DR_FUSED_QZ] = nz * inv;
     }
     return 1;
 }
@@ -350,19 +351,20 @@ static void dr_fused_rest_update(const dr_config *kcfg, const dr_fused_config *c
         h[0][i] = r[0][i];
         h[1][i] = r[1][i];
     }
-    if (!dr_fused_kf_update(cfg, st, st->ah[0], st->ah[1], (const float(*)[3])h, cfg->kf_rest_r, x)) {
+    if (!dr_fused_kf_update(cfg, st, st->ah[DR_FUSED_AH_E], st->ah[DR_FUSED_AH_N], (const float(*)[3])h,
+                            cfg->kf_rest_r, x)) {
         return;
     }
     /* the correction leaves the samples from now on: the smoothed value follows */
-    st->ah[0] -= x[0] + h[0][0] * x[2] + h[0][1] * x[3] + h[0][2] * x[4];
-    st->ah[1] -= x[1] + h[1][0] * x[2] + h[1][1] * x[3] + h[1][2] * x[4];
+    st->ah[DR_FUSED_AH_E] -= x[0] + h[0][0] * x[2] + h[0][1] * x[3] + h[0][2] * x[4];
+    st->ah[DR_FUSED_AH_N] -= x[1] + h[1][0] * x[2] + h[1][1] * x[3] + h[1][2] * x[4];
 }
 
 /* The lateral filter stopped (codegen.fused's _nhc_restart): at a fix, at rest, walking: the speed known. It starts
  * again with an outage's next sample of a moving vehicle (dr_fused_nhc_start). */
 static void dr_fused_nhc_restart(dr_fused_state *st) {
     int i;
-    if (st->nh_u0[0] == 0.0f && st->nh_u0[1] == 0.0f) {
+    if (st->nh_u0[DR_FUSED_NH_U0X] == 0.0f && st->nh_u0[DR_FUSED_NH_U0Y] == 0.0f) {
         return; /* not started: all 0 already (u0 is a unit vector once it has) */
     }
     st->nh_t = 0.0f;
@@ -400,12 +402,12 @@ static void dr_fused_nhc_start(const dr_fused_config *cfg, dr_fused_state *st, c
         c[1] += rp[0][j] * r[1][j];
         c[2] += rp[1][j] * r[1][j];
     }
-    st->nh_p[4] = cfg->nhc_leak_var;
-    st->nh_p[7] = cfg->nhc_fold_scale * c[0];
-    st->nh_p[8] = cfg->nhc_fold_scale * c[1];
-    st->nh_p[9] = cfg->nhc_fold_scale * c[2];
-    st->nh_u0[0] = st->ux;
-    st->nh_u0[1] = st->uy;
+    st->nh_p[DR_FUSED_NH_PBB] = cfg->nhc_leak_var;
+    st->nh_p[DR_FUSED_NH_PXX] = cfg->nhc_fold_scale * c[0];
+    st->nh_p[DR_FUSED_NH_PXY] = cfg->nhc_fold_scale * c[1];
+    st->nh_p[DR_FUSED_NH_PYY] = cfg->nhc_fold_scale * c[2];
+    st->nh_u0[DR_FUSED_NH_U0X] = st->ux;
+    st->nh_u0[DR_FUSED_NH_U0Y] = st->uy;
 }
 
 /* A vehicle's lateral update in an outage, every nhc_period_s T (codegen.fused's _nhc_update): a 4-state Kalman filter
@@ -422,23 +424,23 @@ static void dr_fused_nhc_update(const dr_fused_config *cfg, dr_fused_state *st) 
         unseen = rbar * rbar; /* no turn: a handlebar's or a hand's wobble about Up is no turn of the vehicle */
         rbar = 0.0f;
     }
-    dux = st->nh_u0[0] - st->nh_i[0] * inv_t; /* u0 - ubar; n0 - nbar = (-duy, dux) */
-    duy = st->nh_u0[1] - st->nh_i[1] * inv_t;
+    dux = st->nh_u0[DR_FUSED_NH_U0X] - st->nh_i[DR_FUSED_NH_IX] * inv_t; /* u0 - ubar; n0 - nbar = (-duy, dux) */
+    duy = st->nh_u0[DR_FUSED_NH_U0Y] - st->nh_i[DR_FUSED_NH_IY] * inv_t;
     if (dr_fused_lateral_predict(cfg, st, t * dux, t * duy, cfg->nhc_speed_q * t, turn * turn)) {
         h[0] = -rbar;
         h[1] = 1.0f;
         h[2] = -duy;
         h[3] = dux;
-        y = z - st->nh_b - h[2] * st->nh_f[0] - h[3] * st->nh_f[1];
-        if (dr_fused_lateral_correct(cfg, st, h, cfg->nhc_var * inv_t + unseen * st->nh_p[0], y, x)) {
+        y = z - st->nh_b - h[2] * st->nh_f[DR_FUSED_NH_FX] - h[3] * st->nh_f[DR_FUSED_NH_FY];
+        if (dr_fused_lateral_correct(cfg, st, h, cfg->nhc_var * inv_t + unseen * st->nh_p[DR_FUSED_NH_PSS], y, x)) {
             dr_fused_lateral_feed_back(cfg, st, x);
         }
     }
     st->nh_t = 0.0f;
     st->nh_z = 0.0f;
     st->nh_r = 0.0f;
-    st->nh_i[0] = 0.0f;
-    st->nh_i[1] = 0.0f;
+    st->nh_i[DR_FUSED_NH_IX] = 0.0f;
+    st->nh_i[DR_FUSED_NH_IY] = 0.0f;
 }
 
 /* The lateral filter's predict P <- F P F^T + Q (codegen.fused's _lateral_predict): F = I + A, A only in row 0 (f2, f3
@@ -446,16 +448,16 @@ static void dr_fused_nhc_update(const dr_fused_config *cfg, dr_fused_state *st) 
  * 0, 0). Returns 0 if the covariance went wrong (the filter restarted). */
 int dr_fused_lateral_predict(const dr_fused_config *cfg, dr_fused_state *st, float f2, float f3, float q_speed,
                              float q_leak) {
-    float *p = st->nh_p; /* upper triangle: 0 ss, 1 sb, 2 sx, 3 sy, 4 bb, 5 bx, 6 by, 7 xx, 8 xy, 9 yy */
-    const float ap0 = f2 * p[2] + f3 * p[3]; /* row 0 of A P */
-    const float ap1 = f2 * p[5] + f3 * p[6];
-    const float ap2 = f2 * p[7] + f3 * p[8];
-    const float ap3 = f2 * p[8] + f3 * p[9];
-    p[0] += 2.0f * ap0 + (f2 * ap2 + f3 * ap3) + q_speed;
-    p[1] += ap1;
-    p[2] += ap2;
-    p[3] += ap3;
-    p[4] += q_leak;
+    float *p = st->nh_p; /* the upper triangle, row by row: speed error s, leak b, folded offsets x, y */
+    const float ap0 = f2 * p[DR_FUSED_NH_PSX] + f3 * p[DR_FUSED_NH_PSY]; /* row 0 of A P */
+    const float ap1 = f2 * p[DR_FUSED_NH_PBX] + f3 * p[DR_FUSED_NH_PBY];
+    const float ap2 = f2 * p[DR_FUSED_NH_PXX] + f3 * p[DR_FUSED_NH_PXY];
+    const float ap3 = f2 * p[DR_FUSED_NH_PXY] + f3 * p[DR_FUSED_NH_PYY];
+    p[DR_FUSED_NH_PSS] += 2.0f * ap0 + (f2 * ap2 + f3 * ap3) + q_speed;
+    p[DR_FUSED_NH_PSB] += ap1;
+    p[DR_FUSED_NH_PSX] += ap2;
+    p[DR_FUSED_NH_PSY] += ap3;
+    p[DR_FUSED_NH_PBB] += q_leak;
     return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_LATERAL, DR_FUSED_STEP_PREDICT, 1);
 }
 
@@ -509,351 +511,475 @@ static void dr_fused_lateral_feed_back(const dr_fused_config *cfg, dr_fused_stat
     st->zr_v -= e;
     if (cfg->nhc_position > 0.0f && st->zr_t > 0.0f) {
         float k = cfg->nhc_position * e * dr_recip(st->zr_t);
-        st->pe -= k * st->zr_p[0];
-        st->pn -= k * st->zr_p[1];
+        st->pe -= k * st->zr_p[DR_FUSED_ZR_PE];
+        st->pn -= k * st->zr_p[DR_FUSED_ZR_PN];
     }
     if (st->speed < 0.0f) {
         st->speed = 0.0f;
     }
     st->nh_b += x[1];
-    st->nh_f[0] += x[2];
-    st->nh_f[1] += x[3];
+    st->nh_f[DR_FUSED_NH_FX] += x[2];
+    st->nh_f[DR_FUSED_NH_FY] += x[3];
+}
+
+/* ---- the per-sample loop, as named steps in the order dr_fused_process calls them (docs/fused.md "Per sample";
+ * codegen/kernel/fused.py's _<step> and the fallback's blocks labelled `step: <step>` are the same steps) ---- */
+
+/* What the per-sample steps share within one dr_fused_process call: the attitude and the platform's decisions
+ * carried from sample to sample, and the current sample's values (the compiler keeps them in registers). */
+typedef struct {
+    /* carried between samples */
+    float q[4];   /* the attitude w, x, y, z (stored into st at a rest update and at the end) */
+    int flags;    /* the last sample's flags (DR_FUSED_*) */
+    int vehicle;  /* the platform's decisions: a vehicle, shaken since its last rest (DR_FUSED_SHAKEN), a fast fix */
+    int driven;
+    int fast;
+    int walked;   /* DR_FUSED_WALKED or 0 */
+    int platform; /* DR_FUSED_PLATFORM_* */
+    int32_t median; /* the median option's b, or 0 */
+    float db2;    /* (m/s^2)^2: the kernel's deadband squared */
+    /* this sample */
+    float dt;     /* s */
+    float fx, fy, fz; /* m/s^2: specific force, body frame, less the offsets */
+    float wx, wy, wz; /* rad/s: rate, body frame, less the gyro bias */
+    float nf;     /* m/s^2: |f| */
+    float d;      /* m/s^2: |f| less its mean */
+    float alpha;  /* the motion statistics' step, dt / stat_tau_s (at most 1) */
+    float r00, r01, r02, r10, r11, r12, r20, r21, r22; /* R(q): body -> kernel ENU */
+    float ae, an; /* m/s^2: the horizontal specific force, kernel frame */
+    float r;      /* rad/s: the rate about Up */
+    int shaken, broadband, rest, walking, turning;
+} dr_fused_loop;
+
+/* The sample in the body frame (codegen.fused's _sample_in): the remap and scales, the accelerometer's offsets and
+ * the gyro bias taken out. */
+static inline void dr_fused_sample_in(const dr_config *kcfg, const dr_fused_state *st, dr_fused_loop *lp,
+                                      const int16_t *s, int32_t dt_us) {
+    const int32_t sx = kcfg->axis_source[0], sy = kcfg->axis_source[1], sz = kcfg->axis_source[2];
+    const float kx = kcfg->axis_sign[0], ky = kcfg->axis_sign[1], kz = kcfg->axis_sign[2];
+    float cx, cy, cz;
+    lp->dt = (float)dt_us * DR_S_PER_US;
+    lp->fx = kx * (float)s[sx] * kcfg->accel_ms2_per_lsb;
+    lp->fy = ky * (float)s[sy] * kcfg->accel_ms2_per_lsb;
+    lp->fz = kz * (float)s[sz] * kcfg->accel_ms2_per_lsb;
+    lp->fx -= st->bax; /* a statement of its own, as before: no compiler contracts it into the product */
+    lp->fy -= st->bay;
+    lp->fz -= st->baz;
+    cx = kx * (float)s[3 + sx]; /* counts */
+    cy = ky * (float)s[3 + sy];
+    cz = kz * (float)s[3 + sz];
+    lp->wx = (cx - st->gyro_bias_lsb[DR_FUSED_BGX]) * kcfg->gyro_rads_per_lsb;
+    lp->wy = (cy - st->gyro_bias_lsb[DR_FUSED_BGY]) * kcfg->gyro_rads_per_lsb;
+    lp->wz = (cz - st->gyro_bias_lsb[DR_FUSED_BGZ]) * kcfg->gyro_rads_per_lsb;
+}
+
+/* The mean and variance of |f| over stat_tau_s, its shaking above the gait band (two first-order high-passes at
+ * vibration_hz) and the variance that is a share of, over vibration_tau_s, the body rate smoothed (an idling
+ * engine's shake averages out); shaken (beyond walk_accel_g) and broadband (codegen.fused's _motion_statistics). */
+static inline void dr_fused_motion_statistics(const dr_fused_config *cfg, dr_fused_state *st, dr_fused_loop *lp) {
+    const float dt = lp->dt;
+    float nf, alpha, beta, gamma, d, h;
+    nf = dr_sqrt(lp->fx * lp->fx + lp->fy * lp->fy + lp->fz * lp->fz);
+    alpha = dt * cfg->inv_stat_tau;
+    if (alpha > 1.0f) {
+        alpha = 1.0f;
+    }
+    st->mean_f += alpha * (nf - st->mean_f);
+    d = nf - st->mean_f;
+    st->var_f += alpha * (d * d - st->var_f);
+    beta = dt * cfg->vib_rate;
+    if (beta > 1.0f) {
+        beta = 1.0f;
+    }
+    st->vib_lp[DR_FUSED_VIB_LP1] += beta * (nf - st->vib_lp[DR_FUSED_VIB_LP1]);
+    h = nf - st->vib_lp[DR_FUSED_VIB_LP1];
+    st->vib_lp[DR_FUSED_VIB_LP2] += beta * (h - st->vib_lp[DR_FUSED_VIB_LP2]);
+    h -= st->vib_lp[DR_FUSED_VIB_LP2];
+    gamma = dt * cfg->inv_vib_tau;
+    if (gamma > 1.0f) {
+        gamma = 1.0f;
+    }
+    st->vib_var += gamma * (h * h - st->vib_var);
+    st->vib_tot += gamma * (d * d - st->vib_tot);
+    st->ws[DR_FUSED_WSX] += alpha * (lp->wx - st->ws[DR_FUSED_WSX]);
+    st->ws[DR_FUSED_WSY] += alpha * (lp->wy - st->ws[DR_FUSED_WSY]);
+    st->ws[DR_FUSED_WSZ] += alpha * (lp->wz - st->ws[DR_FUSED_WSZ]);
+    lp->nf = nf;
+    lp->d = d;
+    lp->alpha = alpha;
+    lp->shaken = st->var_f > cfg->walk_var;
+    lp->broadband = st->vib_var > cfg->vib_ratio * st->vib_tot;
+}
+
+/* R(q)'s rows and the horizontal specific force in the kernel frame, smoothed over stat_tau_s (rest: steady)
+ * (codegen.fused's _horizontal_force). */
+static inline void dr_fused_horizontal_force(dr_fused_state *st, dr_fused_loop *lp) {
+    const float qw = lp->q[0], qx = lp->q[1], qy = lp->q[2], qz = lp->q[3];
+    lp->r00 = 1.0f - 2.0f * (qy * qy + qz * qz);
+    lp->r01 = 2.0f * (qx * qy - qw * qz);
+    lp->r02 = 2.0f * (qx * qz + qw * qy);
+    lp->r10 = 2.0f * (qx * qy + qw * qz);
+    lp->r11 = 1.0f - 2.0f * (qx * qx + qz * qz);
+    lp->r12 = 2.0f * (qy * qz - qw * qx);
+    lp->r20 = 2.0f * (qx * qz - qw * qy);
+    lp->r21 = 2.0f * (qy * qz + qw * qx);
+    lp->r22 = 1.0f - 2.0f * (qx * qx + qy * qy);
+    lp->ae = lp->r00 * lp->fx + lp->r01 * lp->fy + lp->r02 * lp->fz;
+    lp->an = lp->r10 * lp->fx + lp->r11 * lp->fy + lp->r12 * lp->fz;
+    st->ah[DR_FUSED_AH_E] += lp->alpha * (lp->ae - st->ah[DR_FUSED_AH_E]);
+    st->ah[DR_FUSED_AH_N] += lp->alpha * (lp->an - st->ah[DR_FUSED_AH_N]);
+}
+
+/* Rest (codegen.fused's _rest): still (below rest_accel_g, or still_accel_g for a pedestrian's hand, idle_accel_g
+ * for a vehicle's idling engine: broadband, slower than rest_speed_ms), the smoothed rate below rest_gyro_dps, the
+ * horizontal force steady within the deadband and itself within it (a vehicle quiet after shaking, or below
+ * rest_speed_ms: any), no fix saying it moves; for rest_time_s. */
+static inline void dr_fused_rest(const dr_fused_config *cfg, dr_fused_state *st, dr_fused_loop *lp) {
+    const float ae = lp->ae, an = lp->an;
+    const float de = ae - st->ah[DR_FUSED_AH_E], dn = an - st->ah[DR_FUSED_AH_N];
+    int still = st->var_f < cfg->rest_var;
+    if (!still && lp->vehicle) {
+        still = st->var_f < cfg->idle_var && lp->broadband && st->speed < cfg->rest_speed_ms;
+    } else if (!still) {
+        still = st->var_f < cfg->still_var;
+    }
+    if (still &&
+        st->ws[DR_FUSED_WSX] * st->ws[DR_FUSED_WSX] + st->ws[DR_FUSED_WSY] * st->ws[DR_FUSED_WSY] +
+                st->ws[DR_FUSED_WSZ] * st->ws[DR_FUSED_WSZ] <
+            cfg->rest_w2 &&
+        de * de + dn * dn < lp->db2 &&
+        (ae * ae + an * an < lp->db2 || (lp->vehicle && (lp->driven || st->speed < cfg->rest_speed_ms))) &&
+        !(st->since_fix < cfg->gps_timeout_s && st->gps_ok > 0.0f)) {
+        st->rest_s += lp->dt;
+    } else {
+        st->rest_s = 0.0f;
+    }
+    lp->rest = st->rest_s >= cfg->rest_time_s;
+}
+
+/* Steps or a vehicle (codegen.fused's _platform): walking when shaken, not at rest, in the gait band (auto) for
+ * walk_time_s and nothing says a vehicle (a fast fix since the last rest, its own speed beyond a runner's); a
+ * vehicle when shaken above it, a fast fix, or the platform. The steps stopped: so did the walker (speed 0). */
+static inline void dr_fused_platform(const dr_fused_config *cfg, dr_fused_state *st, dr_fused_loop *lp) {
+    const int platform = lp->platform, shaken = lp->shaken, broadband = lp->broadband, rest = lp->rest;
+    int steps = platform != DR_FUSED_PLATFORM_VEHICLE && shaken && !rest &&
+                (platform == DR_FUSED_PLATFORM_PEDESTRIAN ||
+                 !(broadband || lp->fast || (lp->vehicle && st->speed > cfg->pedestrian_max_ms)));
+    st->walk_s = steps ? st->walk_s + lp->dt : 0.0f;
+    lp->walking = steps && ((lp->flags & DR_FUSED_WALKING) || st->walk_s >= cfg->walk_time_s);
+    if (lp->walking) {
+        lp->vehicle = 0;
+        lp->walked = DR_FUSED_WALKED;
+    } else if (lp->fast || (shaken && broadband && platform != DR_FUSED_PLATFORM_PEDESTRIAN && !lp->walked)) {
+        lp->vehicle = 1;
+    }
+    if (lp->vehicle) {
+        lp->walked = 0;
+    }
+    if (rest) { /* a walker's stop keeps him a pedestrian (walked) */
+        lp->driven = 0;
+        lp->fast = 0;
+    } else if (shaken && lp->vehicle) {
+        lp->driven = DR_FUSED_SHAKEN;
+    }
+    if ((lp->flags & DR_FUSED_WALKING) && !lp->walking) {
+        st->speed = 0.0f;
+    }
+}
+
+/* The travel direction turned by the rate about Up, to second order; a walker's slow rotations (the hand) held
+ * back, his turns taken at once (codegen.fused's _travel_direction). Then the sample's flags. */
+static inline void dr_fused_travel_direction(const dr_fused_config *cfg, dr_fused_state *st, dr_fused_loop *lp) {
+    const float dt = lp->dt;
+    float r, da, ux, uy, inv;
+    lp->turning = lp->flags & DR_FUSED_TURNING;
+    r = lp->r20 * lp->wx + lp->r21 * lp->wy + lp->r22 * lp->wz;
+    st->turn += dr_absf(r) * dt;
+    st->rate_up += lp->alpha * (r - st->rate_up);
+    da = r * dt;
+    if (lp->walking && cfg->hold_rate > 0.0f) {
+        float hold = dt * cfg->hold_rate;
+        if (dr_absf(st->rate_up) > cfg->turn_start) {
+            lp->turning = DR_FUSED_TURNING;
+        } else if (dr_absf(st->rate_up) < cfg->turn_end) {
+            lp->turning = 0;
+        }
+        st->held += da;
+        da = lp->turning ? st->held : st->held * (hold < 1.0f ? hold : 1.0f);
+        st->held -= da;
+    } else {
+        lp->turning = 0;
+        da += st->held;
+        st->held = 0.0f;
+    }
+    lp->flags = (lp->rest ? DR_FUSED_AT_REST : 0) | (lp->walking ? DR_FUSED_WALKING : 0) | lp->turning |
+                (lp->vehicle ? DR_FUSED_VEHICLE : 0) | lp->driven | (lp->fast ? DR_FUSED_FAST : 0) | lp->walked;
+    {
+        float cd = 1.0f - 0.5f * da * da, sd = da * (1.0f - da * da * (1.0f / 6.0f));
+        ux = cd * st->ux - sd * st->uy;
+        uy = cd * st->uy + sd * st->ux;
+    }
+    inv = dr_inv_sqrt(ux * ux + uy * uy);
+    st->ux = ux * inv;
+    st->uy = uy * inv;
+    lp->r = r;
+}
+
+/* A vehicle's speed (codegen.fused's _vehicle_speed): the along-track acceleration (the optional sliding median),
+ * less its bias and the folded offsets' leak, through the deadband on its average over accel_tau_s, plus the
+ * optional pull towards the GPS speed, integrated and floored at 0 (zr_v: without the floor). */
+static inline void dr_fused_vehicle_speed(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st,
+                                          const dr_fused_loop *lp) {
+    const float dt = lp->dt;
+    float a = lp->ae * st->ux + lp->an * st->uy;
+    if (lp->median) { /* the seed's block median, sliding: the median of the last b along-track accelerations */
+        float window[DR_FUSED_MEDIAN_MAX];
+        int32_t slot = (int32_t)st->med_i, filled = (int32_t)st->med_n + 1, m;
+        st->med[slot] = a;
+        st->med_i = (float)(slot + 1 == lp->median ? 0 : slot + 1);
+        if (filled > lp->median) {
+            filled = lp->median;
+        }
+        st->med_n = (float)filled;
+        for (m = 0; m < filled; m++) { /* after a restart the ring fills from slot 0 */
+            window[m] = st->med[m];
+        }
+        a = dr_median(window, filled);
+    }
+    a -= st->bias + (st->nh_u0[DR_FUSED_NH_U0X] - st->ux) * st->nh_f[DR_FUSED_NH_FX] +
+         (st->nh_u0[DR_FUSED_NH_U0Y] - st->uy) * st->nh_f[DR_FUSED_NH_FY];
+    if (cfg->inv_accel_tau > 0.0f) { /* the deadband gates on the smoothed acceleration (not the road's) */
+        float b = dt * cfg->inv_accel_tau;
+        st->acc_lp += (b < 1.0f ? b : 1.0f) * (a - st->acc_lp);
+        if (dr_absf(st->acc_lp) < kcfg->deadband_ms2) {
+            a = 0.0f;
+        }
+    } else if (dr_absf(a) < kcfg->deadband_ms2) { /* the board's deadband, on the along-track acceleration */
+        a = 0.0f;
+    }
+    a += (st->gps_speed - st->speed) * cfg->inv_speed_tau;
+    st->speed += a * dt;
+    st->zr_v += a * dt;
+    if (st->speed < 0.0f) {
+        st->speed = 0.0f;
+    }
+}
+
+/* The speed along u (codegen.fused's _speed): at rest 0, after a vehicle's zero-velocity update of the position;
+ * walking the learned walking speed; a pedestrian whose steps stopped without a rest: decaying to 0 over
+ * stand_tau_s, never integrated; a vehicle's integrated (dr_fused_vehicle_speed). */
+static inline void dr_fused_speed(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st,
+                                  const dr_fused_loop *lp) {
+    const int rest = lp->rest, walking = lp->walking, walked = lp->walked;
+    int i;
+    if (rest || walking || walked) { /* the median ring restarts when the vehicle branch is entered again */
+        st->med_i = 0.0f;
+        st->med_n = 0.0f;
+        st->acc_lp = 0.0f;
+    }
+    if (rest) {
+        if (st->zr_t > 0.0f) {
+            /* the speed it still had is the error gathered since its speed was last known; its integral along the
+             * way, and what the floor at 0 kept out, taken back */
+            float kz = st->zr_v * dr_recip(st->zr_t);
+            st->pe += st->zr_c[DR_FUSED_ZR_CE] - kz * st->zr_p[DR_FUSED_ZR_PE];
+            st->pn += st->zr_c[DR_FUSED_ZR_CN] - kz * st->zr_p[DR_FUSED_ZR_PN];
+        }
+        st->speed = 0.0f;
+        st->zr_v = 0.0f;
+    } else if (walking || walked) {
+        if (walking) {
+            st->speed = st->walk_speed;
+        } else {
+            float decay = lp->dt * cfg->inv_stand_tau;
+            st->speed -= st->speed * (decay < 1.0f ? decay : 1.0f);
+        }
+        st->zr_v = st->speed;
+    } else {
+        dr_fused_vehicle_speed(kcfg, cfg, st, lp);
+    }
+    if (rest || walking || walked) {
+        st->zr_t = 0.0f;
+        st->zr_turn = 0.0f;
+        for (i = 0; i < 2; i++) {
+            st->zr_p[i] = 0.0f;
+            st->zr_c[i] = 0.0f;
+        }
+    }
+}
+
+/* A vehicle's lateral update in an outage (codegen.fused's _lateral_update): no sideways sliding, so a_lat - s r =
+ * leak - (s - s_true) r, gathered over nhc_period_s (dr_fused_nhc_update); restarted at a fix, a rest or a walk. */
+static inline void dr_fused_lateral_update(const dr_fused_config *cfg, dr_fused_state *st, const dr_fused_loop *lp) {
+    const float dt = lp->dt;
+    if (!(cfg->nhc_var > 0.0f)) {
+        return;
+    }
+    if (lp->rest || lp->walking || !lp->vehicle || st->since_fix < cfg->gps_timeout_s) {
+        dr_fused_nhc_restart(st);
+        return;
+    }
+    if (st->nh_u0[DR_FUSED_NH_U0X] == 0.0f && st->nh_u0[DR_FUSED_NH_U0Y] == 0.0f) {
+        const float q_now[4] = {lp->q[0], lp->q[1], lp->q[2], lp->q[3]}; /* lp's address stays in the loop */
+        dr_fused_nhc_start(cfg, st, q_now);
+    }
+    st->nh_t += dt;
+    st->nh_z += (lp->an * st->ux - lp->ae * st->uy - st->speed * lp->r) * dt;
+    st->nh_r += lp->r * dt;
+    st->nh_i[DR_FUSED_NH_IX] += st->ux * dt;
+    st->nh_i[DR_FUSED_NH_IY] += st->uy * dt;
+    if (st->nh_t + 0.5f * dt >= cfg->nhc_period_s) { /* half a sample's margin: sums agree */
+        dr_fused_nhc_update(cfg, st);
+    }
+}
+
+/* What the next fix and rest update read (codegen.fused's _fix_integrals): the time towards the next rest update,
+ * the kernel-frame velocity change and its integral, the integral of R(q)'s horizontal rows, the times since the
+ * fix and since the tilt/offset filter's last prediction. */
+static inline void dr_fused_fix_integrals(const dr_fused_config *cfg, dr_fused_state *st, const dr_fused_loop *lp) {
+    const float dt = lp->dt, ae = lp->ae, an = lp->an;
+    if (lp->rest && st->rest_s >= cfg->rest_time_s + cfg->rest_update_s) {
+        st->zt += dt; /* a rest update every rest_update_s, after the rest's first (the end of the braking) */
+    }
+    st->dpx += (st->dvx + 0.5f * ae * dt) * dt;
+    st->dpy += (st->dvy + 0.5f * an * dt) * dt;
+    st->dvx += ae * dt;
+    st->dvy += an * dt;
+    st->m[DR_FUSED_M00] += lp->r00 * dt;
+    st->m[DR_FUSED_M01] += lp->r01 * dt;
+    st->m[DR_FUSED_M10] += lp->r10 * dt;
+    st->m[DR_FUSED_M11] += lp->r11 * dt;
+    st->m2[DR_FUSED_M02] += lp->r02 * dt;
+    st->m2[DR_FUSED_M12] += lp->r12 * dt;
+    st->since_fix += dt;
+    st->kf_t += dt;
+}
+
+/* The position in true ENU and, for a vehicle, the integrals a zero-velocity update corrects it by
+ * (codegen.fused's _advance_position). */
+static inline void dr_fused_advance_position(const dr_fused_config *cfg, dr_fused_state *st,
+                                             const dr_fused_loop *lp) {
+    const float dt = lp->dt;
+    const float ue = st->cos_t * st->ux - st->sin_t * st->uy;
+    const float un = st->sin_t * st->ux + st->cos_t * st->uy;
+    st->pe += st->speed * ue * dt;
+    st->pn += st->speed * un * dt;
+    if (!(lp->rest || lp->walking || lp->walked)) {
+        float lag = (st->zr_v - st->speed) * dt;
+        st->zr_turn += dr_absf(lp->r) * dt;
+        st->zr_t += (1.0f + st->zr_turn * cfg->zupt_turn_weight) * dt;
+        st->zr_p[DR_FUSED_ZR_PE] += st->zr_t * ue * dt;
+        st->zr_p[DR_FUSED_ZR_PN] += st->zr_t * un * dt;
+        st->zr_c[DR_FUSED_ZR_CE] += lag * ue;
+        st->zr_c[DR_FUSED_ZR_CN] += lag * un;
+    }
+}
+
+/* The tilt kept honest by gravity (minus the GPS motion acceleration while fixes arrive), then the attitude
+ * integrated, q <- q (x) [1, omega dt / 2], renormalised (codegen.fused's _tilt_correction). */
+static inline void dr_fused_tilt_correction(const dr_fused_config *cfg, const dr_fused_state *st, dr_fused_loop *lp) {
+    const float dt = lp->dt;
+    const float qw = lp->q[0], qx = lp->q[1], qy = lp->q[2], qz = lp->q[3];
+    float gain, cx, cy, cz, nc2, inv, hx, hy, hz, nw, nx, ny, nz;
+    float w0 = lp->wx, w1 = lp->wy, w2 = lp->wz;
+    if (st->since_fix < cfg->gps_timeout_s) {
+        gain = st->steady > 0.0f ? cfg->kp : 0.0f;
+        cx = lp->fx - (lp->r00 * st->acc_e + lp->r10 * st->acc_n);
+        cy = lp->fy - (lp->r01 * st->acc_e + lp->r11 * st->acc_n);
+        cz = lp->fz - (lp->r02 * st->acc_e + lp->r12 * st->acc_n);
+    } else {
+        gain = cfg->kp_dark;
+        cx = lp->fx;
+        cy = lp->fy;
+        cz = lp->fz;
+    }
+    nc2 = cx * cx + cy * cy + cz * cz;
+    inv = dr_inv_sqrt(nc2);
+    if (nc2 > 0.0f && dr_absf(nc2 * inv - DR_GRAVITY_MS2) < cfg->reject_ms2) {
+        inv *= gain;
+        w0 += (cy * lp->r22 - cz * lp->r21) * inv;
+        w1 += (cz * lp->r20 - cx * lp->r22) * inv;
+        w2 += (cx * lp->r21 - cy * lp->r20) * inv;
+    }
+    hx = 0.5f * w0 * dt;
+    hy = 0.5f * w1 * dt;
+    hz = 0.5f * w2 * dt;
+    nw = qw - qx * hx - qy * hy - qz * hz;
+    nx = qx + qw * hx + qy * hz - qz * hy;
+    ny = qy + qw * hy - qx * hz + qz * hx;
+    nz = qz + qw * hz + qx * hy - qy * hx;
+    inv = dr_inv_sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
+    lp->q[0] = nw * inv;
+    lp->q[1] = nx * inv;
+    lp->q[2] = ny * inv;
+    lp->q[3] = nz * inv;
+}
+
+/* At rest, every rest_update_s: the rest update (dr_fused_rest_update, on the state's attitude); out of rest its
+ * clock restarts (codegen.fused's _rest_update_due). */
+static inline void dr_fused_rest_update_due(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st,
+                                            dr_fused_loop *lp) {
+    if (!lp->rest) {
+        st->zt = 0.0f;
+    } else if (st->zt >= cfg->rest_update_s) {
+        st->q[DR_FUSED_QW] = lp->q[0];
+        st->q[DR_FUSED_QX] = lp->q[1];
+        st->q[DR_FUSED_QY] = lp->q[2];
+        st->q[DR_FUSED_QZ] = lp->q[3];
+        dr_fused_rest_update(kcfg, cfg, st);
+        lp->q[0] = st->q[DR_FUSED_QW];
+        lp->q[1] = st->q[DR_FUSED_QX];
+        lp->q[2] = st->q[DR_FUSED_QY];
+        lp->q[3] = st->q[DR_FUSED_QZ];
+    }
 }
 
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
                      const int32_t *dt_us, int32_t count, float out[6]) {
-    const float g = DR_GRAVITY_MS2;
-    const float db2 = kcfg->deadband_ms2 * kcfg->deadband_ms2;
-    const int platform = (int)cfg->platform;
-    float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
-    float pe0 = st->pe, pn0 = st->pn;
-    float ve, vn;
+    const float pe0 = st->pe, pn0 = st->pn;
+    dr_fused_loop lp;
     int32_t k;
-    int flags = (int)st->flags;
-    int vehicle = platform == DR_FUSED_PLATFORM_VEHICLE || (flags & DR_FUSED_VEHICLE);
-    int driven = flags & DR_FUSED_SHAKEN;
-    int fast = (flags & DR_FUSED_FAST) && platform != DR_FUSED_PLATFORM_PEDESTRIAN;
-    int walked = flags & DR_FUSED_WALKED;
-    int32_t median = cfg->median > 0.0f && kcfg->block > 1 ? kcfg->block : 0;
+    int i;
+    lp.platform = (int)cfg->platform;
+    lp.flags = (int)st->flags;
+    lp.vehicle = lp.platform == DR_FUSED_PLATFORM_VEHICLE || (lp.flags & DR_FUSED_VEHICLE);
+    lp.driven = lp.flags & DR_FUSED_SHAKEN;
+    lp.fast = (lp.flags & DR_FUSED_FAST) && lp.platform != DR_FUSED_PLATFORM_PEDESTRIAN;
+    lp.walked = lp.flags & DR_FUSED_WALKED;
+    lp.median = cfg->median > 0.0f && kcfg->block > 1 ? kcfg->block : 0;
+    lp.db2 = kcfg->deadband_ms2 * kcfg->deadband_ms2;
     if (count < 1) {
         return DR_ERR_COUNT;
     }
-    if (median > DR_FUSED_MEDIAN_MAX) {
+    if (lp.median > DR_FUSED_MEDIAN_MAX) {
         return DR_ERR_BLOCK;
     }
-    for (k = 0; k < count; k++) {
-        const int16_t *s = samples + 6 * k;
-        float dt = (float)dt_us[k] * DR_S_PER_US;
-        float f[3], c[3], w[3];
-        float nf, alpha, beta, gamma, d, h, r00, r01, r02, r10, r11, r12, r20, r21, r22, ae, an, de, dn, r, da, ux, uy,
-            ue, un, inv, gain, cx, cy, cz, nc2;
-        int i, rest, walking, steps, shaken, broadband, still, turning = flags & DR_FUSED_TURNING;
-        for (i = 0; i < 3; i++) {
-            int32_t src = kcfg->axis_source[i];
-            f[i] = kcfg->axis_sign[i] * (float)s[src] * kcfg->accel_ms2_per_lsb;
-            c[i] = kcfg->axis_sign[i] * (float)s[3 + src];
-            w[i] = (c[i] - st->gyro_bias_lsb[i]) * kcfg->gyro_rads_per_lsb;
-        }
-        f[0] -= st->bax;
-        f[1] -= st->bay;
-        f[2] -= st->baz;
-        /* motion statistics */
-        nf = dr_sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
-        alpha = dt * cfg->inv_stat_tau;
-        if (alpha > 1.0f) {
-            alpha = 1.0f;
-        }
-        st->mean_f += alpha * (nf - st->mean_f);
-        d = nf - st->mean_f;
-        st->var_f += alpha * (d * d - st->var_f);
-        /* the shaking above the gait band: |f| through two first-order high-passes at vibration_hz */
-        beta = dt * cfg->vib_rate;
-        if (beta > 1.0f) {
-            beta = 1.0f;
-        }
-        st->vib_lp[0] += beta * (nf - st->vib_lp[0]);
-        h = nf - st->vib_lp[0];
-        st->vib_lp[1] += beta * (h - st->vib_lp[1]);
-        h -= st->vib_lp[1];
-        gamma = dt * cfg->inv_vib_tau;
-        if (gamma > 1.0f) {
-            gamma = 1.0f;
-        }
-        st->vib_var += gamma * (h * h - st->vib_var);
-        st->vib_tot += gamma * (d * d - st->vib_tot);
-        /* the body rate smoothed: an idling engine's shake averages out */
-        for (i = 0; i < 3; i++) {
-            st->ws[i] += alpha * (w[i] - st->ws[i]);
-        }
-        /* rotation matrix of q */
-        r00 = 1.0f - 2.0f * (qy * qy + qz * qz);
-        r01 = 2.0f * (qx * qy - qw * qz);
-        r02 = 2.0f * (qx * qz + qw * qy);
-        r10 = 2.0f * (qx * qy + qw * qz);
-        r11 = 1.0f - 2.0f * (qx * qx + qz * qz);
-        r12 = 2.0f * (qy * qz - qw * qx);
-        r20 = 2.0f * (qx * qz - qw * qy);
-        r21 = 2.0f * (qy * qz + qw * qx);
-        r22 = 1.0f - 2.0f * (qx * qx + qy * qy);
-        ae = r00 * f[0] + r01 * f[1] + r02 * f[2];
-        an = r10 * f[0] + r11 * f[1] + r12 * f[2];
-        shaken = st->var_f > cfg->walk_var;
-        broadband = st->vib_var > cfg->vib_ratio * st->vib_tot;
-        /* rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
-         * deadband (a vehicle quiet after shaking, or below rest_speed_ms: any). Still: below rest_accel_g, or below
-         * still_accel_g for a pedestrian's hand, idle_accel_g for a vehicle's idling engine (broadband, slower than
-         * rest_speed_ms) */
-        st->ah[0] += alpha * (ae - st->ah[0]);
-        st->ah[1] += alpha * (an - st->ah[1]);
-        de = ae - st->ah[0];
-        dn = an - st->ah[1];
-        still = st->var_f < cfg->rest_var;
-        if (!still && vehicle) {
-            still = st->var_f < cfg->idle_var && broadband && st->speed < cfg->rest_speed_ms;
-        } else if (!still) {
-            still = st->var_f < cfg->still_var;
-        }
-        if (still && st->ws[0] * st->ws[0] + st->ws[1] * st->ws[1] + st->ws[2] * st->ws[2] < cfg->rest_w2 &&
-            de * de + dn * dn < db2 &&
-            (ae * ae + an * an < db2 || (vehicle && (driven || st->speed < cfg->rest_speed_ms))) &&
-            !(st->since_fix < cfg->gps_timeout_s && st->gps_ok > 0.0f)) {
-            st->rest_s += dt;
-        } else {
-            st->rest_s = 0.0f;
-        }
-        rest = st->rest_s >= cfg->rest_time_s;
-        /* walking: shaken, not at rest, in the gait band (auto) for walk_time_s, and nothing says a vehicle (a fast
-         * fix since the last rest, its own speed beyond a runner's); a vehicle: shaken above it, a fast fix, or the
-         * platform */
-        steps = platform != DR_FUSED_PLATFORM_VEHICLE && shaken && !rest &&
-                (platform == DR_FUSED_PLATFORM_PEDESTRIAN ||
-                 !(broadband || fast || (vehicle && st->speed > cfg->pedestrian_max_ms)));
-        st->walk_s = steps ? st->walk_s + dt : 0.0f;
-        walking = steps && ((flags & DR_FUSED_WALKING) || st->walk_s >= cfg->walk_time_s);
-        if (walking) {
-            vehicle = 0;
-            walked = DR_FUSED_WALKED;
-        } else if (fast || (shaken && broadband && platform != DR_FUSED_PLATFORM_PEDESTRIAN && !walked)) {
-            vehicle = 1;
-        }
-        if (vehicle) {
-            walked = 0;
-        }
-        if (rest) { /* a walker's stop keeps him a pedestrian (walked) */
-            driven = 0;
-            fast = 0;
-        } else if (shaken && vehicle) {
-            driven = DR_FUSED_SHAKEN;
-        }
-        if ((flags & DR_FUSED_WALKING) && !walking) {
-            st->speed = 0.0f; /* the steps stopped, and so did the walker */
-        }
-        /* travel direction turned by the rate about Up; a walker's slow rotations (the hand) held back */
-        r = r20 * w[0] + r21 * w[1] + r22 * w[2];
-        st->turn += dr_absf(r) * dt;
-        st->rate_up += alpha * (r - st->rate_up);
-        da = r * dt;
-        if (walking && cfg->hold_rate > 0.0f) {
-            float hold = dt * cfg->hold_rate;
-            if (dr_absf(st->rate_up) > cfg->turn_start) {
-                turning = DR_FUSED_TURNING;
-            } else if (dr_absf(st->rate_up) < cfg->turn_end) {
-                turning = 0;
-            }
-            st->held += da;
-            da = turning ? st->held : st->held * (hold < 1.0f ? hold : 1.0f);
-            st->held -= da;
-        } else {
-            turning = 0;
-            da += st->held;
-            st->held = 0.0f;
-        }
-        flags = (rest ? DR_FUSED_AT_REST : 0) | (walking ? DR_FUSED_WALKING : 0) | turning |
-                (vehicle ? DR_FUSED_VEHICLE : 0) | driven | (fast ? DR_FUSED_FAST : 0) | walked;
-        /* u rotated by da, to second order */
-        {
-            float cd = 1.0f - 0.5f * da * da, sd = da * (1.0f - da * da * (1.0f / 6.0f));
-            ux = cd * st->ux - sd * st->uy;
-            uy = cd * st->uy + sd * st->ux;
-        }
-        inv = dr_inv_sqrt(ux * ux + uy * uy);
-        st->ux = ux * inv;
-        st->uy = uy * inv;
-        /* speed along u */
-        if (rest || walking || walked) { /* the median ring restarts when the vehicle branch is entered again */
-            st->med_i = 0.0f;
-            st->med_n = 0.0f;
-            st->acc_lp = 0.0f;
-        }
-        if (rest) {
-            if (st->zr_t > 0.0f) {
-                /* a vehicle's zero-velocity update: the speed it still had is the error gathered since its speed
-                 * was last known; its integral along the way, and what the floor at 0 kept out, taken back */
-                float kz = st->zr_v * dr_recip(st->zr_t);
-                st->pe += st->zr_c[0] - kz * st->zr_p[0];
-                st->pn += st->zr_c[1] - kz * st->zr_p[1];
-            }
-            st->speed = 0.0f;
-            st->zr_v = 0.0f;
-        } else if (walking || walked) {
-            /* walking: the learned walking speed; a pedestrian whose steps stopped without a rest: the speed decays
-             * to 0 over stand_tau_s, never integrated */
-            if (walking) {
-                st->speed = st->walk_speed;
-            } else {
-                float decay = dt * cfg->inv_stand_tau;
-                st->speed -= st->speed * (decay < 1.0f ? decay : 1.0f);
-            }
-            st->zr_v = st->speed;
-        } else {
-            float a = ae * st->ux + an * st->uy;
-            if (median) { /* the seed's block median, sliding: the median of the last b along-track accelerations */
-                float window[DR_FUSED_MEDIAN_MAX];
-                int32_t slot = (int32_t)st->med_i, filled = (int32_t)st->med_n + 1, m;
-                st->med[slot] = a;
-                st->med_i = (float)(slot + 1 == median ? 0 : slot + 1);
-                if (filled > median) {
-                    filled = median;
-                }
-                st->med_n = (float)filled;
-                for (m = 0; m < filled; m++) { /* after a restart the ring fills from slot 0 */
-                    window[m] = st->med[m];
-                }
-                a = dr_median(window, filled);
-            }
-            /* the folded offsets turned with the vehicle since the outage began: along u they leak (u0 - u) . f */
-            a -= st->bias + (st->nh_u0[0] - st->ux) * st->nh_f[0] + (st->nh_u0[1] - st->uy) * st->nh_f[1];
-            if (cfg->inv_accel_tau > 0.0f) { /* the deadband gates on the smoothed acceleration (not the road's) */
-                float b = dt * cfg->inv_accel_tau;
-                st->acc_lp += (b < 1.0f ? b : 1.0f) * (a - st->acc_lp);
-                if (dr_absf(st->acc_lp) < kcfg->deadband_ms2) {
-                    a = 0.0f;
-                }
-            } else if (dr_absf(a) < kcfg->deadband_ms2) { /* the board's deadband, on the along-track acceleration */
-                a = 0.0f;
-            }
-            a += (st->gps_speed - st->speed) * cfg->inv_speed_tau;
-            st->speed += a * dt;
-            st->zr_v += a * dt;
-            if (st->speed < 0.0f) {
-                st->speed = 0.0f;
-            }
-        }
-        if (rest || walking || walked) {
-            st->zr_t = 0.0f;
-            st->zr_turn = 0.0f;
-            for (i = 0; i < 2; i++) {
-                st->zr_p[i] = 0.0f;
-                st->zr_c[i] = 0.0f;
-            }
-        }
-        if (cfg->nhc_var > 0.0f) {
-            if (rest || walking || !vehicle || st->since_fix < cfg->gps_timeout_s) {
-                dr_fused_nhc_restart(st);
-            } else {
-                /* no sideways sliding: a_lat - s r = leak - (s - s_true) r sees the lateral leak and the speed error */
-                if (st->nh_u0[0] == 0.0f && st->nh_u0[1] == 0.0f) {
-                    const float q_now[4] = {qw, qx, qy, qz};
-                    dr_fused_nhc_start(cfg, st, q_now);
-                }
-                st->nh_t += dt;
-                st->nh_z += (an * st->ux - ae * st->uy - st->speed * r) * dt;
-                st->nh_r += r * dt;
-                st->nh_i[0] += st->ux * dt;
-                st->nh_i[1] += st->uy * dt;
-                if (st->nh_t + 0.5f * dt >= cfg->nhc_period_s) { /* half a sample's margin: sums agree */
-                    dr_fused_nhc_update(cfg, st);
-                }
-            }
-        }
-        if (rest && st->rest_s >= cfg->rest_time_s + cfg->rest_update_s) {
-            st->zt += dt; /* a rest update every rest_update_s, after the rest's first (the end of the braking) */
-        }
-        st->dpx += (st->dvx + 0.5f * ae * dt) * dt;
-        st->dpy += (st->dvy + 0.5f * an * dt) * dt;
-        st->dvx += ae * dt;
-        st->dvy += an * dt;
-        st->m[0] += r00 * dt;
-        st->m[1] += r01 * dt;
-        st->m[2] += r10 * dt;
-        st->m[3] += r11 * dt;
-        st->m2[0] += r02 * dt;
-        st->m2[1] += r12 * dt;
-        st->since_fix += dt;
-        st->kf_t += dt;
-        /* position, true ENU */
-        ue = st->cos_t * st->ux - st->sin_t * st->uy;
-        un = st->sin_t * st->ux + st->cos_t * st->uy;
-        st->pe += st->speed * ue * dt;
-        st->pn += st->speed * un * dt;
-        if (!(rest || walking || walked)) { /* the integrals a zero-velocity update corrects the position by */
-            float lag = (st->zr_v - st->speed) * dt;
-            st->zr_turn += dr_absf(r) * dt;
-            st->zr_t += (1.0f + st->zr_turn * cfg->zupt_turn_weight) * dt;
-            st->zr_p[0] += st->zr_t * ue * dt;
-            st->zr_p[1] += st->zr_t * un * dt;
-            st->zr_c[0] += lag * ue;
-            st->zr_c[1] += lag * un;
-        }
-        /* tilt correction towards gravity (minus the GPS motion acceleration while fixes arrive) */
-        if (st->since_fix < cfg->gps_timeout_s) {
-            gain = st->steady > 0.0f ? cfg->kp : 0.0f;
-            cx = f[0] - (r00 * st->acc_e + r10 * st->acc_n);
-            cy = f[1] - (r01 * st->acc_e + r11 * st->acc_n);
-            cz = f[2] - (r02 * st->acc_e + r12 * st->acc_n);
-        } else {
-            gain = cfg->kp_dark;
-            cx = f[0];
-            cy = f[1];
-            cz = f[2];
-        }
-        nc2 = cx * cx + cy * cy + cz * cz;
-        inv = dr_inv_sqrt(nc2);
-        if (nc2 > 0.0f && dr_absf(nc2 * inv - g) < cfg->reject_ms2) {
-            inv *= gain;
-            w[0] += (cy * r22 - cz * r21) * inv;
-            w[1] += (cz * r20 - cx * r22) * inv;
-            w[2] += (cx * r21 - cy * r20) * inv;
-        }
-        /* q <- q (x) [1, omega dt / 2], renormalised */
-        {
-            float hx = 0.5f * w[0] * dt, hy = 0.5f * w[1] * dt, hz = 0.5f * w[2] * dt;
-            float nw = qw - qx * hx - qy * hy - qz * hz;
-            float nx = qx + qw * hx + qy * hz - qz * hy;
-            float ny = qy + qw * hy - qx * hz + qz * hx;
-            float nz = qz + qw * hz + qx * hy - qy * hx;
-            inv = dr_inv_sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
-            qw = nw * inv;
-            qx = nx * inv;
-            qy = ny * inv;
-            qz = nz * inv;
-        }
-        if (!rest) {
-            st->zt = 0.0f;
-        } else if (st->zt >= cfg->rest_update_s) {
-            st->q[0] = qw;
-            st->q[1] = qx;
-            st->q[2] = qy;
-            st->q[3] = qz;
-            dr_fused_rest_update(kcfg, cfg, st);
-            qw = st->q[0];
-            qx = st->q[1];
-            qy = st->q[2];
-            qz = st->q[3];
-        }
+    for (i = 0; i < 4; i++) {
+        lp.q[i] = st->q[i];
     }
-    st->q[0] = qw;
-    st->q[1] = qx;
-    st->q[2] = qy;
-    st->q[3] = qz;
-    st->flags = (float)flags;
-    ve = st->speed * (st->cos_t * st->ux - st->sin_t * st->uy);
-    vn = st->speed * (st->sin_t * st->ux + st->cos_t * st->uy);
+    for (k = 0; k < count; k++) {
+        dr_fused_sample_in(kcfg, st, &lp, samples + 6 * k, dt_us[k]);
+        dr_fused_motion_statistics(cfg, st, &lp);
+        dr_fused_horizontal_force(st, &lp);
+        dr_fused_rest(cfg, st, &lp);
+        dr_fused_platform(cfg, st, &lp);
+        dr_fused_travel_direction(cfg, st, &lp);
+        dr_fused_speed(kcfg, cfg, st, &lp);
+        dr_fused_lateral_update(cfg, st, &lp);
+        dr_fused_fix_integrals(cfg, st, &lp);
+        dr_fused_advance_position(cfg, st, &lp);
+        dr_fused_tilt_correction(cfg, st, &lp);
+        dr_fused_rest_update_due(kcfg, cfg, st, &lp);
+    }
+    for (i = 0; i < 4; i++) {
+        st->q[i] = lp.q[i];
+    }
+    st->flags = (float)lp.flags;
     out[0] = st->pe - pe0;
     out[1] = st->pn - pn0;
     out[2] = 0.0f;
-    out[3] = ve;
-    out[4] = vn;
+    out[3] = st->speed * (st->cos_t * st->ux - st->sin_t * st->uy);
+    out[4] = st->speed * (st->sin_t * st->ux + st->cos_t * st->uy);
     out[5] = 0.0f;
     return DR_OK;
 }
@@ -877,12 +1003,12 @@ static void dr_fused_filter(const dr_fused_config *cfg, dr_fused_state *st, floa
     gy = vn - st->gps_vn;
     z0 = (st->dvx - (st->cos_t * gx + st->sin_t * gy)) * inv_t;
     z1 = (st->dvy - (-st->sin_t * gx + st->cos_t * gy)) * inv_t;
-    h[0][0] = st->m[0] * inv_t;
-    h[0][1] = st->m[1] * inv_t;
-    h[0][2] = st->m2[0] * inv_t;
-    h[1][0] = st->m[2] * inv_t;
-    h[1][1] = st->m[3] * inv_t;
-    h[1][2] = st->m2[1] * inv_t;
+    h[0][0] = st->m[DR_FUSED_M00] * inv_t;
+    h[0][1] = st->m[DR_FUSED_M01] * inv_t;
+    h[0][2] = st->m2[DR_FUSED_M02] * inv_t;
+    h[1][0] = st->m[DR_FUSED_M10] * inv_t;
+    h[1][1] = st->m[DR_FUSED_M11] * inv_t;
+    h[1][2] = st->m2[DR_FUSED_M12] * inv_t;
     dr_fused_kf_update(cfg, st, z0, z1, (const float(*)[3])h, cfg->kf_vel_r * inv_t * inv_t, x);
 }
 

@@ -43,7 +43,8 @@ void dr_fused_state_init(dr_fused_state *st);
  * dr_calibrate, the motion statistics started at rest, speed 0. Returns DR_OK, DR_MOVED or DR_ERR_COUNT. */
 int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t *samples, int32_t count);
 
-/* Processes count >= 1 raw samples (sensor frame, interleaved), each held dt_us[k] microseconds. out: the
+/* Processes count >= 1 raw samples (sensor frame, interleaved), each held dt_us[k] microseconds, each through the
+ * per-sample steps of docs/fused.md in their order (static inline dr_fused_<step> in dr_fused.c). out: the
  * displacement East, North, Up (m, true ENU; Up 0) over the samples, then the velocity East, North, Up (m/s).
  * Returns DR_OK, DR_ERR_COUNT or DR_ERR_BLOCK (the median option with kcfg->block > DR_FUSED_MEDIAN_MAX): nothing
  * changed. */

@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from codegen.board.loader import default_board
+from codegen.board.loader import default_board, load_board
 from codegen.kernel import fused as F
 from codegen.kernel.reference import KernelConfig, quat_from_rotvec, quat_to_matrix
 
@@ -313,3 +313,33 @@ def test_fused_c_under_sanitizers(tmp_path):
           *[tmp_path / s for s in sources], "-o", binary])
     out = _run([binary, "3"]).split()
     assert len(out) == 3 and all(math.isfinite(float(x)) for x in out)
+
+
+def test_the_per_sample_steps_are_the_same_steps_in_the_same_order_everywhere():
+    """docs/fused.md's table, the reference's process, the C's dr_fused_process and the generated fallback's
+    fused_process name the same per-sample steps in the same order (codegen.kernel.fused.PER_SAMPLE_STEPS), and each
+    has its function: a reader finds a step by its name in all three."""
+    import inspect
+    import re
+    from pathlib import Path
+
+    from codegen.generate import render_tree
+
+    root = Path(__file__).resolve().parents[1]
+    steps = list(F.PER_SAMPLE_STEPS)
+    assert len(set(steps)) == len(steps)
+    assert re.findall(r"^\s+_(\w+)\(lp, st\b", inspect.getsource(F.process), re.M) == steps
+    assert all(callable(getattr(F, "_" + name)) for name in steps)
+    c = (root / "native_ext" / "dr_fused.c").read_text()
+    body = c[c.index("int dr_fused_process("):]
+    body = body[:body.index("\n}\n")]
+    assert re.findall(r"^\s+dr_fused_(\w+)\((?:kcfg, )?(?:cfg, )?st, &lp\b", body, re.M) == steps
+    assert all(re.search(rf"^static inline void dr_fused_{name}\(", c, re.M) for name in steps)
+    fallback = render_tree(load_board())["app/dr_fallback.py"].content.decode()
+    loop = fallback[fallback.index("def fused_process("):]
+    loop = loop[:loop.index("\ndef ")]
+    assert re.findall(r"^\s+# step: (\w+)", loop, re.M) == steps
+    docs = (root / "docs" / "fused.md").read_text()
+    rows = re.findall(r"^\| (\d+) \| (\w+) \| `_(\w+)` \| `dr_fused_(\w+)` \| `# step: (\w+)` \|$", docs, re.M)
+    assert [(int(n), name) for n, name, *_ in rows] == list(enumerate(steps, 1))
+    assert all(len(set(names)) == 1 for _, *names in rows)

@@ -1,14 +1,16 @@
 """The fused real-time algorithm (`algorithm: fused`): the executable specification, float64.
 
-Per sample (`process`): tilt corrected towards gravity, motion statistics (rest, walking, a vehicle's vibration), a
-travel direction turned by the gyro (a walker's slow swings held back) and a speed along it (a walker's learned
-speed, a vehicle's integrated acceleration with its zero-velocity updates and, in an outage, its lateral update:
-no sideways sliding, so a turn's centripetal acceleration shows the speed error), the position in true ENU; at rest,
-every rest_update_s, the gyro bias and the tilt/offset filter (`rest_update`). At each GPS fix (`position_update`, then
-`gps_update`): the fix smoothed with the Doppler and the IMU, the heading alignment of the kernel frame to North, the
-travel direction, the speed, the along-track bias, the walking speed, and a 5-state Kalman filter of the tilt and
-the accelerometer's offsets (`tilt_and_offset_update`). docs/fused.md gives the equations and how the defaults were
-tuned; native_ext/dr_fused.c and the fallback's fused_* are the same steps in float32.
+Per sample (`process`, the named steps of PER_SAMPLE_STEPS in their order): tilt corrected towards gravity, motion
+statistics (rest, walking, a vehicle's vibration), a travel direction turned by the gyro (a walker's slow swings held
+back) and a speed along it (a walker's learned speed, a vehicle's integrated acceleration with its zero-velocity
+updates and, in an outage, its lateral update: no sideways sliding, so a turn's centripetal acceleration shows the
+speed error), the position in true ENU; at rest, every rest_update_s, the gyro bias and the tilt/offset filter
+(`rest_update`). At each GPS fix (`position_update`, then `gps_update`): the fix smoothed with the Doppler and the
+IMU, the heading alignment of the kernel frame to North, the travel direction, the speed, the along-track bias, the
+walking speed, and a 5-state Kalman filter of the tilt and the accelerometer's offsets (`tilt_and_offset_update`).
+docs/fused.md gives the equations and how the defaults were tuned; native_ext/dr_fused.c (static inline
+dr_fused_<step>) and the fallback's fused_process (blocks labelled `step: <step>`) are the same steps, in the same
+order, in float32.
 
 The state is a flat vector of floats and the parameters a FusedConfig, both from the declaration
 (codegen/kernel/layout.py) that also lays out the C kernel's caller-owned buffer and the fallback's offsets: FusedState
@@ -104,304 +106,421 @@ def calibrate(st: FusedState, samples, kcfg: KernelConfig) -> bool:
     return bool(np.any(std_g > kcfg.motion_threshold_g))
 
 
+# The per-sample loop, as named steps in the order `process` calls them (docs/fused.md "Per sample"; dr_fused.c's
+# static inline dr_fused_<step> and the fallback's labelled blocks `# step: <name>` are the same steps, same order).
+PER_SAMPLE_STEPS = ("sample_in", "motion_statistics", "horizontal_force", "rest", "platform", "travel_direction",
+                    "speed", "lateral_update", "fix_integrals", "advance_position", "tilt_correction",
+                    "rest_update_due")
+
+
+class _Loop:
+    """What the per-sample steps share within one `process` call: the parameters in the form the loop reads, the
+    platform's decisions carried from sample to sample (the flags), and the current sample's values."""
+
+    __slots__ = (
+        # the parameters in the loop's form
+        "fcfg", "g", "gscale", "kp", "reject", "kp_dark", "deadband", "rest_var", "still_var", "idle_var",
+        "inv_stand", "rest_w2", "walk_var", "vib_rate", "inv_vib", "platform", "inv_stat", "inv_speed", "inv_acc",
+        "nhc_r", "median", "ring", "hold_rate", "turn_start", "turn_end",
+        # the decisions carried between samples
+        "was_walking", "vehicle", "driven", "fast", "walked", "turning",
+        # this sample: its interval, specific force and rate, their statistics, R(q)'s rows, the horizontal force
+        "dt", "fx", "fy", "fz", "wx", "wy", "wz", "nf", "d", "alpha", "shaken", "broadband",
+        "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "ae", "an", "rest", "walking", "r")
+
+    def __init__(self, st: FusedState, kcfg: KernelConfig, fcfg: FusedConfig):
+        g = STANDARD_GRAVITY
+        self.fcfg = fcfg
+        self.g = g
+        self.gscale = kcfg.gyro_rads_per_lsb
+        self.kp = 1.0 / fcfg.tilt_tau_s
+        self.reject = fcfg.accel_reject_g * g
+        self.kp_dark = 1.0 / fcfg.tilt_tau_dark_s if fcfg.tilt_tau_dark_s > 0.0 else 0.0
+        self.deadband = kcfg.deadband_ms2
+        self.rest_var = (fcfg.rest_accel_g * g) ** 2
+        self.still_var = (fcfg.still_accel_g * g) ** 2
+        self.idle_var = (fcfg.idle_accel_g * g) ** 2
+        self.inv_stand = 1.0 / fcfg.stand_tau_s if fcfg.stand_tau_s > 0.0 else 0.0
+        self.rest_w2 = math.radians(fcfg.rest_gyro_dps) ** 2
+        self.walk_var = (fcfg.walk_accel_g * g) ** 2
+        self.vib_rate = fcfg.vibration_hz * 2.0 * math.pi
+        self.inv_vib = 1.0 / fcfg.vibration_tau_s
+        self.platform = int(fcfg.platform)
+        self.inv_stat = 1.0 / fcfg.stat_tau_s
+        self.inv_speed = 1.0 / fcfg.speed_tau_s if fcfg.speed_tau_s > 0.0 else 0.0
+        self.inv_acc = 1.0 / fcfg.accel_tau_s if fcfg.accel_tau_s > 0.0 else 0.0
+        self.nhc_r = fcfg.nhc_sigma_ms2 * fcfg.nhc_sigma_ms2  # the lateral residual's variance, averaged over 1 s
+        self.median = kcfg.block if fcfg.median > 0.0 and kcfg.block > 1 else 0
+        if self.median > FUSED_MEDIAN_MAX:
+            raise ValueError(f"the median option takes algorithm.block <= {FUSED_MEDIAN_MAX}, not {self.median}")
+        self.ring = [getattr(st, f"med{k}") for k in range(FUSED_MEDIAN_MAX)]
+        self.hold_rate = 1.0 / fcfg.turn_hold_tau_s if fcfg.turn_hold_tau_s > 0.0 else 0.0
+        self.turn_start = math.radians(fcfg.turn_start_dps)
+        self.turn_end = math.radians(fcfg.turn_end_dps)
+        flags = int(st.flags)
+        self.was_walking = bool(flags & WALKING)
+        self.vehicle = self.platform == PLATFORM_VEHICLE or bool(flags & VEHICLE)
+        self.driven = bool(flags & SHAKEN)
+        self.fast = bool(flags & FAST) and self.platform != PLATFORM_PEDESTRIAN
+        self.walked = bool(flags & WALKED)
+        self.turning = bool(flags & TURNING)
+
+    def flags(self) -> int:
+        """The sample's flags (AT_REST | WALKING | ...), as the state keeps the last one's."""
+        return ((AT_REST if self.rest else 0) | (WALKING if self.walking else 0) | (TURNING if self.turning else 0)
+                | (VEHICLE if self.vehicle else 0) | (SHAKEN if self.driven else 0) | (FAST if self.fast else 0)
+                | (WALKED if self.walked else 0))
+
+
 def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfig):
-    """Steps 1-4 over raw samples (m, 6) held dt_us[k] us each. Returns (out (6,), flags (m,)): out = the
-    displacement East, North, Up over the samples (true ENU m, Up 0) and the velocity E, N, U at their end."""
+    """The per-sample steps (PER_SAMPLE_STEPS) over raw samples (m, 6) held dt_us[k] us each. Returns (out (6,),
+    flags (m,)): out = the displacement East, North, Up over the samples (true ENU m, Up 0) and the velocity E, N, U
+    at their end."""
     body = remap_axes(samples, kcfg.axis_map)
     acc = (body[:, :3] * kcfg.accel_ms2_per_lsb).tolist()
     gyr = body[:, 3:].tolist()
     dts = (np.asarray(dt_us, dtype=np.float64) * 1e-6).tolist()
-    g = STANDARD_GRAVITY
-    gscale = kcfg.gyro_rads_per_lsb
-    kp = 1.0 / fcfg.tilt_tau_s
-    reject = fcfg.accel_reject_g * g
-    kp_dark = 1.0 / fcfg.tilt_tau_dark_s if fcfg.tilt_tau_dark_s > 0.0 else 0.0
-    deadband = kcfg.deadband_ms2
-    rest_var = (fcfg.rest_accel_g * g) ** 2
-    still_var = (fcfg.still_accel_g * g) ** 2
-    idle_var = (fcfg.idle_accel_g * g) ** 2
-    inv_stand = 1.0 / fcfg.stand_tau_s if fcfg.stand_tau_s > 0.0 else 0.0
-    rest_w2 = math.radians(fcfg.rest_gyro_dps) ** 2
-    walk_var = (fcfg.walk_accel_g * g) ** 2
-    vib_rate = fcfg.vibration_hz * 2.0 * math.pi
-    inv_vib = 1.0 / fcfg.vibration_tau_s
-    platform = int(fcfg.platform)
-    inv_stat = 1.0 / fcfg.stat_tau_s
-    inv_speed = 1.0 / fcfg.speed_tau_s if fcfg.speed_tau_s > 0.0 else 0.0
-    inv_acc = 1.0 / fcfg.accel_tau_s if fcfg.accel_tau_s > 0.0 else 0.0
-    nhc_r = fcfg.nhc_sigma_ms2 * fcfg.nhc_sigma_ms2  # the lateral residual's variance, averaged over 1 s
-    median = kcfg.block if fcfg.median > 0.0 and kcfg.block > 1 else 0
-    if median > FUSED_MEDIAN_MAX:
-        raise ValueError(f"the median option takes algorithm.block <= {FUSED_MEDIAN_MAX}, not {median}")
-    ring = [getattr(st, f"med{k}") for k in range(FUSED_MEDIAN_MAX)]
+    lp = _Loop(st, kcfg, fcfg)
     flags = np.zeros(len(dts), dtype=np.int8)
-    was_walking = bool(int(st.flags) & WALKING)
-    vehicle = platform == PLATFORM_VEHICLE or bool(int(st.flags) & VEHICLE)
-    driven = bool(int(st.flags) & SHAKEN)
-    fast = bool(int(st.flags) & FAST) and platform != PLATFORM_PEDESTRIAN
-    walked = bool(int(st.flags) & WALKED)
-    turning = bool(int(st.flags) & TURNING)
-    hold_rate = 1.0 / fcfg.turn_hold_tau_s if fcfg.turn_hold_tau_s > 0.0 else 0.0
-    turn_start = math.radians(fcfg.turn_start_dps)
-    turn_end = math.radians(fcfg.turn_end_dps)
     pe0, pn0 = st.pe, st.pn
-    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
     for k, dt in enumerate(dts):
-        fx, fy, fz = acc[k]
-        fx -= st.bax
-        fy -= st.bay
-        fz -= st.baz
-        cx, cy, cz = gyr[k]
-        wx = (cx - st.bgx) * gscale
-        wy = (cy - st.bgy) * gscale
-        wz = (cz - st.bgz) * gscale
-        # motion statistics
-        nf = math.sqrt(fx * fx + fy * fy + fz * fz)
-        alpha = dt * inv_stat
-        if alpha > 1.0:
-            alpha = 1.0
-        st.mean_f += alpha * (nf - st.mean_f)
-        d = nf - st.mean_f
-        st.var_f += alpha * (d * d - st.var_f)
-        # the shaking above the gait band: |f| through two first-order high-passes at vibration_hz (a walker's
-        # steps stay below it, a vehicle's road, wheels and engine reach far above)
-        beta = dt * vib_rate
-        if beta > 1.0:
-            beta = 1.0
-        st.vib_lp1 += beta * (nf - st.vib_lp1)
-        h = nf - st.vib_lp1
-        st.vib_lp2 += beta * (h - st.vib_lp2)
-        h -= st.vib_lp2
-        gamma = dt * inv_vib
-        if gamma > 1.0:
-            gamma = 1.0
-        st.vib_var += gamma * (h * h - st.vib_var)
-        st.vib_tot += gamma * (d * d - st.vib_tot)
-        # the body rate smoothed: an idling engine's shake averages out, a turn or a hand's motion does not
-        st.wsx += alpha * (wx - st.wsx)
-        st.wsy += alpha * (wy - st.wsy)
-        st.wsz += alpha * (wz - st.wsz)
-        # rotation matrix rows of q (body -> kernel ENU)
-        r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
-        r01 = 2.0 * (qx * qy - qw * qz)
-        r02 = 2.0 * (qx * qz + qw * qy)
-        r10 = 2.0 * (qx * qy + qw * qz)
-        r11 = 1.0 - 2.0 * (qx * qx + qz * qz)
-        r12 = 2.0 * (qy * qz - qw * qx)
-        r20 = 2.0 * (qx * qz - qw * qy)
-        r21 = 2.0 * (qy * qz + qw * qx)
-        r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
-        ae = r00 * fx + r01 * fy + r02 * fz
-        an = r10 * fx + r11 * fy + r12 * fz
-        shaken = st.var_f > walk_var
-        broadband = st.vib_var > fcfg.vibration_ratio * st.vib_tot
-        # rest: still (variance, smoothed rate: an idling engine's shake averages out), the horizontal acceleration
-        # steady within the deadband (a push, a start or a stop is no rest), not while fixes arrive that say the
-        # device moves (a smooth cruise is no rest), and the horizontal acceleration itself within the deadband;
-        # but a vehicle stopped in an outage may have a larger tilt error: any, if it shook (drove) since its last
-        # rest and went quiet, or while its speed is below rest_speed_ms (a quiet, steady start from a rest has
-        # neither: it gathers speed). Still: |f| varies by less than rest_accel_g, or where more than the amplitude
-        # says rest by less than still_accel_g for a pedestrian's hand (the steadiness and the rate above tell it
-        # from steps, whose surges and swings break both) and idle_accel_g for a vehicle's idling engine (its
-        # shaking above the gait band, its speed below rest_speed_ms: creeping traffic has speed)
-        st.ah_e += alpha * (ae - st.ah_e)
-        st.ah_n += alpha * (an - st.ah_n)
-        de, dn = ae - st.ah_e, an - st.ah_n
-        ah2 = ae * ae + an * an
-        gps_moving = st.since_fix < fcfg.gps_timeout_s and st.gps_ok > 0.0
-        if vehicle:
-            still = st.var_f < rest_var or st.var_f < idle_var and broadband and st.speed < fcfg.rest_speed_ms
-        else:
-            still = st.var_f < rest_var or st.var_f < still_var
-        if (still and st.wsx * st.wsx + st.wsy * st.wsy + st.wsz * st.wsz < rest_w2
-                and de * de + dn * dn < deadband * deadband
-                and (ah2 < deadband * deadband or vehicle and (driven or st.speed < fcfg.rest_speed_ms))
-                and not gps_moving):
-            st.rest_s += dt
-        else:
-            st.rest_s = 0.0
-        rest = st.rest_s >= fcfg.rest_time_s
-        # walking: shaken (the steps), by a pedestrian, not at rest; on auto, only while the shaking stays in the gait
-        # band and nothing says a vehicle: a fix faster than people run since the last rest (fast), or the vehicle's
-        # own speed beyond that (a vehicle does not become a pedestrian without stopping). A vehicle: shaken far
-        # above the gait band (its road, wheels and engine) unless it walked (a hand's tremor is broadband too: a
-        # pedestrian becomes a vehicle by a fast fix), a fast fix, or the platform says so; until the steps.
-        steps = platform != PLATFORM_VEHICLE and shaken and not rest and (platform == PLATFORM_PEDESTRIAN or not (
-            broadband or fast or vehicle and st.speed > fcfg.pedestrian_max_ms))
-        st.walk_s = st.walk_s + dt if steps else 0.0
-        walking = steps and (was_walking or st.walk_s >= fcfg.walk_time_s)
-        if walking:
-            vehicle = False
-            walked = True
-        elif fast or shaken and broadband and platform != PLATFORM_PEDESTRIAN and not walked:
-            vehicle = True  # a walker's hand tremor (8-12 Hz) is broadband too
-        if vehicle:
-            walked = False
-        if rest:  # a walker's stop keeps him a pedestrian (walked): his hand's tremor is broadband, no engine
-            driven = fast = False
-        elif shaken and vehicle:
-            driven = True
-        if was_walking and not walking:
-            st.speed = 0.0  # the steps stopped, and so did the walker (a vehicle he boards starts from 0 too)
-        was_walking = walking
-        # travel direction turned by the rate about Up (uncorrected gyro: the tilt correction is not a turn)
-        r = r20 * wx + r21 * wy + r22 * wz
-        st.turn += abs(r) * dt
-        st.rate_up += alpha * (r - st.rate_up)
-        da = r * dt
-        if walking and hold_rate > 0.0:
-            # a walker's turns are quick; the hand's slow swings about the course are not turns: u takes a turn at
-            # once (with what it held), a slow rotation over turn_hold_tau_s (a swing that returns cancels)
-            if abs(st.rate_up) > turn_start:
-                turning = True
-            elif abs(st.rate_up) < turn_end:
-                turning = False
-            st.held += da
-            da = st.held if turning else st.held * min(1.0, dt * hold_rate)
-            st.held -= da
-        else:
-            turning = False
-            da += st.held
-            st.held = 0.0
-        flags[k] = ((AT_REST if rest else 0) | (WALKING if walking else 0) | (TURNING if turning else 0)
-                    | (VEHICLE if vehicle else 0) | (SHAKEN if driven else 0) | (FAST if fast else 0)
-                    | (WALKED if walked else 0))
-        # u rotated by da (to second order: a turn's held part can be tens of degrees)
-        cd = 1.0 - 0.5 * da * da
-        sd = da * (1.0 - da * da * (1.0 / 6.0))
-        ux = cd * st.ux - sd * st.uy
-        uy = cd * st.uy + sd * st.ux
-        inv = 1.0 / math.sqrt(ux * ux + uy * uy)
-        st.ux = ux * inv
-        st.uy = uy * inv
-        # speed along u
-        if rest or walking or walked:
-            st.med_i = st.med_n = 0.0  # the median ring restarts when the vehicle branch is entered again
-            st.acc_lp = 0.0
-        if rest:
-            if st.zr_t > 0.0:
-                # a vehicle's zero-velocity update: the speed it still had (not floored at 0) is the error its
-                # along-track integration gathered since the last speed it knew (a fix or a rest), at a rate taken
-                # as constant; the position moved by that error's integral along the way it went, and by what the
-                # floor kept out: both taken back
-                k = st.zr_v / st.zr_t
-                st.pe += st.zr_ce - k * st.zr_pe
-                st.pn += st.zr_cn - k * st.zr_pn
-            st.speed = 0.0
-            st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_v = st.zr_turn = 0.0
-        elif walking or walked:
-            # walking: the learned walking speed; a pedestrian whose steps stopped without a rest (the hand still
-            # moves): the speed decays to 0 over stand_tau_s, never integrated (what the along-track acceleration
-            # less a bias gives a standing hand is a drift, 29 m/s in 18 s on a real stand)
-            if walking:
-                st.speed = st.walk_speed
-            else:
-                st.speed -= st.speed * min(1.0, dt * inv_stand)
-            st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_turn = 0.0
-            st.zr_v = st.speed
-        else:
-            a = ae * st.ux + an * st.uy
-            if median:  # the seed's block median, sliding: the median of the last b along-track accelerations
-                a = _ring_median(st, ring, a, median)
-            # the folded offsets turned with the vehicle since the outage began: along u they leak (u0 - u) . f
-            a -= st.bias + (st.nh_u0x - st.ux) * st.nh_fx + (st.nh_u0y - st.uy) * st.nh_fy
-            if inv_acc > 0.0:  # the deadband gates on the smoothed acceleration: the vehicle's, not the road's shaking
-                beta = dt * inv_acc
-                st.acc_lp += (beta if beta < 1.0 else 1.0) * (a - st.acc_lp)
-                if abs(st.acc_lp) < deadband:
-                    a = 0.0
-            elif abs(a) < deadband:  # the board's deadband (algorithm.deadband_g), on the along-track acceleration
-                a = 0.0
-            a += (st.gps_speed - st.speed) * inv_speed
-            st.speed += a * dt
-            st.zr_v += a * dt
-            if st.speed < 0.0:
-                st.speed = 0.0
-        if nhc_r > 0.0:
-            if rest or walking or not vehicle or st.since_fix < fcfg.gps_timeout_s:
-                _nhc_restart(st, fcfg)
-            else:
-                # a vehicle does not slide sideways: across u its acceleration is the centripetal speed x rate, so
-                # what is left, a_lat - s r = leak - (s - s_true) r, sees the lateral leak and, in turns, the speed
-                # error
-                if st.nh_u0x == 0.0 and st.nh_u0y == 0.0:
-                    _nhc_start(st, (qw, qx, qy, qz), fcfg)
-                st.nh_t += dt
-                st.nh_z += (an * st.ux - ae * st.uy - st.speed * r) * dt
-                st.nh_r += r * dt
-                st.nh_ix += st.ux * dt
-                st.nh_iy += st.uy * dt
-                if st.nh_t + 0.5 * dt >= fcfg.nhc_period_s:  # half a sample's margin: float32 sums agree
-                    _nhc_update(st, nhc_r, fcfg)
-        if rest and st.rest_s >= fcfg.rest_time_s + fcfg.rest_update_s:
-            st.zt += dt  # a rest update every rest_update_s, after the rest's first (the end of the braking)
-        st.dpx += (st.dvx + 0.5 * ae * dt) * dt
-        st.dpy += (st.dvy + 0.5 * an * dt) * dt
-        st.dvx += ae * dt
-        st.dvy += an * dt
-        st.m00 += r00 * dt
-        st.m01 += r01 * dt
-        st.m10 += r10 * dt
-        st.m11 += r11 * dt
-        st.m02 += r02 * dt
-        st.m12 += r12 * dt
-        st.since_fix += dt
-        st.kf_t += dt
-        # position, true ENU
-        ue = st.cos_t * st.ux - st.sin_t * st.uy
-        un = st.sin_t * st.ux + st.cos_t * st.uy
-        st.pe += st.speed * ue * dt
-        st.pn += st.speed * un * dt
-        if not (rest or walking or walked):  # the integrals a zero-velocity update corrects the position by
-            st.zr_turn += abs(r) * dt
-            st.zr_t += (1.0 + st.zr_turn * fcfg.zupt_turn_weight) * dt
-            st.zr_pe += st.zr_t * ue * dt
-            st.zr_pn += st.zr_t * un * dt
-            st.zr_ce += (st.zr_v - st.speed) * ue * dt
-            st.zr_cn += (st.zr_v - st.speed) * un * dt
-        # tilt correction towards gravity: e = f/|f| x up_body
-        # (while fixes arrive, minus the motion acceleration they show: f_c = f - R^T [acc_e, acc_n, 0])
-        if st.since_fix < fcfg.gps_timeout_s:
-            gain = kp if st.steady > 0.0 else 0.0
-            cx = fx - (r00 * st.acc_e + r10 * st.acc_n)
-            cy = fy - (r01 * st.acc_e + r11 * st.acc_n)
-            cz = fz - (r02 * st.acc_e + r12 * st.acc_n)
-            nc = math.sqrt(cx * cx + cy * cy + cz * cz)
-        else:
-            cx, cy, cz, nc = fx, fy, fz, nf
-            gain = kp_dark
-        if nc > 0.0 and abs(nc - g) < reject:
-            inf = gain / nc
-            ex = (cy * r22 - cz * r21) * inf
-            ey = (cz * r20 - cx * r22) * inf
-            ez = (cx * r21 - cy * r20) * inf
-            wx += ex
-            wy += ey
-            wz += ez
-        # q <- q (x) [1, omega dt / 2], renormalised
-        hx = 0.5 * wx * dt
-        hy = 0.5 * wy * dt
-        hz = 0.5 * wz * dt
-        nw = qw - qx * hx - qy * hy - qz * hz
-        nx = qx + qw * hx + qy * hz - qz * hy
-        ny = qy + qw * hy - qx * hz + qz * hx
-        nz = qz + qw * hz + qx * hy - qy * hx
-        inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-        qw, qx, qy, qz = nw * inv, nx * inv, ny * inv, nz * inv
-        if not rest:
-            st.zt = 0.0
-        elif st.zt >= fcfg.rest_update_s:
-            st.qw, st.qx, st.qy, st.qz = qw, qx, qy, qz
-            rest_update(st, gscale, fcfg)
-            qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
-    st.qw, st.qx, st.qy, st.qz = qw, qx, qy, qz
+        _sample_in(lp, st, acc[k], gyr[k], dt)
+        _motion_statistics(lp, st)
+        _horizontal_force(lp, st)
+        _rest(lp, st)
+        _platform(lp, st)
+        _travel_direction(lp, st)
+        flags[k] = lp.flags()
+        _speed(lp, st)
+        _lateral_update(lp, st)
+        _fix_integrals(lp, st)
+        _advance_position(lp, st)
+        _tilt_correction(lp, st)
+        _rest_update_due(lp, st)
     for k in range(FUSED_MEDIAN_MAX):
-        setattr(st, f"med{k}", ring[k])
+        setattr(st, f"med{k}", lp.ring[k])
     st.flags = float(flags[-1]) if len(flags) else st.flags
     ve = st.speed * (st.cos_t * st.ux - st.sin_t * st.uy)
     vn = st.speed * (st.sin_t * st.ux + st.cos_t * st.uy)
     out = np.array([st.pe - pe0, st.pn - pn0, 0.0, ve, vn, 0.0])
     return out, flags
+
+
+def _sample_in(lp: _Loop, st: FusedState, f, c, dt: float) -> None:
+    """The sample in the body frame: its specific force less the accelerometer's estimated offsets (m/s^2), its
+    rate less the gyro bias (rad/s)."""
+    lp.dt = dt
+    fx, fy, fz = f
+    lp.fx = fx - st.bax
+    lp.fy = fy - st.bay
+    lp.fz = fz - st.baz
+    cx, cy, cz = c
+    lp.wx = (cx - st.bgx) * lp.gscale
+    lp.wy = (cy - st.bgy) * lp.gscale
+    lp.wz = (cz - st.bgz) * lp.gscale
+
+
+def _motion_statistics(lp: _Loop, st: FusedState) -> None:
+    """The mean and variance of |f| over stat_tau_s; its shaking above the gait band (|f| through two first-order
+    high-passes at vibration_hz: a walker's steps stay below it, a vehicle's road, wheels and engine reach far
+    above) and the variance it is a share of, over vibration_tau_s; the body rate smoothed (an idling engine's shake
+    averages out, a turn or a hand's motion does not). Sets shaken (beyond walk_accel_g) and broadband."""
+    dt = lp.dt
+    nf = math.sqrt(lp.fx * lp.fx + lp.fy * lp.fy + lp.fz * lp.fz)
+    alpha = dt * lp.inv_stat
+    if alpha > 1.0:
+        alpha = 1.0
+    st.mean_f += alpha * (nf - st.mean_f)
+    d = nf - st.mean_f
+    st.var_f += alpha * (d * d - st.var_f)
+    beta = dt * lp.vib_rate
+    if beta > 1.0:
+        beta = 1.0
+    st.vib_lp1 += beta * (nf - st.vib_lp1)
+    h = nf - st.vib_lp1
+    st.vib_lp2 += beta * (h - st.vib_lp2)
+    h -= st.vib_lp2
+    gamma = dt * lp.inv_vib
+    if gamma > 1.0:
+        gamma = 1.0
+    st.vib_var += gamma * (h * h - st.vib_var)
+    st.vib_tot += gamma * (d * d - st.vib_tot)
+    st.wsx += alpha * (lp.wx - st.wsx)
+    st.wsy += alpha * (lp.wy - st.wsy)
+    st.wsz += alpha * (lp.wz - st.wsz)
+    lp.nf, lp.d, lp.alpha = nf, d, alpha
+    lp.shaken = st.var_f > lp.walk_var
+    lp.broadband = st.vib_var > lp.fcfg.vibration_ratio * st.vib_tot
+
+
+def _horizontal_force(lp: _Loop, st: FusedState) -> None:
+    """R(q)'s rows (body -> kernel ENU) and the specific force's horizontal part a_h in the kernel frame, smoothed
+    over stat_tau_s (rest asks it to be steady)."""
+    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
+    lp.r00 = r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
+    lp.r01 = r01 = 2.0 * (qx * qy - qw * qz)
+    lp.r02 = r02 = 2.0 * (qx * qz + qw * qy)
+    lp.r10 = r10 = 2.0 * (qx * qy + qw * qz)
+    lp.r11 = r11 = 1.0 - 2.0 * (qx * qx + qz * qz)
+    lp.r12 = r12 = 2.0 * (qy * qz - qw * qx)
+    lp.r20 = 2.0 * (qx * qz - qw * qy)
+    lp.r21 = 2.0 * (qy * qz + qw * qx)
+    lp.r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
+    lp.ae = ae = r00 * lp.fx + r01 * lp.fy + r02 * lp.fz
+    lp.an = an = r10 * lp.fx + r11 * lp.fy + r12 * lp.fz
+    st.ah_e += lp.alpha * (ae - st.ah_e)
+    st.ah_n += lp.alpha * (an - st.ah_n)
+
+
+def _rest(lp: _Loop, st: FusedState) -> None:
+    """Rest, decided before the steps (a device at rest is not stepping): still (|f| varies by less than
+    rest_accel_g, or where more than the amplitude says rest by less than still_accel_g for a pedestrian's hand and
+    idle_accel_g for a vehicle's idling engine: its shaking above the gait band, its speed below rest_speed_ms, as
+    creeping traffic's is not), the smoothed rate below rest_gyro_dps, the horizontal force steady within the
+    deadband of its average (a push, a start or a stop is no rest) and itself within it, unless a vehicle that shook
+    since its last rest or is slower than rest_speed_ms (its tilt error in an outage), never while fixes arrive that
+    say the device moves (a smooth cruise is no rest); all for rest_time_s."""
+    fcfg = lp.fcfg
+    ae, an = lp.ae, lp.an
+    de, dn = ae - st.ah_e, an - st.ah_n
+    ah2 = ae * ae + an * an
+    deadband = lp.deadband
+    gps_moving = st.since_fix < fcfg.gps_timeout_s and st.gps_ok > 0.0
+    vehicle = lp.vehicle
+    if vehicle:
+        still = st.var_f < lp.rest_var or st.var_f < lp.idle_var and lp.broadband and st.speed < fcfg.rest_speed_ms
+    else:
+        still = st.var_f < lp.rest_var or st.var_f < lp.still_var
+    if (still and st.wsx * st.wsx + st.wsy * st.wsy + st.wsz * st.wsz < lp.rest_w2
+            and de * de + dn * dn < deadband * deadband
+            and (ah2 < deadband * deadband or vehicle and (lp.driven or st.speed < fcfg.rest_speed_ms))
+            and not gps_moving):
+        st.rest_s += lp.dt
+    else:
+        st.rest_s = 0.0
+    lp.rest = st.rest_s >= fcfg.rest_time_s
+
+
+def _platform(lp: _Loop, st: FusedState) -> None:
+    """Steps or a vehicle. Walking: shaken (the steps), by a pedestrian, not at rest, for walk_time_s; on auto only
+    while the shaking stays in the gait band and nothing says a vehicle: a fix faster than people run since the
+    last rest (fast), or the vehicle's own speed beyond that (a vehicle does not become a pedestrian without
+    stopping). A vehicle: shaken far above the gait band unless it walked (a hand's tremor is broadband too: a
+    pedestrian becomes a vehicle by a fast fix), a fast fix, or the platform says so; until the steps. When the
+    steps stop, the walker has stopped: speed 0 (a vehicle he boards starts from 0 too)."""
+    fcfg = lp.fcfg
+    platform, shaken, broadband, rest = lp.platform, lp.shaken, lp.broadband, lp.rest
+    steps = platform != PLATFORM_VEHICLE and shaken and not rest and (platform == PLATFORM_PEDESTRIAN or not (
+        broadband or lp.fast or lp.vehicle and st.speed > fcfg.pedestrian_max_ms))
+    st.walk_s = st.walk_s + lp.dt if steps else 0.0
+    walking = steps and (lp.was_walking or st.walk_s >= fcfg.walk_time_s)
+    if walking:
+        lp.vehicle = False
+        lp.walked = True
+    elif lp.fast or shaken and broadband and platform != PLATFORM_PEDESTRIAN and not lp.walked:
+        lp.vehicle = True  # a walker's hand tremor (8-12 Hz) is broadband too
+    if lp.vehicle:
+        lp.walked = False
+    if rest:  # a walker's stop keeps him a pedestrian (walked): his hand's tremor is broadband, no engine
+        lp.driven = lp.fast = False
+    elif shaken and lp.vehicle:
+        lp.driven = True
+    if lp.was_walking and not walking:
+        st.speed = 0.0
+    lp.was_walking = lp.walking = walking
+
+
+def _travel_direction(lp: _Loop, st: FusedState) -> None:
+    """The travel direction u turned by the rate about Up r (the uncorrected gyro: the tilt correction is not a
+    turn), to second order (a turn's held part can be tens of degrees). A walker's turns are quick and the hand's
+    slow swings about the course are not turns: u takes a turn at once (with what it held), a slow rotation over
+    turn_hold_tau_s (a swing that returns cancels)."""
+    dt = lp.dt
+    lp.r = r = lp.r20 * lp.wx + lp.r21 * lp.wy + lp.r22 * lp.wz
+    st.turn += abs(r) * dt
+    st.rate_up += lp.alpha * (r - st.rate_up)
+    da = r * dt
+    if lp.walking and lp.hold_rate > 0.0:
+        if abs(st.rate_up) > lp.turn_start:
+            lp.turning = True
+        elif abs(st.rate_up) < lp.turn_end:
+            lp.turning = False
+        st.held += da
+        da = st.held if lp.turning else st.held * min(1.0, dt * lp.hold_rate)
+        st.held -= da
+    else:
+        lp.turning = False
+        da += st.held
+        st.held = 0.0
+    cd = 1.0 - 0.5 * da * da
+    sd = da * (1.0 - da * da * (1.0 / 6.0))
+    ux = cd * st.ux - sd * st.uy
+    uy = cd * st.uy + sd * st.ux
+    inv = 1.0 / math.sqrt(ux * ux + uy * uy)
+    st.ux = ux * inv
+    st.uy = uy * inv
+
+
+def _speed(lp: _Loop, st: FusedState) -> None:
+    """The speed along u: at rest 0, after a vehicle's zero-velocity update of the position (the speed it still
+    had, not floored at 0, is the error its along-track integration gathered since the last speed it knew, a fix or
+    a rest; the position moved by that error's integral along the way it went, and by what the floor kept out: both
+    taken back); walking the learned walking speed; a pedestrian whose steps stopped without a rest (the hand
+    still moves) decays to 0 over stand_tau_s, never integrated (a standing hand's along-track acceleration less a
+    bias is a drift: 29 m/s in 18 s on a real stand); a vehicle's integrated (_vehicle_speed)."""
+    rest, walking, walked = lp.rest, lp.walking, lp.walked
+    if rest or walking or walked:
+        st.med_i = st.med_n = 0.0  # the median ring restarts when the vehicle branch is entered again
+        st.acc_lp = 0.0
+    if rest:
+        if st.zr_t > 0.0:
+            k = st.zr_v / st.zr_t
+            st.pe += st.zr_ce - k * st.zr_pe
+            st.pn += st.zr_cn - k * st.zr_pn
+        st.speed = 0.0
+        st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_v = st.zr_turn = 0.0
+    elif walking or walked:
+        if walking:
+            st.speed = st.walk_speed
+        else:
+            st.speed -= st.speed * min(1.0, lp.dt * lp.inv_stand)
+        st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_turn = 0.0
+        st.zr_v = st.speed
+    else:
+        _vehicle_speed(lp, st)
+
+
+def _vehicle_speed(lp: _Loop, st: FusedState) -> None:
+    """A vehicle's speed: the along-track acceleration (the optional sliding median of the last b), less its bias
+    and the folded offsets' leak (u0 - u) . f since the outage began, through the board's deadband on its average
+    over accel_tau_s (the vehicle's acceleration, not the road's shaking; 0: on each sample), plus the optional pull
+    towards the last GPS speed, integrated; floored at 0 (zr_v: the same without the floor)."""
+    dt, deadband = lp.dt, lp.deadband
+    a = lp.ae * st.ux + lp.an * st.uy
+    if lp.median:
+        a = _ring_median(st, lp.ring, a, lp.median)
+    a -= st.bias + (st.nh_u0x - st.ux) * st.nh_fx + (st.nh_u0y - st.uy) * st.nh_fy
+    if lp.inv_acc > 0.0:
+        beta = dt * lp.inv_acc
+        st.acc_lp += (beta if beta < 1.0 else 1.0) * (a - st.acc_lp)
+        if abs(st.acc_lp) < deadband:
+            a = 0.0
+    elif abs(a) < deadband:
+        a = 0.0
+    a += (st.gps_speed - st.speed) * lp.inv_speed
+    st.speed += a * dt
+    st.zr_v += a * dt
+    if st.speed < 0.0:
+        st.speed = 0.0
+
+
+def _lateral_update(lp: _Loop, st: FusedState) -> None:
+    """A vehicle's lateral update in an outage: it does not slide sideways, so across u its acceleration is the
+    centripetal speed x rate, and what is left, a_lat - s r = leak - (s - s_true) r, sees the lateral leak and, in
+    turns, the speed error. Gathered over nhc_period_s (_nhc_update); the filter starts on the outage's first sample
+    of a moving vehicle and stops at a fix, a rest or a walk."""
+    fcfg = lp.fcfg
+    if lp.nhc_r <= 0.0:
+        return
+    if lp.rest or lp.walking or not lp.vehicle or st.since_fix < fcfg.gps_timeout_s:
+        _nhc_restart(st, fcfg)
+        return
+    if st.nh_u0x == 0.0 and st.nh_u0y == 0.0:
+        _nhc_start(st, fcfg)
+    dt = lp.dt
+    st.nh_t += dt
+    st.nh_z += (lp.an * st.ux - lp.ae * st.uy - st.speed * lp.r) * dt
+    st.nh_r += lp.r * dt
+    st.nh_ix += st.ux * dt
+    st.nh_iy += st.uy * dt
+    if st.nh_t + 0.5 * dt >= fcfg.nhc_period_s:  # half a sample's margin: float32 sums agree
+        _nhc_update(st, lp.nhc_r, fcfg)
+
+
+def _fix_integrals(lp: _Loop, st: FusedState) -> None:
+    """What the next fix and rest update read: the time at rest towards the next rest update (every rest_update_s,
+    after the rest's first: the end of a braking), the kernel-frame horizontal velocity change and its integral, the
+    integral of R(q)'s horizontal rows (the tilt/offset filter's M), the times since the fix and since the filter's
+    last prediction."""
+    dt = lp.dt
+    if lp.rest and st.rest_s >= lp.fcfg.rest_time_s + lp.fcfg.rest_update_s:
+        st.zt += dt
+    ae, an = lp.ae, lp.an
+    st.dpx += (st.dvx + 0.5 * ae * dt) * dt
+    st.dpy += (st.dvy + 0.5 * an * dt) * dt
+    st.dvx += ae * dt
+    st.dvy += an * dt
+    st.m00 += lp.r00 * dt
+    st.m01 += lp.r01 * dt
+    st.m10 += lp.r10 * dt
+    st.m11 += lp.r11 * dt
+    st.m02 += lp.r02 * dt
+    st.m12 += lp.r12 * dt
+    st.since_fix += dt
+    st.kf_t += dt
+
+
+def _advance_position(lp: _Loop, st: FusedState) -> None:
+    """The position in true ENU, p += s (A u) dt (A: the kernel frame -> true ENU), and, for a vehicle, the
+    integrals a zero-velocity update corrects it by: the weight w(t) = 1 + zupt_turn_weight x the turn since the
+    speed was known, its integral W, int W (A u) dt, and int (zr_v - s) (A u) dt (what the floor at 0 kept out)."""
+    dt = lp.dt
+    ue = st.cos_t * st.ux - st.sin_t * st.uy
+    un = st.sin_t * st.ux + st.cos_t * st.uy
+    st.pe += st.speed * ue * dt
+    st.pn += st.speed * un * dt
+    if not (lp.rest or lp.walking or lp.walked):
+        st.zr_turn += abs(lp.r) * dt
+        st.zr_t += (1.0 + st.zr_turn * lp.fcfg.zupt_turn_weight) * dt
+        st.zr_pe += st.zr_t * ue * dt
+        st.zr_pn += st.zr_t * un * dt
+        st.zr_ce += (st.zr_v - st.speed) * ue * dt
+        st.zr_cn += (st.zr_v - st.speed) * un * dt
+
+
+def _tilt_correction(lp: _Loop, st: FusedState) -> None:
+    """The tilt kept honest by gravity, then the attitude integrated: omega += Kp (f_c/|f_c| x up_body), f_c = f
+    less, while fixes arrive, the motion acceleration they show (R^T [acc_e, acc_n, 0]; Kp 1 / tilt_tau_s while it
+    is steady, else 0), without GPS f itself at 1 / tilt_tau_dark_s; only while ||f_c| - g| < accel_reject_g g. Then
+    q <- q (x) [1, omega dt / 2], renormalised."""
+    fcfg = lp.fcfg
+    fx, fy, fz = lp.fx, lp.fy, lp.fz
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = (lp.r00, lp.r01, lp.r02, lp.r10, lp.r11, lp.r12, lp.r20, lp.r21,
+                                                   lp.r22)
+    wx, wy, wz = lp.wx, lp.wy, lp.wz
+    if st.since_fix < fcfg.gps_timeout_s:
+        gain = lp.kp if st.steady > 0.0 else 0.0
+        cx = fx - (r00 * st.acc_e + r10 * st.acc_n)
+        cy = fy - (r01 * st.acc_e + r11 * st.acc_n)
+        cz = fz - (r02 * st.acc_e + r12 * st.acc_n)
+        nc = math.sqrt(cx * cx + cy * cy + cz * cz)
+    else:
+        cx, cy, cz, nc = fx, fy, fz, lp.nf
+        gain = lp.kp_dark
+    if nc > 0.0 and abs(nc - lp.g) < lp.reject:
+        inf = gain / nc
+        wx += (cy * r22 - cz * r21) * inf
+        wy += (cz * r20 - cx * r22) * inf
+        wz += (cx * r21 - cy * r20) * inf
+    dt = lp.dt
+    hx = 0.5 * wx * dt
+    hy = 0.5 * wy * dt
+    hz = 0.5 * wz * dt
+    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
+    nw = qw - qx * hx - qy * hy - qz * hz
+    nx = qx + qw * hx + qy * hz - qz * hy
+    ny = qy + qw * hy - qx * hz + qz * hx
+    nz = qz + qw * hz + qx * hy - qy * hx
+    inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+    st.qw, st.qx, st.qy, st.qz = nw * inv, nx * inv, ny * inv, nz * inv
+
+
+def _rest_update_due(lp: _Loop, st: FusedState) -> None:
+    """At rest, every rest_update_s: the rest update (rest_update); out of rest its clock restarts."""
+    if not lp.rest:
+        st.zt = 0.0
+    elif st.zt >= lp.fcfg.rest_update_s:
+        rest_update(st, lp.gscale, lp.fcfg)
 
 
 def _nhc_restart(st: FusedState, fcfg: FusedConfig) -> None:
@@ -413,13 +532,13 @@ def _nhc_restart(st: FusedState, fcfg: FusedConfig) -> None:
         setattr(st, name, 0.0)
 
 
-def _nhc_start(st: FusedState, q, fcfg: FusedConfig) -> None:
+def _nhc_start(st: FusedState, fcfg: FusedConfig) -> None:
     """The lateral filter's start on an outage's first sample of a moving vehicle: the speed known, the lateral leak
     0 +- nhc_leak_sigma_ms2 (the tilt/offset filter has just taken out what it knew), the folded offsets 0 with what
     that filter does not know of the offsets seen horizontally, R_h P_bb R_h^T (times nhc_fold_scale), and the
-    travel direction they turn from. q: the attitude now (the loop's, not yet stored)."""
+    travel direction they turn from."""
     st.nh_pbb = fcfg.nhc_leak_sigma_ms2 * fcfg.nhc_leak_sigma_ms2
-    qw, qx, qy, qz = q
+    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
     rh = ((1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)),
           (2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)))
     pb = [[getattr(st, _PIJ[(min(i, j) + 2, max(i, j) + 2)]) for j in range(3)] for i in range(3)]

@@ -42,6 +42,10 @@ class Field:
     initial: tuple[float, ...] = ()  # values after *_state_init, from the first element (the rest 0)
     ctype: str = "float"  # "float" or "int32_t"
     public: str = ""  # the name under which dr_native and dr_fallback export the offset ("" = private)
+    # the fallback's fused_process keeps it in locals named as its elements through the per-sample loop, loaded
+    # before it: "read" (the loop does not change it), "carry" (and stored back after it); "" = in the buffer
+    local: str = ""
+    group: str = ""  # the concern this field opens in memory order (a heading in the C struct)
 
     def element_names(self) -> tuple[str, ...]:
         if self.length == 1:
@@ -195,6 +199,11 @@ class Kernel:
     def element_offsets(self) -> dict[str, int]:
         return {name: i for i, name in enumerate(self.element_names())}
 
+    def named_elements(self) -> tuple[tuple[Field, int, str], ...]:
+        """(field, index, name) of every element an array field names (`elements`): the C index constant
+        `<C_PREFIX>_<NAME>` into the field (st->p[DR_FUSED_P22]), the fallback's offset `<py_prefix>_<NAME>`."""
+        return tuple((f, i, name) for f in self.state if f.elements for i, name in enumerate(f.elements))
+
     @property
     def param_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.params)
@@ -275,95 +284,111 @@ FUSED = Kernel(
     board_prefix="fused_",
     param_array=True,
     state=(
-        Field("q", "", "orientation w, x, y, z: body -> kernel ENU", 4, ("qw", "qx", "qy", "qz"), initial=(1.0,)),
-        Field("gyro_bias_lsb", "counts", "gyro bias (body frame)", 3, ("bgx", "bgy", "bgz")),
-        Field("mean_f", "m/s^2", "mean |f| (motion statistics)"),
-        Field("var_f", "(m/s^2)^2", "variance of |f|"),
-        Field("vib_var", "(m/s^2)^2", "variance of |f| above the gait band (vibration_hz) over vibration_tau_s"),
-        Field("acc_e", "m/s^2", "GPS motion acceleration East, kernel frame (the tilt reference subtracts it)"),
-        Field("acc_n", "m/s^2", "GPS motion acceleration North, kernel frame"),
-        Field("steady", "(m/s^2)^2", "> 0 while that acceleration is steady: steady_accel_ms2^2 - its change^2"),
-        Field("rest_s", "s", "how long the device has looked at rest"),
-        Field("ux", "", "travel direction, kernel frame x (unit)", initial=(1.0,)),
-        Field("uy", "", "travel direction, kernel frame y"),
-        Field("speed", "m/s", "speed along the travel direction"),
-        Field("bias", "m/s^2", "along-track accelerometer bias"),
-        Field("walk_speed", "m/s", "learned walking speed"),
-        Field("cos_t", "", "rotation kernel frame -> true ENU: cosine", initial=(1.0,)),
-        Field("sin_t", "", "rotation kernel frame -> true ENU: sine"),
-        Field("align_c", "(m/s)^2", "heading alignment sum, cosine part"),
-        Field("align_s", "(m/s)^2", "heading alignment sum, sine part"),
-        Field("dvx", "m/s", "kernel-frame horizontal velocity change since the last fix, x"),
-        Field("dvy", "m/s", "kernel-frame horizontal velocity change since the last fix, y"),
-        Field("since_fix", "s", "time since the last GPS update"),
-        Field("gps_ve", "m/s", "the last fix's velocity East (true ENU)"),
-        Field("gps_vn", "m/s", "the last fix's velocity North (true ENU)"),
-        Field("gps_speed", "m/s", "the last fix's speed (a vehicle's speed relaxes towards it)"),
-        Field("gps_ok", "m/s", "> 0 if the last fix had a course: its speed - min_speed_ms"),
-        Field("pe", "m", "true ENU position East accumulated since fused_init (the caller may reset it)"),
-        Field("pn", "m", "true ENU position North accumulated since fused_init"),
-        Field("flags", "", "the last sample's AT_REST | WALKING | TURNING (a whole number)"),
-        Field("bax", "m/s^2", "accelerometer offset of the body x axis (subtracted from every sample)"),
-        Field("bay", "m/s^2", "accelerometer offset of the body y axis"),
+        Field("q", "", "orientation w, x, y, z: body -> kernel ENU", 4, ("qw", "qx", "qy", "qz"), initial=(1.0,),
+              local="carry", group="the attitude and the motion statistics"),
+        Field("gyro_bias_lsb", "counts", "gyro bias (body frame)", 3, ("bgx", "bgy", "bgz"), local="carry"),
+        Field("mean_f", "m/s^2", "mean |f| (motion statistics)", local="carry"),
+        Field("var_f", "(m/s^2)^2", "variance of |f|", local="carry"),
+        Field("vib_var", "(m/s^2)^2", "variance of |f| above the gait band (vibration_hz) over vibration_tau_s",
+              local="carry"),
+        Field("vib_tot", "(m/s^2)^2", "variance of |f| over vibration_tau_s (the vibration's share is of this)",
+              local="carry"),
+        Field("vib_lp", "m/s^2", "|f| low-passed at vibration_hz, and its high-passed part low-passed again", 2,
+              ("vib_lp1", "vib_lp2"), local="carry"),
+        Field("ws", "rad/s", "the body rate smoothed over stat_tau_s (an engine's shake averages out)", 3,
+              ("wsx", "wsy", "wsz"), local="carry"),
+        Field("speed", "m/s", "speed along the travel direction", local="carry",
+              group="the speed along the travel direction"),
+        Field("bias", "m/s^2", "along-track accelerometer bias", local="read"),
+        Field("acc_lp", "m/s^2", "a vehicle's along-track acceleration smoothed over accel_tau_s", local="carry"),
+        Field("zr_t", "s", "a vehicle: time since its speed was last known (a fix, a rest)", local="carry",
+              group="a vehicle's zero-velocity update: its speed error's integrals since its speed was known"),
+        Field("zr_p", "m s", "the integral of (time since then) x travel direction (true ENU) since then", 2,
+              ("zr_pe", "zr_pn"), local="carry"),
+        Field("zr_turn", "rad", "a vehicle: the integral of |rate about Up| since its speed was last known",
+              local="carry"),
+        Field("zr_v", "m/s", "a vehicle's speed integrated as speed is, without its floor at 0", local="carry"),
+        Field("zr_c", "m", "the integral of (zr_v - speed) x travel direction (true ENU) since then", 2,
+              ("zr_ce", "zr_cn"), local="carry"),
+        Field("ux", "", "travel direction, kernel frame x (unit)", initial=(1.0,), local="carry",
+              group="the travel direction"),
+        Field("uy", "", "travel direction, kernel frame y", local="carry"),
+        Field("rate_up", "rad/s", "the rate about Up smoothed over stat_tau_s", local="carry"),
+        Field("held", "rad", "rotation about Up a walker's travel direction has not taken yet", local="carry"),
+        Field("pe", "m", "true ENU position East accumulated since fused_init (the caller may reset it)",
+              local="carry", group="the position, true ENU"),
+        Field("pn", "m", "true ENU position North accumulated since fused_init", local="carry"),
+        Field("flags", "", "the last sample's AT_REST | WALKING | TURNING (a whole number)",
+              group="the platform and rest"),
+        Field("rest_s", "s", "how long the device has looked at rest", local="carry"),
+        Field("walk_s", "s", "how long the shaking has looked like steps", local="carry"),
+        Field("walk_speed", "m/s", "learned walking speed", local="read"),
+        Field("ah", "m/s^2", "the kernel-frame horizontal acceleration smoothed over stat_tau_s (rest: steady)", 2,
+              ("ah_e", "ah_n"), local="carry"),
+        Field("zt", "s", "at rest: time since the last rest update", local="carry"),
+        Field("dvx", "m/s", "kernel-frame horizontal velocity change since the last fix, x", local="carry",
+              group="what the samples gathered since the last fix (the fix and the tilt/offset filter read it)"),
+        Field("dvy", "m/s", "kernel-frame horizontal velocity change since the last fix, y", local="carry"),
+        Field("dpx", "m", "integral of dvx since the last fix", local="carry"),
+        Field("dpy", "m", "integral of dvy since the last fix", local="carry"),
         Field("m", "s", "integral of R(q)'s horizontal rows r00, r01, r10, r11 since the last fix", 4,
-              ("m00", "m01", "m10", "m11")),
-        Field("turn", "rad", "integral of |rate about Up| since the last fix"),
-        Field("p", "", "the tilt/offset filter's covariance, upper triangle row by row (m/s^2 squared)", 10,
-              ("p00", "p01", "p02", "p03", "p11", "p12", "p13", "p22", "p23", "p33")),
+              ("m00", "m01", "m10", "m11"), local="carry"),
+        Field("m2", "s", "integral of R(q)'s horizontal rows' z column, r02 and r12, since the last fix", 2,
+              ("m02", "m12"), local="carry"),
+        Field("turn", "rad", "integral of |rate about Up| since the last fix", local="carry"),
         Field("fix_ae", "m", "smoothed position minus the last fix's, East (where an outage starts from)",
-              public="FIX_AE"),
+              public="FIX_AE", group="the position filter (the fix an outage starts from)"),
         Field("fix_an", "m", "smoothed position minus the last fix's, North"),
         Field("fix_ee", "m", "the receiver's position error estimated at the last fix, East"),
         Field("fix_en", "m", "the receiver's position error estimated at the last fix, North"),
         Field("fix_pxx", "m^2", "covariance of the position filter: position, position (East and North alike)"),
         Field("fix_pxe", "m^2", "covariance of the position filter: position, receiver error"),
         Field("fix_pee", "m^2", "covariance of the position filter: receiver error, receiver error"),
-        Field("dpx", "m", "integral of dvx since the last fix"),
-        Field("dpy", "m", "integral of dvy since the last fix"),
-        Field("rate_up", "rad/s", "the rate about Up smoothed over stat_tau_s"),
-        Field("held", "rad", "rotation about Up a walker's travel direction has not taken yet"),
-        Field("baz", "m/s^2", "accelerometer offset of the body z axis (any mounting: no axis need be vertical)"),
-        Field("m2", "s", "integral of R(q)'s horizontal rows' z column, r02 and r12, since the last fix", 2,
-              ("m02", "m12")),
+        Field("since_fix", "s", "time since the last GPS update", local="carry", group="the last fix"),
+        Field("gps_ve", "m/s", "the last fix's velocity East (true ENU)"),
+        Field("gps_vn", "m/s", "the last fix's velocity North (true ENU)"),
+        Field("gps_speed", "m/s", "the last fix's speed (a vehicle's speed relaxes towards it)", local="read"),
+        Field("gps_ok", "m/s", "> 0 if the last fix had a course: its speed - min_speed_ms"),
+        Field("acc_e", "m/s^2", "GPS motion acceleration East, kernel frame (the tilt reference subtracts it)",
+              local="read"),
+        Field("acc_n", "m/s^2", "GPS motion acceleration North, kernel frame", local="read"),
+        Field("steady", "(m/s^2)^2", "> 0 while that acceleration is steady: steady_accel_ms2^2 - its change^2"),
+        Field("cos_t", "", "rotation kernel frame -> true ENU: cosine", initial=(1.0,), local="read",
+              group="the kernel frame's heading: its alignment to true ENU"),
+        Field("sin_t", "", "rotation kernel frame -> true ENU: sine", local="read"),
+        Field("align_c", "(m/s)^2", "heading alignment sum, cosine part"),
+        Field("align_s", "(m/s)^2", "heading alignment sum, sine part"),
+        Field("bax", "m/s^2", "accelerometer offset of the body x axis (subtracted from every sample)", local="carry",
+              group="the tilt/offset filter: the accelerometer's offsets and the covariance"),
+        Field("bay", "m/s^2", "accelerometer offset of the body y axis", local="carry"),
+        Field("baz", "m/s^2", "accelerometer offset of the body z axis (any mounting: no axis need be vertical)",
+              local="carry"),
+        Field("p", "", "the tilt/offset filter's covariance, upper triangle row by row (m/s^2 squared)", 10,
+              ("p00", "p01", "p02", "p03", "p11", "p12", "p13", "p22", "p23", "p33")),
         Field("pz", "", "the tilt/offset filter's covariance, fifth column (the z offset): rows 0-4", 5,
               ("p04", "p14", "p24", "p34", "p44")),
-        Field("walk_s", "s", "how long the shaking has looked like steps"),
-        Field("vib_tot", "(m/s^2)^2", "variance of |f| over vibration_tau_s (the vibration's share is of this)"),
-        Field("vib_lp", "m/s^2", "|f| low-passed at vibration_hz, and its high-passed part low-passed again", 2,
-              ("vib_lp1", "vib_lp2")),
-        Field("ws", "rad/s", "the body rate smoothed over stat_tau_s (an engine's shake averages out)", 3,
-              ("wsx", "wsy", "wsz")),
-        Field("acc_lp", "m/s^2", "a vehicle's along-track acceleration smoothed over accel_tau_s"),
-        Field("ah", "m/s^2", "the kernel-frame horizontal acceleration smoothed over stat_tau_s (rest: steady)", 2,
-              ("ah_e", "ah_n")),
-        Field("zr_t", "s", "a vehicle: time since its speed was last known (a fix, a rest)"),
-        Field("zr_p", "m s", "the integral of (time since then) x travel direction (true ENU) since then", 2,
-              ("zr_pe", "zr_pn")),
-        Field("zr_turn", "rad", "a vehicle: the integral of |rate about Up| since its speed was last known"),
-        Field("zr_v", "m/s", "a vehicle's speed integrated as speed is, without its floor at 0"),
-        Field("zr_c", "m", "the integral of (zr_v - speed) x travel direction (true ENU) since then", 2,
-              ("zr_ce", "zr_cn")),
-        Field("kf_t", "s", "time since the tilt/offset filter's last prediction"),
-        Field("zt", "s", "at rest: time since the last rest update"),
-        Field("med_i", "", "the median option's ring: next slot (a whole number)"),
+        Field("kf_t", "s", "time since the tilt/offset filter's last prediction", local="carry"),
+        Field("med_i", "", "the median option's ring: next slot (a whole number)", group="the median option's ring"),
         Field("med_n", "", "the median option's ring: slots filled (a whole number)"),
         Field("med", "m/s^2", "the median option's ring: the last along-track accelerations", FUSED_MEDIAN_MAX),
-        # the lateral filter's fields: together, nh_t first and nh_p last (the fallback's _nhc_restart zeroes the range)
-        Field("nh_t", "s", "a vehicle in an outage: time gathered towards the next lateral update"),
-        Field("nh_z", "m/s", "the integral of the lateral residual a_lat - speed x rate about Up over that time"),
-        Field("nh_r", "rad", "the integral of the rate about Up over that time"),
+        Field("nh_t", "s", "a vehicle in an outage: time gathered towards the next lateral update", local="carry",
+              group="a vehicle's lateral filter in an outage (nh_t first, nh_p last: the fallback zeroes the range)"),
+        Field("nh_z", "m/s", "the integral of the lateral residual a_lat - speed x rate about Up over that time",
+              local="carry"),
+        Field("nh_r", "rad", "the integral of the rate about Up over that time", local="carry"),
         Field("nh_b", "m/s^2", "the lateral leak (horizontal specific force across the travel direction) estimated"),
         Field("nh_f", "m/s^2", "the accelerometer offsets folded into the tilt (their horizontal part when the outage "
-              "started, kernel frame) estimated: a turn shows them", 2, ("nh_fx", "nh_fy")),
-        Field("nh_u0", "", "the travel direction u when the outage started (kernel frame)", 2, ("nh_u0x", "nh_u0y")),
+              "started, kernel frame) estimated: a turn shows them", 2, ("nh_fx", "nh_fy"), local="read"),
+        Field("nh_u0", "", "the travel direction u when the outage started (kernel frame)", 2, ("nh_u0x", "nh_u0y"),
+              local="read"),
         Field("nh_i", "s", "the integral of u over the time gathered towards the next lateral update", 2,
-              ("nh_ix", "nh_iy")),
+              ("nh_ix", "nh_iy"), local="carry"),
         Field("nh_p", "", "the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, "
               "folded offsets x, y (m/s^2); all 0 until the outage's first sample", 10,
               ("nh_pss", "nh_psb", "nh_psx", "nh_psy", "nh_pbb", "nh_pbx", "nh_pby", "nh_pxx", "nh_pxy", "nh_pyy")),
         Field("cov_repairs", "", "how often a filter's covariance went wrong (a negative variance, a value not finite, "
               "an update's innovation variance not positive) and was reset to its prior instead of used (a whole "
-              "number)", public="COV_REPAIRS"),
+              "number)", public="COV_REPAIRS", group="the filters' health"),
     ),
     params=(
         Param("tilt_tau_s", "s", "tilt correction time constant while GPS fixes arrive", Store("kp", "1/s", "recip"),
@@ -581,6 +606,15 @@ def check(kernel: Kernel) -> None:
             raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: unknown return code {p.error!r}")
         if kernel.board_prefix and p.default is None:
             raise ValueError(f"{kernel.c_prefix}: parameter {p.name} has a board key but no default")
+    taken = {n.upper() for n in names + list(params) + [fl.name for fl in kernel.flags]}
+    clash = sorted(name for _, _, name in kernel.named_elements() if name.upper() in taken)
+    if clash:
+        raise ValueError(f"{kernel.c_prefix}: element names that are also a field, parameter or flag (their index "
+                         f"constants would clash): {', '.join(clash)}")
+    for f in kernel.state:
+        if f.local not in ("", "read", "carry") or (f.local and f.length > 1 and not f.elements):
+            raise ValueError(f"{kernel.c_prefix}: field {f.name}: local is '', 'read' or 'carry' (an array's elements "
+                             "named)")
     if any(f.ctype != "float" for f in kernel.state):
         raise ValueError(f"{kernel.c_prefix}: state fields are floats (the reference's flat view)")
 

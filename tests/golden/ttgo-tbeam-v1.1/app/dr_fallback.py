@@ -386,34 +386,36 @@ _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
 _F_VAR_F = const(8)  # (m/s^2)^2: variance of |f|
 _F_VIB_VAR = const(9)  # (m/s^2)^2: variance of |f| above the gait band (vibration_hz) over vibration_tau_s
-_F_ACC_E = const(10)  # m/s^2: GPS motion acceleration East, kernel frame (the tilt reference subtracts it)
-_F_ACC_N = const(11)  # m/s^2: GPS motion acceleration North, kernel frame
-_F_STEADY = const(12)  # (m/s^2)^2: > 0 while that acceleration is steady: steady_accel_ms2^2 - its change^2
-_F_REST_S = const(13)  # s: how long the device has looked at rest
-_F_UX = const(14)  # travel direction, kernel frame x (unit)
-_F_UY = const(15)  # travel direction, kernel frame y
+_F_VIB_TOT = const(10)  # (m/s^2)^2: variance of |f| over vibration_tau_s (the vibration's share is of this)
+_F_VIB_LP = const(11)  # m/s^2: |f| low-passed at vibration_hz, and its high-passed part low-passed again
+_F_WS = const(13)  # rad/s: the body rate smoothed over stat_tau_s (an engine's shake averages out)
 _F_SPEED = const(16)  # m/s: speed along the travel direction
 _F_BIAS = const(17)  # m/s^2: along-track accelerometer bias
-_F_WALK_SPEED = const(18)  # m/s: learned walking speed
-_F_COS_T = const(19)  # rotation kernel frame -> true ENU: cosine
-_F_SIN_T = const(20)  # rotation kernel frame -> true ENU: sine
-_F_ALIGN_C = const(21)  # (m/s)^2: heading alignment sum, cosine part
-_F_ALIGN_S = const(22)  # (m/s)^2: heading alignment sum, sine part
-_F_DVX = const(23)  # m/s: kernel-frame horizontal velocity change since the last fix, x
-_F_DVY = const(24)  # m/s: kernel-frame horizontal velocity change since the last fix, y
-_F_SINCE_FIX = const(25)  # s: time since the last GPS update
-_F_GPS_VE = const(26)  # m/s: the last fix's velocity East (true ENU)
-_F_GPS_VN = const(27)  # m/s: the last fix's velocity North (true ENU)
-_F_GPS_SPEED = const(28)  # m/s: the last fix's speed (a vehicle's speed relaxes towards it)
-_F_GPS_OK = const(29)  # m/s: > 0 if the last fix had a course: its speed - min_speed_ms
+_F_ACC_LP = const(18)  # m/s^2: a vehicle's along-track acceleration smoothed over accel_tau_s
+_F_ZR_T = const(19)  # s: a vehicle: time since its speed was last known (a fix, a rest)
+_F_ZR_P = const(20)  # m s: the integral of (time since then) x travel direction (true ENU) since then
+_F_ZR_TURN = const(22)  # rad: a vehicle: the integral of |rate about Up| since its speed was last known
+_F_ZR_V = const(23)  # m/s: a vehicle's speed integrated as speed is, without its floor at 0
+_F_ZR_C = const(24)  # m: the integral of (zr_v - speed) x travel direction (true ENU) since then
+_F_UX = const(26)  # travel direction, kernel frame x (unit)
+_F_UY = const(27)  # travel direction, kernel frame y
+_F_RATE_UP = const(28)  # rad/s: the rate about Up smoothed over stat_tau_s
+_F_HELD = const(29)  # rad: rotation about Up a walker's travel direction has not taken yet
 _F_PE = const(30)  # m: true ENU position East accumulated since fused_init (the caller may reset it)
 _F_PN = const(31)  # m: true ENU position North accumulated since fused_init
 _F_FLAGS = const(32)  # the last sample's AT_REST | WALKING | TURNING (a whole number)
-_F_BAX = const(33)  # m/s^2: accelerometer offset of the body x axis (subtracted from every sample)
-_F_BAY = const(34)  # m/s^2: accelerometer offset of the body y axis
-_F_M = const(35)  # s: integral of R(q)'s horizontal rows r00, r01, r10, r11 since the last fix
-_F_TURN = const(39)  # rad: integral of |rate about Up| since the last fix
-_F_P = const(40)  # the tilt/offset filter's covariance, upper triangle row by row (m/s^2 squared)
+_F_REST_S = const(33)  # s: how long the device has looked at rest
+_F_WALK_S = const(34)  # s: how long the shaking has looked like steps
+_F_WALK_SPEED = const(35)  # m/s: learned walking speed
+_F_AH = const(36)  # m/s^2: the kernel-frame horizontal acceleration smoothed over stat_tau_s (rest: steady)
+_F_ZT = const(38)  # s: at rest: time since the last rest update
+_F_DVX = const(39)  # m/s: kernel-frame horizontal velocity change since the last fix, x
+_F_DVY = const(40)  # m/s: kernel-frame horizontal velocity change since the last fix, y
+_F_DPX = const(41)  # m: integral of dvx since the last fix
+_F_DPY = const(42)  # m: integral of dvy since the last fix
+_F_M = const(43)  # s: integral of R(q)'s horizontal rows r00, r01, r10, r11 since the last fix
+_F_M2 = const(47)  # s: integral of R(q)'s horizontal rows' z column, r02 and r12, since the last fix
+_F_TURN = const(49)  # rad: integral of |rate about Up| since the last fix
 _F_FIX_AE = const(50)  # m: smoothed position minus the last fix's, East (where an outage starts from)
 FIX_AE = const(50)  # public: fix_ae
 _F_FIX_AN = const(51)  # m: smoothed position minus the last fix's, North
@@ -422,26 +424,24 @@ _F_FIX_EN = const(53)  # m: the receiver's position error estimated at the last 
 _F_FIX_PXX = const(54)  # m^2: covariance of the position filter: position, position (East and North alike)
 _F_FIX_PXE = const(55)  # m^2: covariance of the position filter: position, receiver error
 _F_FIX_PEE = const(56)  # m^2: covariance of the position filter: receiver error, receiver error
-_F_DPX = const(57)  # m: integral of dvx since the last fix
-_F_DPY = const(58)  # m: integral of dvy since the last fix
-_F_RATE_UP = const(59)  # rad/s: the rate about Up smoothed over stat_tau_s
-_F_HELD = const(60)  # rad: rotation about Up a walker's travel direction has not taken yet
-_F_BAZ = const(61)  # m/s^2: accelerometer offset of the body z axis (any mounting: no axis need be vertical)
-_F_M2 = const(62)  # s: integral of R(q)'s horizontal rows' z column, r02 and r12, since the last fix
-_F_PZ = const(64)  # the tilt/offset filter's covariance, fifth column (the z offset): rows 0-4
-_F_WALK_S = const(69)  # s: how long the shaking has looked like steps
-_F_VIB_TOT = const(70)  # (m/s^2)^2: variance of |f| over vibration_tau_s (the vibration's share is of this)
-_F_VIB_LP = const(71)  # m/s^2: |f| low-passed at vibration_hz, and its high-passed part low-passed again
-_F_WS = const(73)  # rad/s: the body rate smoothed over stat_tau_s (an engine's shake averages out)
-_F_ACC_LP = const(76)  # m/s^2: a vehicle's along-track acceleration smoothed over accel_tau_s
-_F_AH = const(77)  # m/s^2: the kernel-frame horizontal acceleration smoothed over stat_tau_s (rest: steady)
-_F_ZR_T = const(79)  # s: a vehicle: time since its speed was last known (a fix, a rest)
-_F_ZR_P = const(80)  # m s: the integral of (time since then) x travel direction (true ENU) since then
-_F_ZR_TURN = const(82)  # rad: a vehicle: the integral of |rate about Up| since its speed was last known
-_F_ZR_V = const(83)  # m/s: a vehicle's speed integrated as speed is, without its floor at 0
-_F_ZR_C = const(84)  # m: the integral of (zr_v - speed) x travel direction (true ENU) since then
-_F_KF_T = const(86)  # s: time since the tilt/offset filter's last prediction
-_F_ZT = const(87)  # s: at rest: time since the last rest update
+_F_SINCE_FIX = const(57)  # s: time since the last GPS update
+_F_GPS_VE = const(58)  # m/s: the last fix's velocity East (true ENU)
+_F_GPS_VN = const(59)  # m/s: the last fix's velocity North (true ENU)
+_F_GPS_SPEED = const(60)  # m/s: the last fix's speed (a vehicle's speed relaxes towards it)
+_F_GPS_OK = const(61)  # m/s: > 0 if the last fix had a course: its speed - min_speed_ms
+_F_ACC_E = const(62)  # m/s^2: GPS motion acceleration East, kernel frame (the tilt reference subtracts it)
+_F_ACC_N = const(63)  # m/s^2: GPS motion acceleration North, kernel frame
+_F_STEADY = const(64)  # (m/s^2)^2: > 0 while that acceleration is steady: steady_accel_ms2^2 - its change^2
+_F_COS_T = const(65)  # rotation kernel frame -> true ENU: cosine
+_F_SIN_T = const(66)  # rotation kernel frame -> true ENU: sine
+_F_ALIGN_C = const(67)  # (m/s)^2: heading alignment sum, cosine part
+_F_ALIGN_S = const(68)  # (m/s)^2: heading alignment sum, sine part
+_F_BAX = const(69)  # m/s^2: accelerometer offset of the body x axis (subtracted from every sample)
+_F_BAY = const(70)  # m/s^2: accelerometer offset of the body y axis
+_F_BAZ = const(71)  # m/s^2: accelerometer offset of the body z axis (any mounting: no axis need be vertical)
+_F_P = const(72)  # the tilt/offset filter's covariance, upper triangle row by row (m/s^2 squared)
+_F_PZ = const(82)  # the tilt/offset filter's covariance, fifth column (the z offset): rows 0-4
+_F_KF_T = const(87)  # s: time since the tilt/offset filter's last prediction
 _F_MED_I = const(88)  # the median option's ring: next slot (a whole number)
 _F_MED_N = const(89)  # the median option's ring: slots filled (a whole number)
 _F_MED = const(90)  # m/s^2: the median option's ring: the last along-track accelerations
@@ -455,6 +455,61 @@ _F_NH_I = const(130)  # s: the integral of u over the time gathered towards the 
 _F_NH_P = const(132)  # the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, folded offsets x, y (m/s^2); all 0 until the outage's first sample
 _F_COV_REPAIRS = const(142)  # how often a filter's covariance went wrong (a negative variance, a value not finite, an update's innovation variance not positive) and was reset to its prior instead of used (a whole number)
 COV_REPAIRS = const(142)  # public: cov_repairs
+_F_QW = const(0)  # q[0]
+_F_QX = const(1)  # q[1]
+_F_QY = const(2)  # q[2]
+_F_QZ = const(3)  # q[3]
+_F_BGX = const(4)  # gyro_bias_lsb[0]
+_F_BGY = const(5)  # gyro_bias_lsb[1]
+_F_BGZ = const(6)  # gyro_bias_lsb[2]
+_F_VIB_LP1 = const(11)  # vib_lp[0]
+_F_VIB_LP2 = const(12)  # vib_lp[1]
+_F_WSX = const(13)  # ws[0]
+_F_WSY = const(14)  # ws[1]
+_F_WSZ = const(15)  # ws[2]
+_F_ZR_PE = const(20)  # zr_p[0]
+_F_ZR_PN = const(21)  # zr_p[1]
+_F_ZR_CE = const(24)  # zr_c[0]
+_F_ZR_CN = const(25)  # zr_c[1]
+_F_AH_E = const(36)  # ah[0]
+_F_AH_N = const(37)  # ah[1]
+_F_M00 = const(43)  # m[0]
+_F_M01 = const(44)  # m[1]
+_F_M10 = const(45)  # m[2]
+_F_M11 = const(46)  # m[3]
+_F_M02 = const(47)  # m2[0]
+_F_M12 = const(48)  # m2[1]
+_F_P00 = const(72)  # p[0]
+_F_P01 = const(73)  # p[1]
+_F_P02 = const(74)  # p[2]
+_F_P03 = const(75)  # p[3]
+_F_P11 = const(76)  # p[4]
+_F_P12 = const(77)  # p[5]
+_F_P13 = const(78)  # p[6]
+_F_P22 = const(79)  # p[7]
+_F_P23 = const(80)  # p[8]
+_F_P33 = const(81)  # p[9]
+_F_P04 = const(82)  # pz[0]
+_F_P14 = const(83)  # pz[1]
+_F_P24 = const(84)  # pz[2]
+_F_P34 = const(85)  # pz[3]
+_F_P44 = const(86)  # pz[4]
+_F_NH_FX = const(126)  # nh_f[0]
+_F_NH_FY = const(127)  # nh_f[1]
+_F_NH_U0X = const(128)  # nh_u0[0]
+_F_NH_U0Y = const(129)  # nh_u0[1]
+_F_NH_IX = const(130)  # nh_i[0]
+_F_NH_IY = const(131)  # nh_i[1]
+_F_NH_PSS = const(132)  # nh_p[0]
+_F_NH_PSB = const(133)  # nh_p[1]
+_F_NH_PSX = const(134)  # nh_p[2]
+_F_NH_PSY = const(135)  # nh_p[3]
+_F_NH_PBB = const(136)  # nh_p[4]
+_F_NH_PBX = const(137)  # nh_p[5]
+_F_NH_PBY = const(138)  # nh_p[6]
+_F_NH_PXX = const(139)  # nh_p[7]
+_F_NH_PXY = const(140)  # nh_p[8]
+_F_NH_PYY = const(141)  # nh_p[9]
 _FC_KP = const(143)  # 1/s, from tilt_tau_s (s)
 _FC_REJECT_MS2 = const(144)  # m/s^2, from accel_reject_g (g)
 _FC_KP_DARK = const(145)  # 1/s, from tilt_tau_dark_s (s)
@@ -786,7 +841,11 @@ def fused_calibrate(fstate, samples):
 
 def fused_process(fstate, samples, dt_us, out):
     """m samples (array('h'), sensor frame) held dt_us[k] us each (array('i')). out[0:3] = displacement East,
-    North, Up (m, true ENU; Up 0), out[3:6] = velocity (m/s)."""
+    North, Up (m, true ENU; Up 0), out[3:6] = velocity (m/s). The per-sample loop is the reference's steps
+    (codegen.kernel.fused.PER_SAMPLE_STEPS) in their order, each a block labelled `step: <name>` (the reference's
+    _<name>, the C's dr_fused_<name>), written out inline: the state it works on is in locals (a call or an
+    array access per sample would cost more than the step), loaded before the loop and stored after it as
+    codegen/kernel/layout.py declares (each field's `local`)."""
     count = len(samples) // 6
     if count < 1 or len(samples) != 6 * count or len(dt_us) != count:
         raise ValueError("samples must hold 6 values and dt_us 1 value per sample")
@@ -825,16 +884,6 @@ def fused_process(fstate, samples, dt_us, out):
     nhc = st[_FC_NHC_VAR] > 0.0
     nhc_period = st[_FC_NHC_PERIOD_S]
     nhc_position = st[_FC_NHC_POSITION]
-    nh_t = st[_F_NH_T]
-    nh_z = st[_F_NH_Z]
-    nh_r = st[_F_NH_R]
-    nh_ix = st[_F_NH_I]
-    nh_iy = st[_F_NH_I + 1]
-    nh_u0x = st[_F_NH_U0]
-    nh_u0y = st[_F_NH_U0 + 1]
-    nh_fx = st[_F_NH_F]
-    nh_fy = st[_F_NH_F + 1]
-    nh_fresh = False  # the lateral filter restarted in this call (its buffer need not be written again)
     platform = int(st[_FC_PLATFORM])
     hold_rate = st[_FC_HOLD_RATE]
     turn_start = st[_FC_TURN_START]
@@ -857,68 +906,81 @@ def fused_process(fstate, samples, dt_us, out):
     db2 = deadband * deadband
     g = _GRAVITY_MS2
     c6 = 1.0 / 6.0
-    qw = st[_F_Q]
-    qx = st[_F_Q + 1]
-    qy = st[_F_Q + 2]
-    qz = st[_F_Q + 3]
-    bgx = st[_F_GYRO_BIAS_LSB]
-    bgy = st[_F_GYRO_BIAS_LSB + 1]
-    bgz = st[_F_GYRO_BIAS_LSB + 2]
+    # the state the loop works on, in locals (codegen/kernel/layout.py: the fields with `local`)
+    qw = st[_F_QW]
+    qx = st[_F_QX]
+    qy = st[_F_QY]
+    qz = st[_F_QZ]
+    bgx = st[_F_BGX]
+    bgy = st[_F_BGY]
+    bgz = st[_F_BGZ]
     mean_f = st[_F_MEAN_F]
     var_f = st[_F_VAR_F]
     vib_var = st[_F_VIB_VAR]
     vib_tot = st[_F_VIB_TOT]
-    vib_lp1 = st[_F_VIB_LP]
-    vib_lp2 = st[_F_VIB_LP + 1]
-    wsx = st[_F_WS]
-    wsy = st[_F_WS + 1]
-    wsz = st[_F_WS + 2]
-    ah_e = st[_F_AH]
-    ah_n = st[_F_AH + 1]
-    rest_s = st[_F_REST_S]
-    walk_s = st[_F_WALK_S]
-    ux = st[_F_UX]
-    uy = st[_F_UY]
+    vib_lp1 = st[_F_VIB_LP1]
+    vib_lp2 = st[_F_VIB_LP2]
+    wsx = st[_F_WSX]
+    wsy = st[_F_WSY]
+    wsz = st[_F_WSZ]
     speed = st[_F_SPEED]
     bias = st[_F_BIAS]
-    walk_speed = st[_F_WALK_SPEED]
     acc_lp = st[_F_ACC_LP]
-    cos_t = st[_F_COS_T]
-    sin_t = st[_F_SIN_T]
-    acc_e = st[_F_ACC_E]
-    acc_n = st[_F_ACC_N]
-    moving_ref = acc_e != 0.0 or acc_n != 0.0  # the tilt reference subtracts a GPS motion acceleration
-    steady = st[_F_STEADY] > 0.0
-    gps_speed = st[_F_GPS_SPEED]
-    gps_ok = st[_F_GPS_OK] > 0.0
+    zr_t = st[_F_ZR_T]
+    zr_pe = st[_F_ZR_PE]
+    zr_pn = st[_F_ZR_PN]
+    zr_turn = st[_F_ZR_TURN]
+    zr_v = st[_F_ZR_V]
+    zr_ce = st[_F_ZR_CE]
+    zr_cn = st[_F_ZR_CN]
+    ux = st[_F_UX]
+    uy = st[_F_UY]
+    rate_up = st[_F_RATE_UP]
+    held = st[_F_HELD]
+    pe = st[_F_PE]
+    pn = st[_F_PN]
+    rest_s = st[_F_REST_S]
+    walk_s = st[_F_WALK_S]
+    walk_speed = st[_F_WALK_SPEED]
+    ah_e = st[_F_AH_E]
+    ah_n = st[_F_AH_N]
+    zt = st[_F_ZT]
     dvx = st[_F_DVX]
     dvy = st[_F_DVY]
     dpx = st[_F_DPX]
     dpy = st[_F_DPY]
+    m00 = st[_F_M00]
+    m01 = st[_F_M01]
+    m10 = st[_F_M10]
+    m11 = st[_F_M11]
+    m02 = st[_F_M02]
+    m12 = st[_F_M12]
+    turn = st[_F_TURN]
+    since_fix = st[_F_SINCE_FIX]
+    gps_speed = st[_F_GPS_SPEED]
+    acc_e = st[_F_ACC_E]
+    acc_n = st[_F_ACC_N]
+    cos_t = st[_F_COS_T]
+    sin_t = st[_F_SIN_T]
     bax = st[_F_BAX]
     bay = st[_F_BAY]
     baz = st[_F_BAZ]
-    m00 = st[_F_M]
-    m01 = st[_F_M + 1]
-    m10 = st[_F_M + 2]
-    m11 = st[_F_M + 3]
-    m02 = st[_F_M2]
-    m12 = st[_F_M2 + 1]
-    turn = st[_F_TURN]
     kf_t = st[_F_KF_T]
-    zt = st[_F_ZT]
-    zr_t = st[_F_ZR_T]
-    zr_turn = st[_F_ZR_TURN]
-    zr_pe = st[_F_ZR_P]
-    zr_pn = st[_F_ZR_P + 1]
-    zr_v = st[_F_ZR_V]
-    zr_ce = st[_F_ZR_C]
-    zr_cn = st[_F_ZR_C + 1]
-    rate_up = st[_F_RATE_UP]
-    held = st[_F_HELD]
-    since = st[_F_SINCE_FIX]
-    pe0 = pe = st[_F_PE]
-    pn0 = pn = st[_F_PN]
+    nh_t = st[_F_NH_T]
+    nh_z = st[_F_NH_Z]
+    nh_r = st[_F_NH_R]
+    nh_fx = st[_F_NH_FX]
+    nh_fy = st[_F_NH_FY]
+    nh_u0x = st[_F_NH_U0X]
+    nh_u0y = st[_F_NH_U0Y]
+    nh_ix = st[_F_NH_IX]
+    nh_iy = st[_F_NH_IY]
+    moving_ref = acc_e != 0.0 or acc_n != 0.0  # the tilt reference subtracts a GPS motion acceleration
+    steady = st[_F_STEADY] > 0.0
+    gps_ok = st[_F_GPS_OK] > 0.0
+    pe0 = pe
+    pn0 = pn
+    nh_fresh = False  # the lateral filter restarted in this call (its buffer need not be written again)
     flags = int(st[_F_FLAGS])
     turning = flags & _TURNING
     walking = flags & _WALKING
@@ -927,6 +989,7 @@ def fused_process(fstate, samples, dt_us, out):
     fast = flags & _FAST if platform != _PLATFORM_PEDESTRIAN else 0
     walked = flags & _WALKED
     for k in range(count):
+        # step: sample_in
         i = 6 * k
         dt = dt_us[k] * _S_PER_US
         hdt = 0.5 * dt
@@ -936,7 +999,7 @@ def fused_process(fstate, samples, dt_us, out):
         wx = (kx * samples[i + 3 + sx] - bgx) * gscale  # gyro counts stay integers until the bias
         wy = (ky * samples[i + 3 + sy] - bgy) * gscale
         wz = (kz * samples[i + 3 + sz] - bgz) * gscale
-        # motion statistics
+        # step: motion_statistics
         nf = sqrt(fx * fx + fy * fy + fz * fz)
         alpha = dt * inv_stat
         if alpha > 1.0:
@@ -945,8 +1008,7 @@ def fused_process(fstate, samples, dt_us, out):
         d = nf - mean_f
         d2 = d * d
         var_f += alpha * (d2 - var_f)
-        # the shaking above the gait band: |f| through two first-order high-passes at vibration_hz
-        beta = dt * vib_rate
+        beta = dt * vib_rate  # the shaking above the gait band: two first-order high-passes at vibration_hz
         if beta > 1.0:
             beta = 1.0
         vib_lp1 += beta * (nf - vib_lp1)
@@ -958,11 +1020,12 @@ def fused_process(fstate, samples, dt_us, out):
             gamma = 1.0
         vib_var += gamma * (h * h - vib_var)
         vib_tot += gamma * (d2 - vib_tot)
-        # the body rate smoothed: an idling engine's shake averages out
-        wsx += alpha * (wx - wsx)
+        wsx += alpha * (wx - wsx)  # the body rate smoothed: an idling engine's shake averages out
         wsy += alpha * (wy - wsy)
         wsz += alpha * (wz - wsz)
-        # rotation matrix of q, from the doubled components
+        shaken = var_f > walk_var
+        broadband = vib_var > vib_ratio * vib_tot
+        # step: horizontal_force (R(q)'s rows from the doubled components)
         x2 = qx + qx
         y2 = qy + qy
         z2 = qz + qz
@@ -986,14 +1049,10 @@ def fused_process(fstate, samples, dt_us, out):
         r22 = 1.0 - xx - yy
         ae = r00 * fx + r01 * fy + r02 * fz
         an = r10 * fx + r11 * fy + r12 * fz
-        shaken = var_f > walk_var
-        broadband = vib_var > vib_ratio * vib_tot
-        # rest: still, a steady horizontal acceleration, no fix saying it moves, and that acceleration within the
-        # deadband (a vehicle quiet after shaking, or below rest_speed_ms: any). Still: below rest_accel_g, or below
-        # still_accel_g for a pedestrian's hand, idle_accel_g for a vehicle's idling engine (broadband, slower than
-        # rest_speed_ms)
         ah_e += alpha * (ae - ah_e)
         ah_n += alpha * (an - ah_n)
+        # step: rest (still: below rest_accel_g, or still_accel_g for a pedestrian's hand, idle_accel_g for a
+        # vehicle's idling engine; the rate, the horizontal force steady and within the deadband, no fix moving)
         de = ae - ah_e
         dn = an - ah_n
         if var_f < rest_var:
@@ -1004,14 +1063,13 @@ def fused_process(fstate, samples, dt_us, out):
             still = var_f < still_var
         if (still and wsx * wsx + wsy * wsy + wsz * wsz < rest_w2 and de * de + dn * dn < db2
                 and (ae * ae + an * an < db2 or vehicle and (driven or speed < rest_speed))
-                and not (since < timeout and gps_ok)):
+                and not (since_fix < timeout and gps_ok)):
             rest_s += dt
         else:
             rest_s = 0.0
         rest = rest_s >= rest_time
-        # walking: shaken, not at rest, in the gait band (auto) for walk_time_s, and nothing says a vehicle (a fast
-        # fix since the last rest, its own speed beyond a runner's); a vehicle: shaken above it, a fast fix, or the
-        # platform
+        # step: platform (walking: shaken, not at rest, in the gait band on auto, for walk_time_s, and nothing
+        # says a vehicle; a vehicle: shaken above it, a fast fix, or the platform)
         if shaken and not rest and platform != _PLATFORM_VEHICLE and (platform == _PLATFORM_PEDESTRIAN or not (
                 broadband or fast or vehicle and speed > pedestrian_max)):
             walk_s += dt
@@ -1033,7 +1091,7 @@ def fused_process(fstate, samples, dt_us, out):
         if walking and not now_walking:
             speed = 0.0  # the steps stopped, and so did the walker
         walking = now_walking
-        # travel direction turned by the rate about Up; a walker's slow rotations (the hand) held back
+        # step: travel_direction (turned by the rate about Up; a walker's slow rotations, the hand, held back)
         r = r20 * wx + r21 * wy + r22 * wz
         da = r * dt
         ada = da if da > 0.0 else -da
@@ -1056,10 +1114,7 @@ def fused_process(fstate, samples, dt_us, out):
             if held != 0.0:
                 da += held
                 held = 0.0
-        flags = ((_AT_REST if rest else 0) | (_WALKING if walking else 0) | turning | (_VEHICLE if vehicle else 0)
-                 | driven | (_FAST if fast else 0) | walked)
-        # u rotated by da, to second order
-        da2 = da * da
+        da2 = da * da  # u rotated by da, to second order (the sample's flags: after the loop, from the last's)
         cd = 1.0 - 0.5 * da2
         sd = da * (1.0 - da2 * c6)
         nx = cd * ux - sd * uy
@@ -1067,24 +1122,22 @@ def fused_process(fstate, samples, dt_us, out):
         inv = 1.0 / sqrt(nx * nx + ny * ny)
         ux = nx * inv
         uy = ny * inv
-        ue = cos_t * ux - sin_t * uy
-        un = sin_t * ux + cos_t * uy
-        # speed along u
-        if rest or walking or walked:
+        # step: speed (at rest 0, after a vehicle's zero-velocity update; walking the walking speed; a stopped
+        # pedestrian's decaying; a vehicle's integrated)
+        integrating = not (rest or walking or walked)
+        if not integrating:
             if median:  # the median ring restarts when the vehicle branch is entered again
                 st[_F_MED_I] = st[_F_MED_N] = 0.0
             acc_lp = 0.0
             if rest:
                 if zr_t > 0.0:
-                    # a vehicle's zero-velocity update: the speed it still had is the error gathered since its speed
-                    # was last known; its integral along the way, and what the floor at 0 kept out, taken back
+                    # the speed it still had is the error gathered since its speed was last known; its integral
+                    # along the way, and what the floor at 0 kept out, taken back
                     kzr = zr_v / zr_t
                     pe += zr_ce - kzr * zr_pe
                     pn += zr_cn - kzr * zr_pn
                 speed = 0.0
                 zr_v = 0.0
-                if rest_s >= gather_s:
-                    zt += dt  # a rest update every rest_update_s, after the rest's first (the end of the braking)
             elif walking:
                 speed = walk_speed
                 zr_v = speed
@@ -1093,10 +1146,6 @@ def fused_process(fstate, samples, dt_us, out):
                 speed -= speed * (decay if decay < 1.0 else 1.0)
                 zr_v = speed
             zr_t = zr_turn = zr_pe = zr_pn = zr_ce = zr_cn = 0.0
-            if nhc and not nh_fresh:
-                nh_t = nh_z = nh_r = nh_ix = nh_iy = nh_u0x = nh_u0y = nh_fx = nh_fy = 0.0
-                _nhc_restart(st)
-                nh_fresh = True
         else:
             a = ae * ux + an * uy
             if median:  # the seed's block median, sliding: the median of the last b along-track accelerations
@@ -1129,50 +1178,44 @@ def fused_process(fstate, samples, dt_us, out):
                 zr_v += a * dt
             if speed < 0.0:
                 speed = 0.0
-            if not nhc:
-                pass
-            elif not vehicle or since < timeout:
-                if not nh_fresh:
-                    nh_t = nh_z = nh_r = nh_ix = nh_iy = nh_u0x = nh_u0y = nh_fx = nh_fy = 0.0
-                    _nhc_restart(st)
-                    nh_fresh = True
-            else:
-                # no sideways sliding: a_lat - s r = leak - (s - s_true) r sees the lateral leak and the speed error
-                if nh_u0x == 0.0 and nh_u0y == 0.0:
-                    nh_u0x = ux
-                    nh_u0y = uy
-                    _nhc_start(st, qw, qx, qy, qz, ux, uy)
-                    nh_fresh = False
-                nh_t += dt
-                nh_z += (an * ux - ae * uy - speed * r) * dt
-                nh_r += r * dt
-                nh_ix += ux * dt
-                nh_iy += uy * dt
-                if nh_t + 0.5 * dt >= nhc_period:  # half a sample's margin: float32 sums agree
-                    e = _nhc_update(st, nh_t, nh_z, nh_r, nh_ix, nh_iy)
-                    nh_fx = st[_F_NH_F]
-                    nh_fy = st[_F_NH_F + 1]
-                    nh_u0x = st[_F_NH_U0]  # 0 if its covariance went wrong: it starts again
-                    nh_u0y = st[_F_NH_U0 + 1]
-                    speed -= e
-                    zr_v -= e
-                    if nhc_position > 0.0 and zr_t > 0.0:
-                        kzr = nhc_position * e / zr_t
-                        pe -= kzr * zr_pe
-                        pn -= kzr * zr_pn
-                    if speed < 0.0:
-                        speed = 0.0
-                    nh_t = nh_z = nh_r = nh_ix = nh_iy = 0.0
-                    nh_fresh = False
-            # the integrals a zero-velocity update corrects the position by
-            zr_turn += ada
-            zr_t += (1.0 + zr_turn * turn_weight) * dt
-            zr_pe += zr_t * ue * dt
-            zr_pn += zr_t * un * dt
-            lag = (zr_v - speed) * dt
-            if lag != 0.0:
-                zr_ce += lag * ue
-                zr_cn += lag * un
+        # step: lateral_update (a vehicle in an outage: no sideways sliding, a_lat - s r = leak - (s - s_true) r)
+        if not nhc:
+            pass
+        elif not integrating or not vehicle or since_fix < timeout:
+            if not nh_fresh:
+                nh_t = nh_z = nh_r = nh_ix = nh_iy = nh_u0x = nh_u0y = nh_fx = nh_fy = 0.0
+                _nhc_restart(st)
+                nh_fresh = True
+        else:
+            if nh_u0x == 0.0 and nh_u0y == 0.0:
+                nh_u0x = ux
+                nh_u0y = uy
+                _nhc_start(st, qw, qx, qy, qz, ux, uy)
+                nh_fresh = False
+            nh_t += dt
+            nh_z += (an * ux - ae * uy - speed * r) * dt
+            nh_r += r * dt
+            nh_ix += ux * dt
+            nh_iy += uy * dt
+            if nh_t + 0.5 * dt >= nhc_period:  # half a sample's margin: float32 sums agree
+                e = _nhc_update(st, nh_t, nh_z, nh_r, nh_ix, nh_iy)
+                nh_fx = st[_F_NH_FX]
+                nh_fy = st[_F_NH_FY]
+                nh_u0x = st[_F_NH_U0X]  # 0 if its covariance went wrong: it starts again
+                nh_u0y = st[_F_NH_U0Y]
+                speed -= e
+                zr_v -= e
+                if nhc_position > 0.0 and zr_t > 0.0:
+                    kzr = nhc_position * e / zr_t
+                    pe -= kzr * zr_pe
+                    pn -= kzr * zr_pn
+                if speed < 0.0:
+                    speed = 0.0
+                nh_t = nh_z = nh_r = nh_ix = nh_iy = 0.0
+                nh_fresh = False
+        # step: fix_integrals (what the next fix and rest update read)
+        if rest_s >= gather_s:  # at rest (rest_update_s > 0): a rest update every rest_update_s after its first
+            zt += dt
         aedt = ae * dt
         andt = an * dt
         dpx += (dvx + 0.5 * aedt) * dt
@@ -1185,19 +1228,32 @@ def fused_process(fstate, samples, dt_us, out):
         m11 += r11 * dt
         m02 += r02 * dt
         m12 += r12 * dt
-        since += dt
+        since_fix += dt
         kf_t += dt
-        if speed != 0.0:  # position, true ENU
+        # step: advance_position (true ENU; a vehicle's zero-velocity update integrals)
+        ue = cos_t * ux - sin_t * uy
+        un = sin_t * ux + cos_t * uy
+        if speed != 0.0:
             sdt = speed * dt
             pe += sdt * ue
             pn += sdt * un
-        # tilt correction towards gravity (minus the GPS motion acceleration while fixes arrive)
-        if since < timeout:
+        if integrating:
+            zr_turn += ada
+            zr_t += (1.0 + zr_turn * turn_weight) * dt
+            zr_pe += zr_t * ue * dt
+            zr_pn += zr_t * un * dt
+            lag = (zr_v - speed) * dt
+            if lag != 0.0:
+                zr_ce += lag * ue
+                zr_cn += lag * un
+        # step: tilt_correction (towards gravity, minus the GPS motion acceleration while fixes arrive), then
+        # q <- q (x) [1, omega dt / 2], renormalised
+        if since_fix < timeout:
             gain = kp if steady else 0.0
         else:
             gain = kp_dark
         if gain != 0.0:
-            if since < timeout and moving_ref:
+            if since_fix < timeout and moving_ref:
                 tx = fx - (r00 * acc_e + r10 * acc_n)
                 ty = fy - (r01 * acc_e + r11 * acc_n)
                 tz = fz - (r02 * acc_e + r12 * acc_n)
@@ -1212,7 +1268,6 @@ def fused_process(fstate, samples, dt_us, out):
                 wx += (ty * r22 - tz * r21) * inv
                 wy += (tz * r20 - tx * r22) * inv
                 wz += (tx * r21 - ty * r20) * inv
-        # q <- q (x) [1, omega dt / 2], renormalised
         hx = wx * hdt
         hy = wy * hdt
         hz = wz * hdt
@@ -1225,101 +1280,103 @@ def fused_process(fstate, samples, dt_us, out):
         qx = nx * inv
         qy = ny * inv
         qz = nz * inv
+        # step: rest_update_due (works on the buffer: the locals it reads and changes go there and back)
         if not rest:
             zt = 0.0
-        elif zt >= update_s:  # the rest update works on the buffer: the locals it changes go there and back
-            st[_F_Q] = qw
-            st[_F_Q + 1] = qx
-            st[_F_Q + 2] = qy
-            st[_F_Q + 3] = qz
-            st[_F_GYRO_BIAS_LSB] = bgx
-            st[_F_GYRO_BIAS_LSB + 1] = bgy
-            st[_F_GYRO_BIAS_LSB + 2] = bgz
+        elif zt >= update_s:
+            st[_F_QW] = qw
+            st[_F_QX] = qx
+            st[_F_QY] = qy
+            st[_F_QZ] = qz
+            st[_F_BGX] = bgx
+            st[_F_BGY] = bgy
+            st[_F_BGZ] = bgz
             st[_F_BAX] = bax
             st[_F_BAY] = bay
             st[_F_BAZ] = baz
-            st[_F_WS] = wsx
-            st[_F_WS + 1] = wsy
-            st[_F_WS + 2] = wsz
-            st[_F_AH] = ah_e
-            st[_F_AH + 1] = ah_n
+            st[_F_WSX] = wsx
+            st[_F_WSY] = wsy
+            st[_F_WSZ] = wsz
+            st[_F_AH_E] = ah_e
+            st[_F_AH_N] = ah_n
             st[_F_KF_T] = kf_t
             st[_F_TURN] = turn
             st[_F_ZT] = zt
             _rest_update(st)
-            qw = st[_F_Q]
-            qx = st[_F_Q + 1]
-            qy = st[_F_Q + 2]
-            qz = st[_F_Q + 3]
-            bgx = st[_F_GYRO_BIAS_LSB]
-            bgy = st[_F_GYRO_BIAS_LSB + 1]
-            bgz = st[_F_GYRO_BIAS_LSB + 2]
+            qw = st[_F_QW]
+            qx = st[_F_QX]
+            qy = st[_F_QY]
+            qz = st[_F_QZ]
+            bgx = st[_F_BGX]
+            bgy = st[_F_BGY]
+            bgz = st[_F_BGZ]
             bax = st[_F_BAX]
             bay = st[_F_BAY]
             baz = st[_F_BAZ]
-            ah_e = st[_F_AH]
-            ah_n = st[_F_AH + 1]
+            ah_e = st[_F_AH_E]
+            ah_n = st[_F_AH_N]
             kf_t = st[_F_KF_T]
             turn = st[_F_TURN]
             zt = 0.0
-    st[_F_Q] = qw
-    st[_F_Q + 1] = qx
-    st[_F_Q + 2] = qy
-    st[_F_Q + 3] = qz
-    st[_F_GYRO_BIAS_LSB] = bgx
-    st[_F_GYRO_BIAS_LSB + 1] = bgy
-    st[_F_GYRO_BIAS_LSB + 2] = bgz
+    st[_F_QW] = qw
+    st[_F_QX] = qx
+    st[_F_QY] = qy
+    st[_F_QZ] = qz
+    st[_F_BGX] = bgx
+    st[_F_BGY] = bgy
+    st[_F_BGZ] = bgz
     st[_F_MEAN_F] = mean_f
     st[_F_VAR_F] = var_f
     st[_F_VIB_VAR] = vib_var
     st[_F_VIB_TOT] = vib_tot
-    st[_F_VIB_LP] = vib_lp1
-    st[_F_VIB_LP + 1] = vib_lp2
-    st[_F_WS] = wsx
-    st[_F_WS + 1] = wsy
-    st[_F_WS + 2] = wsz
-    st[_F_AH] = ah_e
-    st[_F_AH + 1] = ah_n
-    st[_F_REST_S] = rest_s
-    st[_F_WALK_S] = walk_s
-    st[_F_UX] = ux
-    st[_F_UY] = uy
+    st[_F_VIB_LP1] = vib_lp1
+    st[_F_VIB_LP2] = vib_lp2
+    st[_F_WSX] = wsx
+    st[_F_WSY] = wsy
+    st[_F_WSZ] = wsz
     st[_F_SPEED] = speed
     st[_F_ACC_LP] = acc_lp
-    st[_F_BAX] = bax
-    st[_F_BAY] = bay
-    st[_F_BAZ] = baz
+    st[_F_ZR_T] = zr_t
+    st[_F_ZR_PE] = zr_pe
+    st[_F_ZR_PN] = zr_pn
+    st[_F_ZR_TURN] = zr_turn
+    st[_F_ZR_V] = zr_v
+    st[_F_ZR_CE] = zr_ce
+    st[_F_ZR_CN] = zr_cn
+    st[_F_UX] = ux
+    st[_F_UY] = uy
+    st[_F_RATE_UP] = rate_up
+    st[_F_HELD] = held
+    st[_F_PE] = pe
+    st[_F_PN] = pn
+    st[_F_REST_S] = rest_s
+    st[_F_WALK_S] = walk_s
+    st[_F_AH_E] = ah_e
+    st[_F_AH_N] = ah_n
+    st[_F_ZT] = zt
     st[_F_DVX] = dvx
     st[_F_DVY] = dvy
     st[_F_DPX] = dpx
     st[_F_DPY] = dpy
-    st[_F_M] = m00
-    st[_F_M + 1] = m01
-    st[_F_M + 2] = m10
-    st[_F_M + 3] = m11
-    st[_F_M2] = m02
-    st[_F_M2 + 1] = m12
+    st[_F_M00] = m00
+    st[_F_M01] = m01
+    st[_F_M10] = m10
+    st[_F_M11] = m11
+    st[_F_M02] = m02
+    st[_F_M12] = m12
     st[_F_TURN] = turn
+    st[_F_SINCE_FIX] = since_fix
+    st[_F_BAX] = bax
+    st[_F_BAY] = bay
+    st[_F_BAZ] = baz
     st[_F_KF_T] = kf_t
-    st[_F_ZT] = zt
-    st[_F_ZR_T] = zr_t
-    st[_F_ZR_TURN] = zr_turn
-    st[_F_ZR_P] = zr_pe
-    st[_F_ZR_P + 1] = zr_pn
-    st[_F_ZR_V] = zr_v
-    st[_F_ZR_C] = zr_ce
-    st[_F_ZR_C + 1] = zr_cn
     st[_F_NH_T] = nh_t
     st[_F_NH_Z] = nh_z
     st[_F_NH_R] = nh_r
-    st[_F_NH_I] = nh_ix
-    st[_F_NH_I + 1] = nh_iy
-    st[_F_RATE_UP] = rate_up
-    st[_F_HELD] = held
-    st[_F_SINCE_FIX] = since
-    st[_F_PE] = pe
-    st[_F_PN] = pn
-    st[_F_FLAGS] = flags
+    st[_F_NH_IX] = nh_ix
+    st[_F_NH_IY] = nh_iy
+    st[_F_FLAGS] = ((_AT_REST if rest else 0) | (_WALKING if walking else 0) | turning | (_VEHICLE if vehicle else 0)
+                    | driven | (_FAST if fast else 0) | walked)  # the last sample's
     out[0] = st[_F_PE] - pe0
     out[1] = st[_F_PN] - pn0
     out[2] = 0.0
@@ -1400,7 +1457,7 @@ def _covariance_checked(st, which, step, innovation_ok=True):
 def _kf_start(st):
     # the tilt/offset filter's start on its first use after calibration (codegen.kernel.fused's _kf_start). True if
     # it started now.
-    if st[_F_P + 7] > 0.0:
+    if st[_F_P22] > 0.0:
         return False
     _kf_prior(st)
     _covariance_checked(st, _FILTER_TILT, _STEP_START)
@@ -1432,11 +1489,11 @@ def _kf_predict(st):
     turn = st[_F_TURN]
     qd = st[_FC_KF_TILT_Q] * t + st[_FC_KF_TURN_Q] * turn * turn
     qb = st[_FC_KF_BIAS_Q] * t
-    st[_F_P] += qd
-    st[_F_P + 4] += qd
-    st[_F_P + 7] += qb
-    st[_F_P + 9] += qb
-    st[_F_PZ + 4] += qb
+    st[_F_P00] += qd
+    st[_F_P11] += qd
+    st[_F_P22] += qb
+    st[_F_P33] += qb
+    st[_F_P44] += qb
     st[_F_KF_T] = 0.0
     st[_F_TURN] = 0.0
     return _covariance_checked(st, _FILTER_TILT, _STEP_PREDICT)
@@ -1521,7 +1578,7 @@ def _nhc_restart(st):
     # the lateral filter stopped (codegen.kernel.fused's _nhc_restart): the speed known; it starts again with an
     # outage's next sample of a moving vehicle (_nhc_start); its fields lie together, nh_t first and nh_p's 10 last
     # (codegen/kernel/layout.py)
-    for k in range(_F_NH_T, _F_NH_P + 10):
+    for k in range(_F_NH_T, _F_NH_PYY + 1):
         st[k] = 0.0
 
 
@@ -1542,10 +1599,10 @@ def _nhc_start(st, qw, qx, qy, qz, ux, uy):
         cxy += a0 * r1[j]
         cyy += a1 * r1[j]
     scale = st[_FC_NHC_FOLD_SCALE]
-    st[_F_NH_P + 4] = st[_FC_NHC_LEAK_VAR]
-    st[_F_NH_P + 7] = scale * cxx
-    st[_F_NH_P + 8] = scale * cxy
-    st[_F_NH_P + 9] = scale * cyy
+    st[_F_NH_PBB] = st[_FC_NHC_LEAK_VAR]
+    st[_F_NH_PXX] = scale * cxx
+    st[_F_NH_PXY] = scale * cxy
+    st[_F_NH_PYY] = scale * cyy
     st[_F_NH_U0] = ux
     st[_F_NH_U0 + 1] = uy
 
@@ -1567,7 +1624,7 @@ def _nhc_update(st, t, z, rsum, ix, iy):
     if _lateral_predict(st, t * dux, t * duy, st[_FC_NHC_SPEED_Q] * t, (st[_FC_NHC_LEAK_TURN] * rsum) ** 2):
         h = (-rbar, 1.0, -duy, dux)
         y = z - st[_F_NH_B] - h[2] * st[_F_NH_F] - h[3] * st[_F_NH_F + 1]
-        x = _lateral_correct(st, h, st[_FC_NHC_VAR] * inv_t + unseen * st[_F_NH_P], y)
+        x = _lateral_correct(st, h, st[_FC_NHC_VAR] * inv_t + unseen * st[_F_NH_PSS], y)
         if x is not None:
             st[_F_NH_B] += x[1]
             st[_F_NH_F] += x[2]
@@ -1580,16 +1637,15 @@ def _nhc_update(st, t, z, rsum, ix, iy):
 def _lateral_predict(st, f2, f3, q_speed, q_leak):
     # the lateral filter's predict P <- F P F^T + Q (codegen.kernel.fused's _lateral_predict): F = I + A, A only in
     # row 0 (f2, f3 in columns 2, 3): row and column 0 gain (A P)[0], the corner twice that plus A P A^T;
-    # Q = diag(q_speed, q_leak, 0, 0). nh_p: 0 ss, 1 sb, 2 sx, 3 sy, 4 bb, 5 bx, 6 by, 7 xx, 8 xy, 9 yy
-    p = _F_NH_P
-    ap0 = f2 * st[p + 2] + f3 * st[p + 3]  # row 0 of A P
-    ap2 = f2 * st[p + 7] + f3 * st[p + 8]
-    ap3 = f2 * st[p + 8] + f3 * st[p + 9]
-    st[p] += 2.0 * ap0 + (f2 * ap2 + f3 * ap3) + q_speed
-    st[p + 1] += f2 * st[p + 5] + f3 * st[p + 6]
-    st[p + 2] += ap2
-    st[p + 3] += ap3
-    st[p + 4] += q_leak
+    # Q = diag(q_speed, q_leak, 0, 0); nh_p's entries: speed error s, leak b, folded offsets x, y
+    ap0 = f2 * st[_F_NH_PSX] + f3 * st[_F_NH_PSY]  # row 0 of A P
+    ap2 = f2 * st[_F_NH_PXX] + f3 * st[_F_NH_PXY]
+    ap3 = f2 * st[_F_NH_PXY] + f3 * st[_F_NH_PYY]
+    st[_F_NH_PSS] += 2.0 * ap0 + (f2 * ap2 + f3 * ap3) + q_speed
+    st[_F_NH_PSB] += f2 * st[_F_NH_PBX] + f3 * st[_F_NH_PBY]
+    st[_F_NH_PSX] += ap2
+    st[_F_NH_PSY] += ap3
+    st[_F_NH_PBB] += q_leak
     return _covariance_checked(st, _FILTER_LATERAL, _STEP_PREDICT)
 
 

@@ -189,41 +189,51 @@ typedef struct {
     float inv_stand_tau; /* 1/s, from stand_tau_s (s) */
 } dr_fused_config;
 
-/* The state. */
+/* The state, by concern. */
 typedef struct {
+    /* ---- the attitude and the motion statistics ---- */
     float q[4]; /* orientation w, x, y, z: body -> kernel ENU */
     float gyro_bias_lsb[3]; /* counts: gyro bias (body frame) */
     float mean_f; /* m/s^2: mean |f| (motion statistics) */
     float var_f; /* (m/s^2)^2: variance of |f| */
     float vib_var; /* (m/s^2)^2: variance of |f| above the gait band (vibration_hz) over vibration_tau_s */
-    float acc_e; /* m/s^2: GPS motion acceleration East, kernel frame (the tilt reference subtracts it) */
-    float acc_n; /* m/s^2: GPS motion acceleration North, kernel frame */
-    float steady; /* (m/s^2)^2: > 0 while that acceleration is steady: steady_accel_ms2^2 - its change^2 */
-    float rest_s; /* s: how long the device has looked at rest */
-    float ux; /* travel direction, kernel frame x (unit) */
-    float uy; /* travel direction, kernel frame y */
+    float vib_tot; /* (m/s^2)^2: variance of |f| over vibration_tau_s (the vibration's share is of this) */
+    float vib_lp[2]; /* m/s^2: |f| low-passed at vibration_hz, and its high-passed part low-passed again */
+    float ws[3]; /* rad/s: the body rate smoothed over stat_tau_s (an engine's shake averages out) */
+    /* ---- the speed along the travel direction ---- */
     float speed; /* m/s: speed along the travel direction */
     float bias; /* m/s^2: along-track accelerometer bias */
-    float walk_speed; /* m/s: learned walking speed */
-    float cos_t; /* rotation kernel frame -> true ENU: cosine */
-    float sin_t; /* rotation kernel frame -> true ENU: sine */
-    float align_c; /* (m/s)^2: heading alignment sum, cosine part */
-    float align_s; /* (m/s)^2: heading alignment sum, sine part */
-    float dvx; /* m/s: kernel-frame horizontal velocity change since the last fix, x */
-    float dvy; /* m/s: kernel-frame horizontal velocity change since the last fix, y */
-    float since_fix; /* s: time since the last GPS update */
-    float gps_ve; /* m/s: the last fix's velocity East (true ENU) */
-    float gps_vn; /* m/s: the last fix's velocity North (true ENU) */
-    float gps_speed; /* m/s: the last fix's speed (a vehicle's speed relaxes towards it) */
-    float gps_ok; /* m/s: > 0 if the last fix had a course: its speed - min_speed_ms */
+    float acc_lp; /* m/s^2: a vehicle's along-track acceleration smoothed over accel_tau_s */
+    /* ---- a vehicle's zero-velocity update: its speed error's integrals since its speed was known ---- */
+    float zr_t; /* s: a vehicle: time since its speed was last known (a fix, a rest) */
+    float zr_p[2]; /* m s: the integral of (time since then) x travel direction (true ENU) since then */
+    float zr_turn; /* rad: a vehicle: the integral of |rate about Up| since its speed was last known */
+    float zr_v; /* m/s: a vehicle's speed integrated as speed is, without its floor at 0 */
+    float zr_c[2]; /* m: the integral of (zr_v - speed) x travel direction (true ENU) since then */
+    /* ---- the travel direction ---- */
+    float ux; /* travel direction, kernel frame x (unit) */
+    float uy; /* travel direction, kernel frame y */
+    float rate_up; /* rad/s: the rate about Up smoothed over stat_tau_s */
+    float held; /* rad: rotation about Up a walker's travel direction has not taken yet */
+    /* ---- the position, true ENU ---- */
     float pe; /* m: true ENU position East accumulated since fused_init (the caller may reset it) */
     float pn; /* m: true ENU position North accumulated since fused_init */
+    /* ---- the platform and rest ---- */
     float flags; /* the last sample's AT_REST | WALKING | TURNING (a whole number) */
-    float bax; /* m/s^2: accelerometer offset of the body x axis (subtracted from every sample) */
-    float bay; /* m/s^2: accelerometer offset of the body y axis */
+    float rest_s; /* s: how long the device has looked at rest */
+    float walk_s; /* s: how long the shaking has looked like steps */
+    float walk_speed; /* m/s: learned walking speed */
+    float ah[2]; /* m/s^2: the kernel-frame horizontal acceleration smoothed over stat_tau_s (rest: steady) */
+    float zt; /* s: at rest: time since the last rest update */
+    /* ---- what the samples gathered since the last fix (the fix and the tilt/offset filter read it) ---- */
+    float dvx; /* m/s: kernel-frame horizontal velocity change since the last fix, x */
+    float dvy; /* m/s: kernel-frame horizontal velocity change since the last fix, y */
+    float dpx; /* m: integral of dvx since the last fix */
+    float dpy; /* m: integral of dvy since the last fix */
     float m[4]; /* s: integral of R(q)'s horizontal rows r00, r01, r10, r11 since the last fix */
+    float m2[2]; /* s: integral of R(q)'s horizontal rows' z column, r02 and r12, since the last fix */
     float turn; /* rad: integral of |rate about Up| since the last fix */
-    float p[10]; /* the tilt/offset filter's covariance, upper triangle row by row (m/s^2 squared) */
+    /* ---- the position filter (the fix an outage starts from) ---- */
     float fix_ae; /* m: smoothed position minus the last fix's, East (where an outage starts from) */
     float fix_an; /* m: smoothed position minus the last fix's, North */
     float fix_ee; /* m: the receiver's position error estimated at the last fix, East */
@@ -231,29 +241,32 @@ typedef struct {
     float fix_pxx; /* m^2: covariance of the position filter: position, position (East and North alike) */
     float fix_pxe; /* m^2: covariance of the position filter: position, receiver error */
     float fix_pee; /* m^2: covariance of the position filter: receiver error, receiver error */
-    float dpx; /* m: integral of dvx since the last fix */
-    float dpy; /* m: integral of dvy since the last fix */
-    float rate_up; /* rad/s: the rate about Up smoothed over stat_tau_s */
-    float held; /* rad: rotation about Up a walker's travel direction has not taken yet */
+    /* ---- the last fix ---- */
+    float since_fix; /* s: time since the last GPS update */
+    float gps_ve; /* m/s: the last fix's velocity East (true ENU) */
+    float gps_vn; /* m/s: the last fix's velocity North (true ENU) */
+    float gps_speed; /* m/s: the last fix's speed (a vehicle's speed relaxes towards it) */
+    float gps_ok; /* m/s: > 0 if the last fix had a course: its speed - min_speed_ms */
+    float acc_e; /* m/s^2: GPS motion acceleration East, kernel frame (the tilt reference subtracts it) */
+    float acc_n; /* m/s^2: GPS motion acceleration North, kernel frame */
+    float steady; /* (m/s^2)^2: > 0 while that acceleration is steady: steady_accel_ms2^2 - its change^2 */
+    /* ---- the kernel frame's heading: its alignment to true ENU ---- */
+    float cos_t; /* rotation kernel frame -> true ENU: cosine */
+    float sin_t; /* rotation kernel frame -> true ENU: sine */
+    float align_c; /* (m/s)^2: heading alignment sum, cosine part */
+    float align_s; /* (m/s)^2: heading alignment sum, sine part */
+    /* ---- the tilt/offset filter: the accelerometer's offsets and the covariance ---- */
+    float bax; /* m/s^2: accelerometer offset of the body x axis (subtracted from every sample) */
+    float bay; /* m/s^2: accelerometer offset of the body y axis */
     float baz; /* m/s^2: accelerometer offset of the body z axis (any mounting: no axis need be vertical) */
-    float m2[2]; /* s: integral of R(q)'s horizontal rows' z column, r02 and r12, since the last fix */
+    float p[10]; /* the tilt/offset filter's covariance, upper triangle row by row (m/s^2 squared) */
     float pz[5]; /* the tilt/offset filter's covariance, fifth column (the z offset): rows 0-4 */
-    float walk_s; /* s: how long the shaking has looked like steps */
-    float vib_tot; /* (m/s^2)^2: variance of |f| over vibration_tau_s (the vibration's share is of this) */
-    float vib_lp[2]; /* m/s^2: |f| low-passed at vibration_hz, and its high-passed part low-passed again */
-    float ws[3]; /* rad/s: the body rate smoothed over stat_tau_s (an engine's shake averages out) */
-    float acc_lp; /* m/s^2: a vehicle's along-track acceleration smoothed over accel_tau_s */
-    float ah[2]; /* m/s^2: the kernel-frame horizontal acceleration smoothed over stat_tau_s (rest: steady) */
-    float zr_t; /* s: a vehicle: time since its speed was last known (a fix, a rest) */
-    float zr_p[2]; /* m s: the integral of (time since then) x travel direction (true ENU) since then */
-    float zr_turn; /* rad: a vehicle: the integral of |rate about Up| since its speed was last known */
-    float zr_v; /* m/s: a vehicle's speed integrated as speed is, without its floor at 0 */
-    float zr_c[2]; /* m: the integral of (zr_v - speed) x travel direction (true ENU) since then */
     float kf_t; /* s: time since the tilt/offset filter's last prediction */
-    float zt; /* s: at rest: time since the last rest update */
+    /* ---- the median option's ring ---- */
     float med_i; /* the median option's ring: next slot (a whole number) */
     float med_n; /* the median option's ring: slots filled (a whole number) */
     float med[32]; /* m/s^2: the median option's ring: the last along-track accelerations */
+    /* ---- a vehicle's lateral filter in an outage (nh_t first, nh_p last: the fallback zeroes the range) ---- */
     float nh_t; /* s: a vehicle in an outage: time gathered towards the next lateral update */
     float nh_z; /* m/s: the integral of the lateral residual a_lat - speed x rate about Up over that time */
     float nh_r; /* rad: the integral of the rate about Up over that time */
@@ -266,6 +279,7 @@ typedef struct {
     /* the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, folded offsets x,
      * y (m/s^2); all 0 until the outage's first sample */
     float nh_p[10];
+    /* ---- the filters' health ---- */
     /* how often a filter's covariance went wrong (a negative variance, a value not finite, an update's innovation
      * variance not positive) and was reset to its prior instead of used (a whole number) */
     float cov_repairs;
@@ -280,34 +294,36 @@ typedef struct {
 #define DR_FUSED_STATE_MEAN_F (7)
 #define DR_FUSED_STATE_VAR_F (8)
 #define DR_FUSED_STATE_VIB_VAR (9)
-#define DR_FUSED_STATE_ACC_E (10)
-#define DR_FUSED_STATE_ACC_N (11)
-#define DR_FUSED_STATE_STEADY (12)
-#define DR_FUSED_STATE_REST_S (13)
-#define DR_FUSED_STATE_UX (14)
-#define DR_FUSED_STATE_UY (15)
+#define DR_FUSED_STATE_VIB_TOT (10)
+#define DR_FUSED_STATE_VIB_LP (11)
+#define DR_FUSED_STATE_WS (13)
 #define DR_FUSED_STATE_SPEED (16)
 #define DR_FUSED_STATE_BIAS (17)
-#define DR_FUSED_STATE_WALK_SPEED (18)
-#define DR_FUSED_STATE_COS_T (19)
-#define DR_FUSED_STATE_SIN_T (20)
-#define DR_FUSED_STATE_ALIGN_C (21)
-#define DR_FUSED_STATE_ALIGN_S (22)
-#define DR_FUSED_STATE_DVX (23)
-#define DR_FUSED_STATE_DVY (24)
-#define DR_FUSED_STATE_SINCE_FIX (25)
-#define DR_FUSED_STATE_GPS_VE (26)
-#define DR_FUSED_STATE_GPS_VN (27)
-#define DR_FUSED_STATE_GPS_SPEED (28)
-#define DR_FUSED_STATE_GPS_OK (29)
+#define DR_FUSED_STATE_ACC_LP (18)
+#define DR_FUSED_STATE_ZR_T (19)
+#define DR_FUSED_STATE_ZR_P (20)
+#define DR_FUSED_STATE_ZR_TURN (22)
+#define DR_FUSED_STATE_ZR_V (23)
+#define DR_FUSED_STATE_ZR_C (24)
+#define DR_FUSED_STATE_UX (26)
+#define DR_FUSED_STATE_UY (27)
+#define DR_FUSED_STATE_RATE_UP (28)
+#define DR_FUSED_STATE_HELD (29)
 #define DR_FUSED_STATE_PE (30)
 #define DR_FUSED_STATE_PN (31)
 #define DR_FUSED_STATE_FLAGS (32)
-#define DR_FUSED_STATE_BAX (33)
-#define DR_FUSED_STATE_BAY (34)
-#define DR_FUSED_STATE_M (35)
-#define DR_FUSED_STATE_TURN (39)
-#define DR_FUSED_STATE_P (40)
+#define DR_FUSED_STATE_REST_S (33)
+#define DR_FUSED_STATE_WALK_S (34)
+#define DR_FUSED_STATE_WALK_SPEED (35)
+#define DR_FUSED_STATE_AH (36)
+#define DR_FUSED_STATE_ZT (38)
+#define DR_FUSED_STATE_DVX (39)
+#define DR_FUSED_STATE_DVY (40)
+#define DR_FUSED_STATE_DPX (41)
+#define DR_FUSED_STATE_DPY (42)
+#define DR_FUSED_STATE_M (43)
+#define DR_FUSED_STATE_M2 (47)
+#define DR_FUSED_STATE_TURN (49)
 #define DR_FUSED_STATE_FIX_AE (50)
 #define DR_FUSED_STATE_FIX_AN (51)
 #define DR_FUSED_STATE_FIX_EE (52)
@@ -315,26 +331,24 @@ typedef struct {
 #define DR_FUSED_STATE_FIX_PXX (54)
 #define DR_FUSED_STATE_FIX_PXE (55)
 #define DR_FUSED_STATE_FIX_PEE (56)
-#define DR_FUSED_STATE_DPX (57)
-#define DR_FUSED_STATE_DPY (58)
-#define DR_FUSED_STATE_RATE_UP (59)
-#define DR_FUSED_STATE_HELD (60)
-#define DR_FUSED_STATE_BAZ (61)
-#define DR_FUSED_STATE_M2 (62)
-#define DR_FUSED_STATE_PZ (64)
-#define DR_FUSED_STATE_WALK_S (69)
-#define DR_FUSED_STATE_VIB_TOT (70)
-#define DR_FUSED_STATE_VIB_LP (71)
-#define DR_FUSED_STATE_WS (73)
-#define DR_FUSED_STATE_ACC_LP (76)
-#define DR_FUSED_STATE_AH (77)
-#define DR_FUSED_STATE_ZR_T (79)
-#define DR_FUSED_STATE_ZR_P (80)
-#define DR_FUSED_STATE_ZR_TURN (82)
-#define DR_FUSED_STATE_ZR_V (83)
-#define DR_FUSED_STATE_ZR_C (84)
-#define DR_FUSED_STATE_KF_T (86)
-#define DR_FUSED_STATE_ZT (87)
+#define DR_FUSED_STATE_SINCE_FIX (57)
+#define DR_FUSED_STATE_GPS_VE (58)
+#define DR_FUSED_STATE_GPS_VN (59)
+#define DR_FUSED_STATE_GPS_SPEED (60)
+#define DR_FUSED_STATE_GPS_OK (61)
+#define DR_FUSED_STATE_ACC_E (62)
+#define DR_FUSED_STATE_ACC_N (63)
+#define DR_FUSED_STATE_STEADY (64)
+#define DR_FUSED_STATE_COS_T (65)
+#define DR_FUSED_STATE_SIN_T (66)
+#define DR_FUSED_STATE_ALIGN_C (67)
+#define DR_FUSED_STATE_ALIGN_S (68)
+#define DR_FUSED_STATE_BAX (69)
+#define DR_FUSED_STATE_BAY (70)
+#define DR_FUSED_STATE_BAZ (71)
+#define DR_FUSED_STATE_P (72)
+#define DR_FUSED_STATE_PZ (82)
+#define DR_FUSED_STATE_KF_T (87)
 #define DR_FUSED_STATE_MED_I (88)
 #define DR_FUSED_STATE_MED_N (89)
 #define DR_FUSED_STATE_MED (90)
@@ -347,6 +361,62 @@ typedef struct {
 #define DR_FUSED_STATE_NH_I (130)
 #define DR_FUSED_STATE_NH_P (132)
 #define DR_FUSED_STATE_COV_REPAIRS (142)
+/* each named element's index into its array field (st->p[DR_FUSED_P22], not st->p[7]) */
+#define DR_FUSED_QW (0) /* q[0] */
+#define DR_FUSED_QX (1) /* q[1] */
+#define DR_FUSED_QY (2) /* q[2] */
+#define DR_FUSED_QZ (3) /* q[3] */
+#define DR_FUSED_BGX (0) /* gyro_bias_lsb[0] */
+#define DR_FUSED_BGY (1) /* gyro_bias_lsb[1] */
+#define DR_FUSED_BGZ (2) /* gyro_bias_lsb[2] */
+#define DR_FUSED_VIB_LP1 (0) /* vib_lp[0] */
+#define DR_FUSED_VIB_LP2 (1) /* vib_lp[1] */
+#define DR_FUSED_WSX (0) /* ws[0] */
+#define DR_FUSED_WSY (1) /* ws[1] */
+#define DR_FUSED_WSZ (2) /* ws[2] */
+#define DR_FUSED_ZR_PE (0) /* zr_p[0] */
+#define DR_FUSED_ZR_PN (1) /* zr_p[1] */
+#define DR_FUSED_ZR_CE (0) /* zr_c[0] */
+#define DR_FUSED_ZR_CN (1) /* zr_c[1] */
+#define DR_FUSED_AH_E (0) /* ah[0] */
+#define DR_FUSED_AH_N (1) /* ah[1] */
+#define DR_FUSED_M00 (0) /* m[0] */
+#define DR_FUSED_M01 (1) /* m[1] */
+#define DR_FUSED_M10 (2) /* m[2] */
+#define DR_FUSED_M11 (3) /* m[3] */
+#define DR_FUSED_M02 (0) /* m2[0] */
+#define DR_FUSED_M12 (1) /* m2[1] */
+#define DR_FUSED_P00 (0) /* p[0] */
+#define DR_FUSED_P01 (1) /* p[1] */
+#define DR_FUSED_P02 (2) /* p[2] */
+#define DR_FUSED_P03 (3) /* p[3] */
+#define DR_FUSED_P11 (4) /* p[4] */
+#define DR_FUSED_P12 (5) /* p[5] */
+#define DR_FUSED_P13 (6) /* p[6] */
+#define DR_FUSED_P22 (7) /* p[7] */
+#define DR_FUSED_P23 (8) /* p[8] */
+#define DR_FUSED_P33 (9) /* p[9] */
+#define DR_FUSED_P04 (0) /* pz[0] */
+#define DR_FUSED_P14 (1) /* pz[1] */
+#define DR_FUSED_P24 (2) /* pz[2] */
+#define DR_FUSED_P34 (3) /* pz[3] */
+#define DR_FUSED_P44 (4) /* pz[4] */
+#define DR_FUSED_NH_FX (0) /* nh_f[0] */
+#define DR_FUSED_NH_FY (1) /* nh_f[1] */
+#define DR_FUSED_NH_U0X (0) /* nh_u0[0] */
+#define DR_FUSED_NH_U0Y (1) /* nh_u0[1] */
+#define DR_FUSED_NH_IX (0) /* nh_i[0] */
+#define DR_FUSED_NH_IY (1) /* nh_i[1] */
+#define DR_FUSED_NH_PSS (0) /* nh_p[0] */
+#define DR_FUSED_NH_PSB (1) /* nh_p[1] */
+#define DR_FUSED_NH_PSX (2) /* nh_p[2] */
+#define DR_FUSED_NH_PSY (3) /* nh_p[3] */
+#define DR_FUSED_NH_PBB (4) /* nh_p[4] */
+#define DR_FUSED_NH_PBX (5) /* nh_p[5] */
+#define DR_FUSED_NH_PBY (6) /* nh_p[6] */
+#define DR_FUSED_NH_PXX (7) /* nh_p[7] */
+#define DR_FUSED_NH_PXY (8) /* nh_p[8] */
+#define DR_FUSED_NH_PYY (9) /* nh_p[9] */
 typedef char dr_fused_state_is_143_floats[
     sizeof(dr_fused_state) == 143 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_config_is_53_floats[
