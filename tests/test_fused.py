@@ -1,4 +1,4 @@
-"""The fused algorithm (issue 8): reference (codegen/kernel/fused.py, float64) vs the C kernel (native_ext/dr_fused.c,
+"""The fused algorithm: reference (codegen/kernel/fused.py, float64) vs the C kernel (native_ext/dr_fused.c,
 float32, through cffi), on simulated streams driven exactly as the app drives the kernel (calibrate, windows of
 samples, one GPS update per fix); the filters against the truth of a simulated car and receiver; the C as C
 (sanitizers, the ESP32 object). Each step's test from physics, on every implementation: tests/test_fused_physics.py.
