@@ -254,13 +254,21 @@ def stands() -> None:
     print("| gap | start [s] | length [s] | post RMS [m] | Hermite RMS [m] | within 1 sigma | within 2 sigma | "
           "worst 1 sigma [m] |")
     print("|---|---|---|---|---|---|---|---|")
+    kinds: dict[str, list] = {}
     for kind, start, length in WALK_STAND_GAPS:
         t = log.gps.t[0] + start
         r = process(cut_gap(log, t, length), PostOptions(plots=False, delay=full.delay))
         e = gap_errors(r, t, length, log.gps.t[fixed], full.gps_enu[fixed])
+        kinds.setdefault(kind, []).append(e)
         two = np.mean(np.abs(e.post) <= 2 * e.sigma)
         print(f"| {kind} | {start:.0f} | {length:.0f} | {e.post_rms:.2f} | {e.hermite_rms:.2f} | "
               f"{np.mean(e.covered):.2f} | {two:.2f} | {e.sigma.max():.2f} |")
+    print()
+    print("Per gap kind, every row of its gaps pooled (each gap weighs by its rows):")
+    print()
+    print(GAP_HEADER.replace("| gap |", "| gap kind |"))
+    for kind, errors in kinds.items():
+        print(_gap_row(kind, errors))
     print()
 
 

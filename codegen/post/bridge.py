@@ -172,7 +172,9 @@ class GapModel:
         `misfit` (where GPS covers the run, codegen.post.bridge.ImuMisfit): the IMU's misfit at each gap's time
         scale, in proportion to the gap's own acceleration power, less the smoother's own `floor` density. It
         measures the same slow errors whole (tilt, bias, lever arm, a hand's swing), so the larger of it and the
-        tilt and bias terms counts, not their sum."""
+        tilt and bias terms counts, not their sum. It was measured with the per-interval orientation where GPS covers
+        the run, so it counts only in spans whose orientation is interpolated the same way: a gyro span's orientation
+        is the gyro's, aligned to several seconds of solved intervals, not the per-interval solution."""
         a = self.enu(t, acc, bias)
         density = np.zeros_like(a)
         inside = self.inside(t)
