@@ -155,31 +155,78 @@ class GapModel:
             out[sel] = CORRELATION_FRACTION * (span.bridged or (span.b - span.a))  # a stand adds no GPS-less motion
         return out
 
-    def rotate(self, t: np.ndarray, acc: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def enu(self, t: np.ndarray, acc: np.ndarray, bias: np.ndarray) -> np.ndarray:
+        """ENU accelerations without gravity (m/s^2): the sensor's, less `bias`, turned by `rotation`."""
+        return self.rotation(t).apply(acc - bias) - np.array([0.0, 0.0, STANDARD_GRAVITY])
+
+    def rotate(self, t: np.ndarray, acc: np.ndarray, bias: np.ndarray, misfit: Optional["ImuMisfit"] = None,
+               floor: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """ENU accelerations without gravity (m/s^2), the horizontal part shrunk inside the spans by E[cos yaw error],
         and the acceleration noise (m/s^2/sqrt(Hz), (N,3)) the angle errors and the bias leave there.
 
         The turned part of the acceleration changes as fast as the motion does, so its variance counts over the
         motion's own correlation time (from the accelerations outside the gaps); the gravity a tilt error lets in
-        and the bias stay the same over much of a span, so theirs counts over `CORRELATION_FRACTION` of it."""
-        a = self.rotation(t).apply(acc - bias) - np.array([0.0, 0.0, STANDARD_GRAVITY])
+        and the bias stay the same over much of a span, so theirs counts over `CORRELATION_FRACTION` of it. What
+        stays the same across a gap is a constant acceleration error, which the two ends take out (the smoother's
+        bias): of the tilt the ends were aligned with and of the bias only as much counts as the device turns them.
+        `misfit` (where GPS covers the run, codegen.post.bridge.ImuMisfit): the IMU's misfit at each gap's time
+        scale, in proportion to the gap's own acceleration power, less the smoother's own `floor` density. It
+        measures the same slow errors whole (tilt, bias, lever arm, a hand's swing), so the larger of it and the
+        tilt and bias terms counts, not their sum. It was measured with the per-interval orientation where GPS covers
+        the run, so it counts only in spans whose orientation is interpolated the same way: a gyro span's orientation
+        is the gyro's, aligned to several seconds of solved intervals, not the per-interval solution."""
+        a = self.enu(t, acc, bias)
         density = np.zeros_like(a)
         inside = self.inside(t)
         if inside.any():
             motion_time = _correlation_time(t[~inside], a[~inside, :2])
             yaw, tilt = self.angle_sigma(t[inside])
+            aligned_tilt = self.aligned_tilt(t[inside])
             shrink = np.exp(-0.5 * yaw**2)
             horizontal = np.hypot(a[inside, 0], a[inside, 1])
+            power = self._gap_power(t, a)[inside]  # before the shrink: the motion's own accelerations
             a[inside, :2] *= shrink[:, None]
-            # per horizontal axis: half the variance of the turned part; half of the gravity let in by the tilt;
-            # the bias left in the sensor frame, as far as the device turns it within the span (a bias that stays
-            # put in ENU is taken out by the two ends)
+            # per horizontal axis: half the variance of the turned part; half of the gravity let in by the tilt
+            # (the part the ends were aligned with as far as the device turns it, the gyro's growth all); the bias
+            # left in the sensor frame, as far as the device turns it within the span (a bias that stays put in
+            # ENU is taken out by the two ends)
             turned = np.minimum(1.0, self._turn(t)[inside] + yaw)
+            grown = np.maximum(tilt**2 - aligned_tilt**2, 0.0)
             var_fast = 0.5 * horizontal**2 * (1.0 - np.exp(-yaw**2))
-            var_slow = 0.5 * (STANDARD_GRAVITY * tilt) ** 2 + (self.bias_sigma * turned) ** 2
-            q = var_fast * motion_time + var_slow * self.correlation_time(t[inside])
-            density[inside, :2] = np.sqrt(q)[:, None]
+            var_slow = 0.5 * STANDARD_GRAVITY**2 * ((aligned_tilt * turned) ** 2 + grown) + (self.bias_sigma * turned) ** 2
+            q_slow = var_slow * self.correlation_time(t[inside])
+            if misfit is not None:
+                q_misfit = np.zeros(int(inside.sum()))
+                span_t = t[inside]
+                for span in self.spans:
+                    if span.gyro:
+                        continue
+                    sel = (span_t > span.a) & (span_t < span.b)
+                    q_misfit[sel] = misfit.relative_power(span.gap.length) * power[sel]
+                q_slow = np.maximum(q_slow, q_misfit - floor**2)
+            q = var_fast * motion_time + q_slow
+            density[inside, :2] = np.sqrt(np.maximum(q, 0.0))[:, None]
         return a, density
+
+    def aligned_tilt(self, t: np.ndarray) -> np.ndarray:
+        """rad: the tilt 1-sigma at the ends a span was aligned at (the solved intervals' own; 0 outside spans)."""
+        t = np.asarray(t, dtype=float)
+        out = np.zeros(len(t))
+        for span in self.spans:
+            sel = (t > span.a) & (t < span.b)
+            end = span.end_sigma if span.end_sigma is not None else self.end_sigma
+            out[sel] = min(float(np.hypot(end[0], end[1])), MAX_ANGLE_SIGMA)
+        return out
+
+    def _gap_power(self, t: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """(m/s^2)^2: the mean horizontal acceleration power inside the gap of the span each t lies in."""
+        out = np.zeros(len(t))
+        power = a[:, 0] ** 2 + a[:, 1] ** 2
+        for span in self.spans:
+            gap = (t > span.gap.t0) & (t < span.gap.t1)
+            sel = (t > span.a) & (t < span.b)
+            out[sel] = float(np.mean(power[gap])) if gap.any() else 0.0
+        return out
 
     def _turn(self, t: np.ndarray) -> np.ndarray:
         """rad: how far the device's heading ranges over the span each t lies in (0 outside spans)."""
@@ -367,3 +414,83 @@ def _angle_rates(t: np.ndarray, euler: np.ndarray) -> tuple[float, float]:
     d = (d + np.pi) % (2 * np.pi) - np.pi
     var = d[near] ** 2 / dt[near, None]
     return float(np.sqrt(np.mean(var[:, 2]))), float(np.sqrt(np.mean(var[:, 0] + var[:, 1])))
+
+
+@dataclass
+class ImuMisfit:
+    """How far the IMU's velocity change misses the GPS's where GPS covers the run, at the time scale of a gap and
+    in proportion to the motion's acceleration.
+
+    Per GPS interval the misfit is r = (v_gps[k+1] - v_gps[k]) - integral of the ENU accelerations; summed from an
+    epoch on, it is the velocity the IMU alone would be off by. A gap is bridged with GPS at both ends, so what the
+    ends tell (a constant acceleration error: the bias the smoother estimates) is taken out: over each window of a
+    gap's length the summed misfit less the straight line between its two ends, e(s) at the fraction s of the window.
+    A white acceleration error of density q leaves E[e^2] = q^2 W s (1 - s) (a Brownian bridge), plus the Doppler
+    noise of the three epochs involved; a bounded oscillation (a hand's swing, a lever arm turning with the device)
+    leaves an e that does not grow with W, so the white density that explains it falls as 1 / sqrt(W). Errors that
+    turn or scale the accelerations (an angle, a lever arm, a scale factor) grow with the motion, and a device that
+    stands has none: so the density is taken per unit of the window's horizontal acceleration power, and a gap gets
+    it times its own power (a walker slowing to a stand gets less than the brisk walk before)."""
+
+    t: np.ndarray  # (K+1,) s, the epochs of each stretch of consecutive usable intervals, stretch after stretch
+    cum: np.ndarray  # (K+1,2) m/s, horizontal misfit summed from the stretch's first epoch
+    doppler: np.ndarray  # (K+1,2) (m/s)^2, the GPS horizontal velocity variance at each of those epochs
+    energy: np.ndarray  # (K+1,) m^2/s^3, the horizontal acceleration power integrated from the stretch's first epoch
+    stretch: np.ndarray  # (K+1,) int, which stretch each epoch belongs to
+
+    @classmethod
+    def from_intervals(cls, t0: np.ndarray, t1: np.ndarray, residual: np.ndarray, power: np.ndarray,
+                       sigma_vel0: np.ndarray, sigma_vel1: np.ndarray, usable: np.ndarray) -> "ImuMisfit":
+        """`residual` (K,3) the misfit per interval [t0, t1], `power` (K,) its mean horizontal acceleration power
+        ((m/s^2)^2), `sigma_vel0/1` (K,3) the GPS velocity 1-sigma at its ends."""
+        ok = usable & np.isfinite(residual).all(axis=1) & np.isfinite(power)
+        dt = t1 - t0
+        typical = float(np.median(dt)) if len(dt) else 1.0
+        ok &= dt < GAP_EPOCH_FACTOR * typical
+        ts, cums, dops, energies, which = [], [], [], [], []
+        k, n, label = 0, len(ok), 0
+        while k < n:
+            if not ok[k]:
+                k += 1
+                continue
+            j = k
+            while j + 1 < n and ok[j + 1] and abs(t0[j + 1] - t1[j]) < 1e-9:
+                j += 1
+            sel = slice(k, j + 1)
+            ts.append(np.concatenate([[t0[k]], t1[sel]]))
+            cums.append(np.concatenate([np.zeros((1, 2)), np.cumsum(residual[sel, :2], axis=0)]))
+            dops.append(np.concatenate([sigma_vel0[k:k + 1, :2], sigma_vel1[sel, :2]]) ** 2)
+            energies.append(np.concatenate([[0.0], np.cumsum(power[sel] * dt[sel])]))
+            which.append(np.full(j - k + 2, label))
+            label += 1
+            k = j + 1
+        if not ts:
+            return cls(np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=int))
+        return cls(np.concatenate(ts), np.concatenate(cums), np.concatenate(dops), np.concatenate(energies),
+                   np.concatenate(which))
+
+    def relative_power(self, window: float) -> float:
+        """1/s: q^2 per unit of acceleration power, per horizontal axis: sum(e^2 - Doppler) / sum(W s (1 - s) P)
+        over every window from an epoch to the first one at least `window` s on in its stretch (at least two
+        intervals; the longest a stretch has where none is that long), at each epoch inside, with P the window's
+        mean horizontal acceleration power. Zero where nothing is left above the Doppler noise."""
+        if len(self.t) < 3:
+            return 0.0
+        stretches = [np.flatnonzero(self.stretch == s) for s in np.unique(self.stretch)]
+        longest = max(float(np.ptp(self.t[idx])) for idx in stretches)
+        window = min(max(window, 0.0), longest)
+        excess, weight = 0.0, 0.0
+        for idx in stretches:
+            t, cum, dop, energy = self.t[idx], self.cum[idx], self.doppler[idx], self.energy[idx]
+            ends = np.maximum(np.searchsorted(t, t + window - 1e-9), np.arange(len(t)) + 2)
+            for i in np.flatnonzero(ends < len(t)):
+                j = ends[i]
+                w = t[j] - t[i]
+                s = ((t[i + 1:j] - t[i]) / w)[:, None]
+                e = cum[i + 1:j] - cum[i] - s * (cum[j] - cum[i])
+                noise = dop[i + 1:j] + (1 - s) ** 2 * dop[i] + s**2 * dop[j]
+                excess += 0.5 * float(np.sum(e**2 - noise))
+                weight += float(np.sum(w * s * (1 - s))) * (energy[j] - energy[i]) / w
+        if weight <= 0:
+            return 0.0
+        return max(excess / weight, 0.0)

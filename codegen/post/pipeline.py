@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from codegen.board.model import STANDARD_GRAVITY
 from codegen.errors import UserError
-from codegen.post.bridge import GapModel, gap_model
+from codegen.post.bridge import GapModel, ImuMisfit, gap_model
 from codegen.post.delay import DelayEstimate, estimate_delay
 from codegen.post.geodesy import geodetic_to_enu
 from codegen.post.model import Calibration, PostLog
@@ -166,18 +166,15 @@ def _orient(t, acc, log: PostLog, options: OrientationOptions, track: Optional[T
     return result, iv
 
 
-def _imu_noise_density(t: np.ndarray, a_enu: np.ndarray, iv: Intervals, gps) -> np.ndarray:
-    """(3,) m/s^2/sqrt(Hz): the white acceleration noise that explains the misfit between the IMU's and the GPS's
-    velocity change per interval (mean removed, less the Doppler noise of both epochs)."""
+def _imu_misfit(t: np.ndarray, a_enu: np.ndarray, iv: Intervals, gps) -> ImuMisfit:
+    """Where GPS covers the run, how far the IMU's velocity change per interval misses the GPS's."""
     nodes, cum = cumulative_integral(t, a_enu)
     dt = iv.t1 - iv.t0
     residual = np.diff(gps.vel, axis=0) - interval_means(nodes, cum, iv.t0, iv.t1) * dt[:, None]
-    ok = iv.usable & np.isfinite(residual).all(axis=1)
-    if ok.sum() < 3:
-        return np.zeros(3)
-    r = residual[ok] - residual[ok].mean(axis=0)
-    doppler = gps.sigma_vel[:-1][ok] ** 2 + gps.sigma_vel[1:][ok] ** 2
-    return np.sqrt(np.maximum(np.mean((r**2 - doppler) / dt[ok, None], axis=0), 0.0))
+    power_nodes, power_cum = cumulative_integral(t, np.column_stack([a_enu[:, 0] ** 2 + a_enu[:, 1] ** 2,
+                                                                     np.zeros((len(t), 2))]))
+    power = interval_means(power_nodes, power_cum, iv.t0, iv.t1)[:, 0]
+    return ImuMisfit.from_intervals(iv.t0, iv.t1, residual, power, gps.sigma_vel[:-1], gps.sigma_vel[1:], iv.usable)
 
 
 def _bias_sigma(orientation: OrientationResult, options: OrientationOptions, parts: list[SmootherResult]) -> float:
@@ -318,11 +315,10 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     gaps = gap_model(orientation.slerp(), orientation.t[ok], orientation.euler[ok], orientation.sigma[ok], gps.t, t,
                      log.imu.gyro, _bias_sigma(orientation, options.orientation, parts), standing=standing[ok])
     notes += gaps.notes
-    a_enu, a_noise = gaps.rotate(t, acc, orientation.bias)
-    # where GPS covers the run, how far the IMU's velocity change over an interval misses the GPS's: beyond what the
-    # smoother assumes, that is noise the IMU carries into a gap too (a hand's swing, a lever arm)
-    excess = np.maximum(_imu_noise_density(t, a_enu, iv, gps) ** 2 - options.smoother.accel_noise**2, 0.0)
-    a_noise[gaps.inside(t)] = np.sqrt(a_noise[gaps.inside(t)] ** 2 + excess)
+    # where GPS covers the run, how far the IMU's velocity change misses the GPS's at each gap's time scale: beyond
+    # what the smoother assumes, that is noise the IMU carries into the gap too (a hand's swing, a lever arm)
+    misfit = _imu_misfit(t, gaps.enu(t, acc, orientation.bias), iv, gps)
+    a_enu, a_noise = gaps.rotate(t, acc, orientation.bias, misfit, options.smoother.accel_noise)
 
     def gap_noise(nodes):
         return a_noise[np.clip(np.searchsorted(t, nodes), 0, len(t) - 1)]
