@@ -76,11 +76,12 @@ class EskfConfig:
     nhc_sigma: float = 0.15  # m/s: lateral and vertical velocity of the vehicle (lever arm, slip, roll)
     nhc_min_speed: float = 1.0  # m/s: the constraint's mounting terms need motion
     zupt_sigma: float = 0.02  # m/s
+    zupt_gate: float = 16.3  # the velocity's normalised square below which it may be 0 (chi-square, 3 dof, 99.9 %)
     zaru_sigma: float = 0.002  # rad/s: the smoothed rate at rest against the bias
     rest_accel_g: float = 0.02  # |f| standard deviation below which the vehicle may be at rest (an idling engine)
     rest_gyro_dps: float = 1.0  # smoothed rate below which it may be at rest
     rest_time_s: float = 0.5  # both this long
-    rest_speed_ms: float = 1.5  # and the filter's own speed below this
+    rest_speed_ms: float = 1.5  # and the last fix's speed below this (while fixes arrive)
     rest_horizontal_ms2: float = 0.3  # and the smoothed horizontal specific force below this (a start is no rest)
     stat_tau_s: float = 0.5  # s: the shaking's and the rate's smoothing
     # the start
@@ -88,7 +89,8 @@ class EskfConfig:
     align_coherence: float = 0.8  # the correlation's resultant over that sum
     align_speed_ms: float = 2.0  # m/s: the filter starts while moving at least this fast (the mounting)
     init_yaw_sigma_deg: float = 10.0
-    init_tilt_sigma_deg: float = 2.0
+    init_tilt_sigma_deg: float = 0.3  # beside the accelerometer bias's share (_prior)
+    init_tilt_moving_deg: float = 2.0  # after a calibration in motion
     init_gyro_bias_dps: float = 0.1  # after a calibration at rest
     init_gyro_bias_moving_dps: float = 0.5  # after a calibration in motion
     init_accel_bias_ms2: float = 0.3
@@ -158,12 +160,14 @@ def calibrate(st: EskfState, samples, kcfg: KernelConfig) -> bool:
 
 
 def _prior(st: EskfState, cfg: EskfConfig) -> np.ndarray:
-    """The covariance the filter starts with (and returns to when a step breaks it)."""
+    """The covariance the filter starts with (and returns to when a step breaks it). Calibration folded the
+    accelerometer's bias into the tilt (the level it found makes R f - g vanish): the tilt error is -[g e_U]x^-1 of
+    the bias's horizontal part, (dth_E, dth_N) = G dba with G = [-R_N; R_E] / g, plus its own init_tilt_sigma_deg."""
     d = np.zeros(N_ERR)
     d[ERR_P:ERR_P + 3] = (2.0 * cfg.gps_pos_sigma) ** 2
     d[ERR_P + 2] = cfg.gps_up_sigma ** 2
     d[ERR_V:ERR_V + 3] = (2.0 * cfg.gps_vel_sigma) ** 2
-    tilt = math.radians(cfg.init_tilt_sigma_deg) ** 2
+    tilt = math.radians(cfg.init_tilt_moving_deg if st.gyro_moving else cfg.init_tilt_sigma_deg) ** 2
     d[ERR_TH:ERR_TH + 3] = (tilt, tilt, math.radians(cfg.init_yaw_sigma_deg) ** 2)
     bg = cfg.init_gyro_bias_moving_dps if st.gyro_moving else cfg.init_gyro_bias_dps
     d[ERR_BG:ERR_BG + 3] = math.radians(bg) ** 2
@@ -171,7 +175,14 @@ def _prior(st: EskfState, cfg: EskfConfig) -> np.ndarray:
     d[ERR_MU:ERR_MU + 2] = math.radians(cfg.init_mount_sigma_deg) ** 2
     d[ERR_SG:ERR_SG + 3] = cfg.init_turn_scale ** 2
     d[ERR_GE:ERR_GE + 3] = (cfg.gps_pos_sigma ** 2, cfg.gps_pos_sigma ** 2, cfg.gps_up_sigma ** 2)
-    return np.diag(d)
+    p = np.diag(d)
+    r = st.rotation()
+    g = np.vstack([-r[1], r[0]]) / STANDARD_GRAVITY
+    pb = p[ERR_BA:ERR_BA + 3, ERR_BA:ERR_BA + 3]
+    p[ERR_TH:ERR_TH + 2, ERR_TH:ERR_TH + 2] += g @ pb @ g.T
+    p[ERR_TH:ERR_TH + 2, ERR_BA:ERR_BA + 3] = g @ pb
+    p[ERR_BA:ERR_BA + 3, ERR_TH:ERR_TH + 2] = (g @ pb).T
+    return p
 
 
 def align(st: EskfState, t_fix: float, fix_enu, vel_en, cfg: EskfConfig) -> bool:
@@ -335,7 +346,7 @@ def covariance_step(st: EskfState, cfg: EskfConfig) -> None:
         return
     st.since_nhc = 0.0
     speed = math.sqrt(st.ve * st.ve + st.vn * st.vn + st.vu * st.vu)
-    if st.rest_s >= cfg.rest_time_s and speed < cfg.rest_speed_ms and st.gps_speed < cfg.rest_speed_ms:
+    if st.rest_s >= cfg.rest_time_s and st.gps_speed < cfg.rest_speed_ms and zero_velocity_gate(st, cfg):
         zero_velocity_update(st, cfg)
     elif speed > cfg.nhc_min_speed:
         nhc_update(st, cfg)
@@ -580,6 +591,15 @@ def nhc_update(st: EskfState, cfg: EskfConfig) -> None:
     h, pred = nhc_rows(st)
     r = cfg.nhc_sigma ** 2
     update(st, h, -pred, (r, r), cfg)
+
+
+def zero_velocity_gate(st: EskfState, cfg: EskfConfig) -> bool:
+    """Can the filter's velocity be 0? Its normalised square v^T (P_vv + r I)^-1 v within zupt_gate: a smooth cruise
+    is as still as a stand to the detector, but the filter knows it moves; a stop after an outage's drift is not
+    excluded by it."""
+    s = st.p[ERR_V:ERR_V + 3, ERR_V:ERR_V + 3] + cfg.zupt_sigma ** 2 * np.eye(3)
+    v = np.array([st.ve, st.vn, st.vu])
+    return float(v @ np.linalg.solve(s, v)) < cfg.zupt_gate
 
 
 def zero_velocity_update(st: EskfState, cfg: EskfConfig) -> None:
