@@ -207,6 +207,13 @@ def align(st: EskfState, t_fix: float, fix_enu, vel_en, cfg: EskfConfig) -> bool
     cz, sz = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
     qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz  # q <- [cz, 0, 0, sz] (x) q
     st.qw, st.qx, st.qy, st.qz = cz * qw - sz * qz, cz * qx - sz * qy, cz * qy + sz * qx, cz * qz + sz * qw
+    start(st, t_fix, fix_enu, vel_en, cfg)
+    return True
+
+
+def start(st: EskfState, t_fix: float, fix_enu, vel_en, cfg: EskfConfig) -> None:
+    """The filter starts at a fix (t_fix s, ENU m, horizontal velocity m/s) with the attitude it has: the mounting
+    from the body-frame velocity, the covariance its prior."""
     st.pe, st.pn, st.pu = (float(x) for x in fix_enu)
     st.ve, st.vn, st.vu = float(vel_en[0]), float(vel_en[1]), 0.0
     _mounting_from_velocity(st)
@@ -217,14 +224,15 @@ def align(st: EskfState, t_fix: float, fix_enu, vel_en, cfg: EskfConfig) -> bool
     st.acc_b = np.zeros((3, 3))
     st.acc_dv = np.zeros(3)
     st.aligned = True
-    return True
 
 
 def _mounting_from_velocity(st: EskfState) -> None:
     """The mounting C (body -> vehicle) from the body-frame velocity (the vehicle's x axis) and the body-frame Up
-    (its z axis, made orthogonal to x): the vehicle stands level across its track."""
+    (its z axis, made orthogonal to x): the vehicle stands level across its track. Standing, C is kept."""
     r = st.rotation()
     x = r.T @ np.array([st.ve, st.vn, st.vu])
+    if np.linalg.norm(x) < 1e-6:
+        return
     x /= np.linalg.norm(x)
     up = r.T[:, 2]
     z = up - (up @ x) * x
