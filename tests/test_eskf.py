@@ -49,8 +49,9 @@ def test_block_propagation_equals_the_matrix_form(case):
     b = r * rng.uniform(-0.1, 0.1) + 0.01 * rng.standard_normal((3, 3))
     dv = rng.standard_normal(3) * 3.0
     phi = E.transition(a, b, dv, t)
-    want = phi @ p @ phi.T + E.process_noise(t, CFG)
-    got = E.propagate_covariance(p, a, b, dv, t, CFG)
+    clipped = rng.uniform(0.0, 1.0) if case % 2 else 0.0
+    want = phi @ p @ phi.T + E.process_noise(t, CFG, clipped)
+    got = E.propagate_covariance(p, a, b, dv, t, CFG, clipped)
     assert np.max(np.abs(got - want)) <= 1e-12 * np.max(np.abs(want))
     assert np.array_equal(got, got.T)
 

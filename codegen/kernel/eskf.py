@@ -73,7 +73,10 @@ class EskfConfig:
     gps_white_sigma: float = 0.3  # m per axis: what is not correlated
     gps_vel_sigma: float = 0.15  # m/s per horizontal axis
     gps_slow_sigma: float = 0.4  # m/s: below the course's speed the velocity is reported as 0
-    nhc_sigma: float = 0.15  # m/s: lateral and vertical velocity of the vehicle (lever arm, slip, roll)
+    nhc_sigma: float = 0.2  # m/s: lateral and vertical velocity of the vehicle (lever arm, slip, roll)
+    saturation_excess_ms2: float = 20.0  # m/s^2: what a clipped sample (the +-2 g range's end) may have lost
+    nhc_lever_m: float = 1.0  # m: the device's distance from the vehicle's axles, for the constraint's noise
+    nhc_gate: float = 3.0  # sigmas: a lateral or vertical velocity beyond this is no sliding (a lever arm's swing)
     nhc_min_speed: float = 1.0  # m/s: the constraint's mounting terms need motion
     zupt_sigma: float = 0.02  # m/s
     zupt_gate: float = 16.3  # the velocity's normalised square below which it may be 0 (chi-square, 3 dof, 99.9 %)
@@ -104,7 +107,7 @@ class EskfState:
     __slots__ = ("pe", "pn", "pu", "ve", "vn", "vu", "qw", "qx", "qy", "qz", "bgx", "bgy", "bgz", "bax", "bay",
                  "baz", "c", "p", "aligned", "acc_t", "acc_a", "acc_dv", "since_nhc", "mean_f", "var_f", "wsx",
                  "wsy", "wsz", "rest_s", "al_du", "al_dot", "al_cross", "al_norm", "al_prev", "gps_speed",
-                 "cov_repairs", "gyro_moving", "ahe", "ahn", "sgx", "sgy", "sgz", "acc_b", "gee", "gen", "geu", "t_fix")
+                 "cov_repairs", "gyro_moving", "ahe", "ahn", "sgx", "sgy", "sgz", "acc_b", "gee", "gen", "geu", "t_fix", "rate2", "sat_dv")
 
     def __init__(self):
         for name in self.__slots__:
@@ -251,9 +254,12 @@ def mechanise(st: EskfState, acc, gyr, dts, kcfg: KernelConfig, cfg: EskfConfig)
     rest_w2 = math.radians(cfg.rest_gyro_dps) ** 2
     inv_stat = 1.0 / cfg.stat_tau_s
     horizontal2 = cfg.rest_horizontal_ms2 * cfg.rest_horizontal_ms2
+    saturated = 32767.0 * kcfg.accel_ms2_per_lsb  # m/s^2: the range's end (int16)
     qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
     for k in range(len(dts)):
         dt = dts[k]
+        if abs(acc[k][0]) >= saturated or abs(acc[k][1]) >= saturated or abs(acc[k][2]) >= saturated:
+            st.sat_dv += cfg.saturation_excess_ms2 * dt  # what the clipped sample may have left out
         fx = acc[k][0] - st.bax
         fy = acc[k][1] - st.bay
         fz = acc[k][2] - st.baz
@@ -340,6 +346,7 @@ def mechanise(st: EskfState, acc, gyr, dts, kcfg: KernelConfig, cfg: EskfConfig)
         inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
         qw, qx, qy, qz = nw * inv, nx * inv, ny * inv, nz * inv
         st.qw, st.qx, st.qy, st.qz = qw, qx, qy, qz
+        st.rate2 = wx * wx + wy * wy + wz * wz
         if st.aligned and st.acc_t >= cfg.cov_dt_s:
             covariance_step(st, cfg)
             qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
@@ -376,14 +383,15 @@ def transition(a: np.ndarray, b: np.ndarray, dv: np.ndarray, t: float) -> np.nda
     return phi
 
 
-def process_noise(t: float, cfg: EskfConfig) -> np.ndarray:
-    """Q over t s: white specific force and rate, random-walk biases and mounting (isotropic: frame-free)."""
+def process_noise(t: float, cfg: EskfConfig, clipped_dv: float = 0.0) -> np.ndarray:
+    """Q over t s: white specific force and rate, random-walk biases and mounting (isotropic: frame-free); and the
+    velocity the accelerometer's clipped samples may have lost, up to clipped_dv m/s per axis."""
     q = np.zeros((N_ERR, N_ERR))
     qa = cfg.accel_noise ** 2
     for i in range(3):
         q[ERR_P + i, ERR_P + i] = qa * t ** 3 / 3.0
         q[ERR_P + i, ERR_V + i] = q[ERR_V + i, ERR_P + i] = qa * t * t / 2.0
-        q[ERR_V + i, ERR_V + i] = qa * t
+        q[ERR_V + i, ERR_V + i] = qa * t + clipped_dv * clipped_dv
         q[ERR_TH + i, ERR_TH + i] = cfg.gyro_noise ** 2 * t
         q[ERR_BG + i, ERR_BG + i] = cfg.gyro_bias_walk ** 2 * t
         q[ERR_BA + i, ERR_BA + i] = cfg.accel_bias_walk ** 2 * t
@@ -400,7 +408,7 @@ def _cross_rows(dv: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 
 def propagate_covariance(p: np.ndarray, a: np.ndarray, b: np.ndarray, dv: np.ndarray, t: float,
-                         cfg: EskfConfig) -> np.ndarray:
+                         cfg: EskfConfig, clipped_dv: float = 0.0) -> np.ndarray:
     """Phi P Phi^T + Q by blocks: the rows of Phi P first (only dp, dv, dtheta change), then its columns (the same
     operations on M^T), then Q's few entries. Equal to transition(...) @ p @ transition(...).T + process_noise(...)
     (tests/test_eskf.py)."""
@@ -421,7 +429,7 @@ def propagate_covariance(p: np.ndarray, a: np.ndarray, b: np.ndarray, dv: np.nda
         m[ERR_P + i, ERR_P + i] += qa * t ** 3 / 3.0
         m[ERR_P + i, ERR_V + i] += qa * t * t / 2.0
         m[ERR_V + i, ERR_P + i] += qa * t * t / 2.0
-        m[ERR_V + i, ERR_V + i] += qa * t
+        m[ERR_V + i, ERR_V + i] += qa * t + clipped_dv * clipped_dv
         m[ERR_TH + i, ERR_TH + i] += cfg.gyro_noise ** 2 * t
         m[ERR_BG + i, ERR_BG + i] += cfg.gyro_bias_walk ** 2 * t
         m[ERR_BA + i, ERR_BA + i] += cfg.accel_bias_walk ** 2 * t
@@ -469,8 +477,8 @@ def propagate(st: EskfState, cfg: EskfConfig) -> None:
     """P over the interval integrated since the last propagation; the interval's sums restart."""
     if st.acc_t <= 0.0:
         return
-    st.p = propagate_covariance(st.p, st.acc_a, st.acc_b, st.acc_dv, st.acc_t, cfg)
-    st.acc_t = 0.0
+    st.p = propagate_covariance(st.p, st.acc_a, st.acc_b, st.acc_dv, st.acc_t, cfg, st.sat_dv)
+    st.acc_t = st.sat_dv = 0.0
     st.acc_a = np.zeros((3, 3))
     st.acc_b = np.zeros((3, 3))
     st.acc_dv = np.zeros(3)
@@ -489,12 +497,17 @@ def scalar_update(p: np.ndarray, dx: np.ndarray, h: np.ndarray, y: float, r: flo
     return 0.5 * (p + p.T), dx + u * ((y - float(h @ dx)) / s)
 
 
-def update(st: EskfState, hs, ys, rs, cfg: EskfConfig) -> bool:
-    """Scalar updates in sequence (rows hs (m, 17), residuals ys against the nominal state, variances rs), then the
-    error fed into the nominal state. Returns False (nothing fed back) if the covariance went wrong."""
+def update(st: EskfState, hs, ys, rs, cfg: EskfConfig, gate: float = 0.0) -> bool:
+    """Scalar updates in sequence (rows hs (m, N_ERR), residuals ys against the nominal state, variances rs), then
+    the error fed into the nominal state; with a gate (sigmas), a row whose innovation is beyond it is left out.
+    Returns False (nothing fed back) if the covariance went wrong."""
     dx = np.zeros(N_ERR)
     p = st.p
     for h, y, r in zip(hs, ys, rs):
+        if gate > 0.0:
+            innovation = y - float(h @ dx)
+            if innovation * innovation > gate * gate * (float(h @ p @ h) + r):
+                continue
         out = scalar_update(p, dx, h, y, r)
         if out is None:
             st.cov_repairs += 1.0
@@ -595,10 +608,11 @@ def nhc_rows(st: EskfState) -> tuple[np.ndarray, np.ndarray]:
 
 
 def nhc_update(st: EskfState, cfg: EskfConfig) -> None:
-    """The vehicle neither slides sideways nor leaves the road: its lateral and vertical velocity are 0."""
+    """The vehicle neither slides sideways nor leaves the road: its lateral and vertical velocity are 0, to within
+    nhc_sigma and what the device's lever arm (nhc_lever_m, not a state) swings at the body rate now."""
     h, pred = nhc_rows(st)
-    r = cfg.nhc_sigma ** 2
-    update(st, h, -pred, (r, r), cfg)
+    r = cfg.nhc_sigma ** 2 + cfg.nhc_lever_m ** 2 * st.rate2
+    update(st, h, -pred, (r, r), cfg, cfg.nhc_gate)
 
 
 def zero_velocity_gate(st: EskfState, cfg: EskfConfig) -> bool:
