@@ -3,27 +3,33 @@ selectable on the device; docs/eskf.md says what a C and fallback port still nee
 
 Nominal state (EskfState): position p and velocity v in the run's local ENU frame (m, m/s), the attitude quaternion
 q = [w, x, y, z] turning body vectors into ENU, the gyro bias bg (rad/s) and the accelerometer bias ba (m/s^2),
-both in the body frame, and the mounting C (3 x 3, body -> vehicle: x forward, y left, z up). Error state, 17
-values in this order (ERR_*): dp (3), dv (3), dtheta (3, a small rotation in the ENU frame: R_true = (I + [dtheta]x) R),
-dbg (3), dba (3), dmu (2, the mounting's pitch and yaw error: C_true = (I - [(0, mu_p, mu_y)]x) C). P is its 17 x 17
-covariance.
+both in the body frame, the mounting C (3 x 3, body -> vehicle: x forward, y left, z up), the gyro's turn-rate error
+sg (the body-frame rate error per rad/s of turn about Up: the MPU-6050's scale and cross-axis errors on the axis a
+vehicle turns about) and the receiver's position error ge (ENU m, first-order Gauss-Markov, as codegen/sim/neo6m.py
+models the NEO-6M). Error state, N_ERR = 23 values in this order (ERR_*): dp (3), dv (3), dtheta (3, a small
+rotation in the ENU frame: R_true = (I + [dtheta]x) R), dbg (3), dba (3), dmu (2, the mounting's pitch and yaw
+error: C_true = (I - [(0, mu_p, mu_y)]x) C), dsg (3), dge (3). P is its covariance.
 
 Per sample (`mechanise`): the strapdown step, flat-earth ENU, gravity STANDARD_GRAVITY:
-    f = f_m - ba,  w = w_m - bg,  a = R(q) f - [0, 0, g]
+    f = f_m - ba,  w' = w_m - bg,  turn = (R w')_U,  w = w' - turn sg,  a = R(q) f - [0, 0, g]
     p += v dt + a dt^2 / 2,  v += a dt,  q <- q (x) [1, w dt / 2] (normalised)
-and the sums the covariance's transition needs over the interval: A = sum R dt, dV = sum R f dt.
-Every cov_dt_s (`propagate`): P <- Phi P Phi^T + Q with
-    Phi = I + | 0  T I  -T/2 [dV]x  0   -T/2 A  0 |   (rows dp)
-              | 0  0    -[dV]x      0   -A      0 |   (rows dv)
-              | 0  0     0         -A    0      0 |   (rows dtheta)
-written out by block (`propagate_covariance`); tests/test_eskf.py holds it to the generic Phi P Phi^T + Q.
+and the sums the covariance's transition needs over the interval: A = sum R dt, B = sum R turn dt, dV = sum R f dt.
+Every cov_dt_s (`propagate`): P <- Phi P Phi^T + Q with (columns dp dv dtheta dbg dba dmu dsg dge)
+    Phi = I + | 0  T I  -T/2 [dV]x  0   -T/2 A  0  0   0 |   (rows dp)
+              | 0  0    -[dV]x      0   -A      0  0   0 |   (rows dv)
+              | 0  0     0         -A    0      0  -B  0 |   (rows dtheta)
+written out by block (`propagate_covariance`); tests/test_eskf.py holds it to the generic Phi P Phi^T + Q. The
+receiver's error steps at each fix: its rows and columns times exp(-dt / gps_tau_s) (`gps_error_step`).
 Measurements, each a sequence of scalar updates P <- P - u u^T / s (u = P h^T, s = h u + r: the Joseph form's value
 for the optimal gain; the covariance is checked after every step, `covariance_ok`), then the error injected into
 the nominal state and reset to zero (`inject`):
-- at each GPS fix: the position (E, N, U) and the horizontal Doppler velocity (as NMEA gives it, speed and course);
-- every nhc_dt_s while moving: the non-holonomic constraint, the vehicle's lateral and vertical velocity 0;
-- every nhc_dt_s at rest (detected from the shaking, the smoothed rate and the speed): zero velocity (3) and zero
-  rate (the smoothed gyro reading is the bias, 3).
+- at each GPS fix: the position (E, N, U) as p + ge and the horizontal Doppler velocity (speed and course, as NMEA
+  gives them);
+- every nhc_dt_s while moving: the non-holonomic constraint, the vehicle's lateral and vertical velocity 0 (noise
+  with the lever arm's swing at the body rate; a row beyond nhc_gate sigmas left out);
+- every nhc_dt_s at rest (|f|'s shaking, the smoothed rate and horizontal specific force below their limits, the
+  last fix slow, and the filter's own velocity not excluding 0 at zupt_gate): zero velocity (3) and zero rate (the
+  smoothed gyro reading is the bias, 3).
 No heading is measured: yaw is observed through the GPS velocity's changes against the rotated specific force.
 
 Start (`calibrate`, `align`): calibration gives the tilt (yaw 0) and the gyro bias, at rest or (a run that starts
@@ -102,7 +108,7 @@ class EskfConfig:
 
 
 class EskfState:
-    """The filter's whole state (float64 here; a C struct of floats with P[17][17] on a device)."""
+    """The filter's whole state (float64 here; a C struct of floats with P[N_ERR][N_ERR] on a device)."""
 
     __slots__ = ("pe", "pn", "pu", "ve", "vn", "vu", "qw", "qx", "qy", "qz", "bgx", "bgy", "bgz", "bax", "bay",
                  "baz", "c", "p", "aligned", "acc_t", "acc_a", "acc_dv", "since_nhc", "mean_f", "var_f", "wsx",
