@@ -175,12 +175,12 @@ def platform_goal_lines(results) -> list[str]:
     """The vehicle and walk goals per vehicle scenario (simulated and the real car) and per walk with stops, for each fused
     variant present."""
     lines = []
-    variants = ("fused",) + tuple(f"fused-{p}" for p in PLATFORMS)
+    variants = ("fused",) + tuple(f"fused-{p}" for p in PLATFORMS) + ("eskf",)  # eskf: the error-state filter
     for res in results:
         vehicle = res.scenario in VEHICLES or res.scenario.startswith("car-comma")
         if not vehicle and res.scenario not in WALKS_WITH_STOPS:
             continue
-        forced = [res.errors[v][:, 1:] for v in variants[1:] if v in res.errors]
+        forced = [res.errors[f"fused-{p}"][:, 1:] for p in PLATFORMS if f"fused-{p}" in res.errors]
         for name in (v for v in variants if v in res.errors):
             err = res.errors[name][:, 1:]
             med, p90 = np.nanmedian(err, axis=0), np.nanpercentile(err, 90, axis=0)

@@ -21,11 +21,13 @@ A new method joins every table with the decorator:
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 
-from codegen.kernel import fused, reference
+from codegen.kernel import eskf, fused, reference
+from codegen.kernel.layout import FUSED
 from codegen.kernel.reference import KernelConfig
 
 Method = Callable[..., np.ndarray]
@@ -143,3 +145,16 @@ def seed_method(run, starts, times):
 
 
 register("fused")(fused.estimate)
+
+# The carriers the error-state filter is for; a device configured for a pedestrian runs the fused method's
+# pedestrian path instead (the scenario stands for that configuration: the filter does not decide the carrier).
+VEHICLE_SCENARIOS = ("bike", "car", "car-town", "replay-car")
+
+
+@register("eskf")
+def eskf_method(run, starts, times):
+    """The error-state Kalman filter (codegen.kernel.eskf) on a vehicle; fused_platform: pedestrian otherwise."""
+    if run.scenario in VEHICLE_SCENARIOS:
+        return eskf.estimate(run, starts, times)
+    cfg = replace(fused.FusedConfig.from_board(run.board), platform=float(FUSED.param("platform").code("pedestrian")))
+    return fused.estimate(run, starts, times, cfg)
