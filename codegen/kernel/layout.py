@@ -394,7 +394,8 @@ FUSED = Kernel(
               "moved", 3, ("sb_pss", "sb_psb", "sb_pbb"),
               group="a vehicle's speed and along-track bias filter, and the speed it keeps"),
         Field("sk_t", "s", "time since the speed was last known (a fix, a rest, calibration)"),
-        Field("keep_v", "m/s", "the speed a vehicle is taken to keep (the last fix's); < 0 after a rest: none"),
+        Field("keep_v", "m/s", "the speed a vehicle is taken to keep (the last fix's); < 0 before a fix and after a "
+              "rest: none", initial=(-1.0,)),
         Field("cal_moved", "", "1 from a calibration that moved until the next rest (the gyro bias took the motion's "
               "mean rate for a bias: the tilt drifts), else 0"),
     ),
