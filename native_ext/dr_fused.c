@@ -216,15 +216,19 @@ static void dr_fused_speed_prior(const dr_fused_config *cfg, dr_fused_state *st)
 static int dr_fused_covariance_checked(const dr_fused_config *cfg, dr_fused_state *st, int filter, int step,
                                        int innovation_ok) {
     int usable;
+    /* two-way choices only: a chain of four compiles to a jump table in .rodata, which a natmod cannot relocate */
+    const int tilt_or_lateral = filter == DR_FUSED_FILTER_TILT || filter == DR_FUSED_FILTER_LATERAL;
     DR_FUSED_OBSERVE(st, filter, step);
     if (!innovation_ok) {
         usable = 0;
-    } else if (filter == DR_FUSED_FILTER_TILT) {
-        usable = dr_fused_triangle_usable(st->p, 4) && dr_fused_bounded(st->pz[DR_FUSED_P04]) &&
-                 dr_fused_bounded(st->pz[DR_FUSED_P14]) && dr_fused_bounded(st->pz[DR_FUSED_P24]) &&
-                 dr_fused_bounded(st->pz[DR_FUSED_P34]) && dr_fused_triangle_usable(st->pz + DR_FUSED_P44, 1);
-    } else if (filter == DR_FUSED_FILTER_LATERAL) {
-        usable = dr_fused_triangle_usable(st->nh_p, 4);
+    } else if (tilt_or_lateral) {
+        if (filter == DR_FUSED_FILTER_TILT) {
+            usable = dr_fused_triangle_usable(st->p, 4) && dr_fused_bounded(st->pz[DR_FUSED_P04]) &&
+                     dr_fused_bounded(st->pz[DR_FUSED_P14]) && dr_fused_bounded(st->pz[DR_FUSED_P24]) &&
+                     dr_fused_bounded(st->pz[DR_FUSED_P34]) && dr_fused_triangle_usable(st->pz + DR_FUSED_P44, 1);
+        } else {
+            usable = dr_fused_triangle_usable(st->nh_p, 4);
+        }
     } else if (filter == DR_FUSED_FILTER_SPEED) {
         usable = dr_fused_triangle_usable(st->sb_p, 2);
     } else {
@@ -235,10 +239,12 @@ static int dr_fused_covariance_checked(const dr_fused_config *cfg, dr_fused_stat
         return 1;
     }
     st->cov_repairs += 1.0f;
-    if (filter == DR_FUSED_FILTER_TILT) {
-        dr_fused_kf_prior(cfg, st);
-    } else if (filter == DR_FUSED_FILTER_LATERAL) {
-        dr_fused_nhc_restart(st);
+    if (tilt_or_lateral) {
+        if (filter == DR_FUSED_FILTER_TILT) {
+            dr_fused_kf_prior(cfg, st);
+        } else {
+            dr_fused_nhc_restart(st);
+        }
     } else if (filter == DR_FUSED_FILTER_SPEED) {
         st->sb_p[DR_FUSED_SB_PSS] = DR_FUSED_SPEED_UNKNOWN_VAR; /* the speed not known: the next fix restarts it */
         dr_fused_speed_prior(cfg, st);
