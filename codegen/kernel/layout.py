@@ -522,8 +522,8 @@ FUSED = Kernel(
         Param("speed_noise", "m/s/sqrt(s)", "a vehicle's integrated speed: random walk of its error beyond the "
               "along-track bias's (what the deadband keeps out)", Store("speed_q", "(m/s)^2/s", "square"), 0.1, ge=0),
         Param("speed_bias_noise", "m/s^2/sqrt(s)", "random walk of the along-track bias after a calibration that moved "
-              "and before a rest (the gyro bias is off by the motion's mean rate during calibration, so the tilt drifts; "
-              "otherwise fused_kf_tilt_noise)", Store("speed_bias_q", "(m/s^2)^2/s", "square"), 0.05, ge=0),
+              "and before a rest (the gyro bias is off by the motion's mean rate during calibration, so the tilt "
+              "drifts; otherwise fused_kf_tilt_noise)", Store("speed_bias_q", "(m/s^2)^2/s", "square"), 0.05, ge=0),
         Param("keep_speed_noise", "m/s/sqrt(s)", "a vehicle keeps its speed: random walk of its true speed away from "
               "the last fix's, the prior its integrated speed is weighed against by their variances (0: no prior)",
               Store("keep_q", "(m/s)^2/s", "square"), 1.0, ge=0),
