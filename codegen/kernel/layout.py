@@ -393,9 +393,9 @@ FUSED = Kernel(
               "along-track bias (m/s^2); the bias's 0 until its first fix, the speed's large after a calibration that "
               "moved", 3, ("sb_pss", "sb_psb", "sb_pbb"),
               group="a vehicle's speed and along-track bias filter, and the speed it keeps"),
-        Field("sk_t", "s", "time since the speed was last known (a fix, a rest, calibration)"),
+        Field("sk_t", "s", "time since the speed was last known (a fix, a rest, calibration)", local="carry"),
         Field("keep_v", "m/s", "the speed a vehicle is taken to keep (the last fix's); < 0 before a fix and after a "
-              "rest: none", initial=(-1.0,)),
+              "rest: none", initial=(-1.0,), local="carry"),
         Field("cal_moved", "", "1 from a calibration that moved until the next rest (the gyro bias took the motion's "
               "mean rate for a bias: the tilt drifts), else 0"),
     ),

@@ -1012,6 +1012,8 @@ def fused_process(fstate, samples, dt_us, out):
     nh_u0y = st[_F_NH_U0Y]
     nh_ix = st[_F_NH_IX]
     nh_iy = st[_F_NH_IY]
+    sk_t = st[_F_SK_T]
+    keep_v = st[_F_KEEP_V]
     moving_ref = acc_e != 0.0 or acc_n != 0.0  # the tilt reference subtracts a GPS motion acceleration
     steady = st[_F_STEADY] > 0.0
     gps_ok = st[_F_GPS_OK] > 0.0
@@ -1178,8 +1180,9 @@ def fused_process(fstate, samples, dt_us, out):
                 zr_v = 0.0
                 # the speed known (0); a vehicle that stood starts from 0, not from the speed it kept; the gyro
                 # bias re-learnt
-                st[_F_SB_PSS] = st[_F_SB_PSB] = st[_F_SK_T] = st[_F_CAL_MOVED] = 0.0
-                st[_F_KEEP_V] = -1.0
+                st[_F_SB_PSS] = st[_F_SB_PSB] = st[_F_CAL_MOVED] = 0.0
+                sk_t = 0.0
+                keep_v = -1.0
                 bias_q = st[_FC_KF_TILT_Q]
             elif walking:
                 speed = walk_speed
@@ -1224,13 +1227,11 @@ def fused_process(fstate, samples, dt_us, out):
                 speed = 0.0
             # for the position: weighed by the variances against the speed it keeps, bounded (_kept_speed)
             sp = speed
-            kt = st[_F_SK_T]
-            known = st[_F_KEEP_V]
-            if known >= 0.0 and keep_q > 0.0:
-                v_s = (st[_F_SB_PSS] - 2.0 * kt * st[_F_SB_PSB] + kt * kt * st[_F_SB_PBB] + speed_q * kt
-                       + bias_q * kt * kt * kt * (1.0 / 3.0))
-                sp += v_s / (v_s + vel_var + keep_q * kt) * (known - sp)
-            top = (known if known > 0.0 else 0.0) + max_accel * kt
+            if keep_v >= 0.0 and keep_q > 0.0:
+                v_s = (st[_F_SB_PSS] - 2.0 * sk_t * st[_F_SB_PSB] + sk_t * sk_t * st[_F_SB_PBB] + speed_q * sk_t
+                       + bias_q * sk_t * sk_t * sk_t * (1.0 / 3.0))
+                sp += v_s / (v_s + vel_var + keep_q * sk_t) * (keep_v - sp)
+            top = (keep_v if keep_v > 0.0 else 0.0) + max_accel * sk_t
             if sp > top:
                 sp = top
         # step: lateral_update (a vehicle in an outage: no sideways sliding, a_lat - s r = leak - (s - s_true) r)
@@ -1284,7 +1285,7 @@ def fused_process(fstate, samples, dt_us, out):
         m02 += r02 * dt
         m12 += r12 * dt
         since_fix += dt
-        st[_F_SK_T] += dt
+        sk_t += dt
         kf_t += dt
         # step: advance_position (true ENU; a vehicle's zero-velocity update integrals)
         ue = cos_t * ux - sin_t * uy
@@ -1431,6 +1432,8 @@ def fused_process(fstate, samples, dt_us, out):
     st[_F_NH_R] = nh_r
     st[_F_NH_IX] = nh_ix
     st[_F_NH_IY] = nh_iy
+    st[_F_SK_T] = sk_t
+    st[_F_KEEP_V] = keep_v
     st[_F_FLAGS] = ((_AT_REST if rest else 0) | (_WALKING if walking else 0) | turning | (_VEHICLE if vehicle else 0)
                     | driven | (_FAST if fast else 0) | walked)  # the last sample's
     out[0] = st[_F_PE] - pe0
