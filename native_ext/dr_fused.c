@@ -9,6 +9,7 @@
 
 #define DR_FUSED_SUM_CHUNK (1024) /* samples summed in int32 before moving to float (1024 * 32768 < 2^31) */
 #define DR_FUSED_COV_MAX (1.0e30f) /* a covariance entry beyond this in magnitude (or not a number) is broken */
+#define DR_FUSED_SPEED_UNKNOWN_VAR (1.0e4f) /* (m/s)^2: the speed's variance after a calibration that moved */
 
 /* After every step of every filter, a host build with DR_FUSED_OBSERVED defined (codegen/kernel/hostfused.py) calls
  * dr_fused_observed(st, DR_FUSED_FILTER_*, DR_FUSED_STEP_*) before the covariance is checked; on the device the
@@ -95,6 +96,18 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
     st->bax = 0.0f;
     st->bay = 0.0f;
     st->baz = 0.0f;
+    /* the speed 0 if the device stood still; after a calibration that moved not known, and the gyro bias took the
+     * motion's mean rate (the tilt drifts until a rest) */
+    st->sb_p[DR_FUSED_SB_PSS] = 0.0f;
+    st->sb_p[DR_FUSED_SB_PSB] = 0.0f;
+    st->sb_p[DR_FUSED_SB_PBB] = 0.0f;
+    st->sk_t = 0.0f;
+    st->keep_v = -1.0f;
+    st->cal_moved = 0.0f;
+    if (code == DR_MOVED) { /* not a constant pair (x ? a : b): LLVM's Xtensa backend cannot select one */
+        st->sb_p[DR_FUSED_SB_PSS] = DR_FUSED_SPEED_UNKNOWN_VAR;
+        st->cal_moved = 1.0f;
+    }
     return code;
 }
 
@@ -195,6 +208,7 @@ static int dr_fused_triangle_usable(const float *p, int n) {
 
 static void dr_fused_nhc_restart(dr_fused_state *st);
 static void dr_fused_position_prior(const dr_fused_config *cfg, dr_fused_state *st);
+static void dr_fused_speed_prior(const dr_fused_config *cfg, dr_fused_state *st);
 
 /* After a step of a filter (codegen.fused's _covariance_checked): 1 if its covariance is usable (and, for an update,
  * innovation_ok: the innovation's covariance was positive definite); otherwise it is reset to its prior, counted in
@@ -202,15 +216,21 @@ static void dr_fused_position_prior(const dr_fused_config *cfg, dr_fused_state *
 static int dr_fused_covariance_checked(const dr_fused_config *cfg, dr_fused_state *st, int filter, int step,
                                        int innovation_ok) {
     int usable;
+    /* two-way choices only: a chain of four compiles to a jump table in .rodata, which a natmod cannot relocate */
+    const int tilt_or_lateral = filter == DR_FUSED_FILTER_TILT || filter == DR_FUSED_FILTER_LATERAL;
     DR_FUSED_OBSERVE(st, filter, step);
     if (!innovation_ok) {
         usable = 0;
-    } else if (filter == DR_FUSED_FILTER_TILT) {
-        usable = dr_fused_triangle_usable(st->p, 4) && dr_fused_bounded(st->pz[DR_FUSED_P04]) &&
-                 dr_fused_bounded(st->pz[DR_FUSED_P14]) && dr_fused_bounded(st->pz[DR_FUSED_P24]) &&
-                 dr_fused_bounded(st->pz[DR_FUSED_P34]) && dr_fused_triangle_usable(st->pz + DR_FUSED_P44, 1);
-    } else if (filter == DR_FUSED_FILTER_LATERAL) {
-        usable = dr_fused_triangle_usable(st->nh_p, 4);
+    } else if (tilt_or_lateral) {
+        if (filter == DR_FUSED_FILTER_TILT) {
+            usable = dr_fused_triangle_usable(st->p, 4) && dr_fused_bounded(st->pz[DR_FUSED_P04]) &&
+                     dr_fused_bounded(st->pz[DR_FUSED_P14]) && dr_fused_bounded(st->pz[DR_FUSED_P24]) &&
+                     dr_fused_bounded(st->pz[DR_FUSED_P34]) && dr_fused_triangle_usable(st->pz + DR_FUSED_P44, 1);
+        } else {
+            usable = dr_fused_triangle_usable(st->nh_p, 4);
+        }
+    } else if (filter == DR_FUSED_FILTER_SPEED) {
+        usable = dr_fused_triangle_usable(st->sb_p, 2);
     } else {
         usable = dr_fused_bounded(st->fix_pxx) && st->fix_pxx >= 0.0f && dr_fused_bounded(st->fix_pxe) &&
                  dr_fused_bounded(st->fix_pee) && st->fix_pee >= 0.0f;
@@ -219,10 +239,15 @@ static int dr_fused_covariance_checked(const dr_fused_config *cfg, dr_fused_stat
         return 1;
     }
     st->cov_repairs += 1.0f;
-    if (filter == DR_FUSED_FILTER_TILT) {
-        dr_fused_kf_prior(cfg, st);
-    } else if (filter == DR_FUSED_FILTER_LATERAL) {
-        dr_fused_nhc_restart(st);
+    if (tilt_or_lateral) {
+        if (filter == DR_FUSED_FILTER_TILT) {
+            dr_fused_kf_prior(cfg, st);
+        } else {
+            dr_fused_nhc_restart(st);
+        }
+    } else if (filter == DR_FUSED_FILTER_SPEED) {
+        st->sb_p[DR_FUSED_SB_PSS] = DR_FUSED_SPEED_UNKNOWN_VAR; /* the speed not known: the next fix restarts it */
+        dr_fused_speed_prior(cfg, st);
     } else {
         dr_fused_position_prior(cfg, st);
     }
@@ -549,6 +574,7 @@ typedef struct {
     float ae, an; /* m/s^2: the horizontal specific force, kernel frame */
     float r;      /* rad/s: the rate about Up */
     int shaken, broadband, rest, walking, turning;
+    float sp;     /* m/s: the speed the position moves by (a vehicle's weighed against the one it keeps) */
 } dr_fused_loop;
 
 /* The sample in the body frame (codegen.fused's _sample_in): the remap and scales, the accelerometer's offsets and
@@ -765,11 +791,34 @@ static inline void dr_fused_vehicle_speed(const dr_config *kcfg, const dr_fused_
     }
 }
 
+/* The along-track bias's random walk, (m/s^2)^2/s (codegen.fused's _bias_walk): the gravity leak's, or after a
+ * calibration that moved, until a rest, speed_bias_noise^2. */
+static inline float dr_fused_bias_walk(const dr_fused_config *cfg, const dr_fused_state *st) {
+    return st->cal_moved > 0.0f ? cfg->speed_bias_q : cfg->kf_tilt_q;
+}
+
+/* A vehicle's speed for its position (codegen.fused's _kept_speed): the integrated speed (variance carried on from
+ * the speed/bias filter) and the speed it keeps (the last fix's, variance kf_vel_sigma^2 + keep_q t) weighed by
+ * their variances, bounded to [0, the speed last known + max_accel_ms2 t]. Returns m/s. */
+static inline float dr_fused_kept_speed(const dr_fused_config *cfg, const dr_fused_state *st) {
+    const float t = st->sk_t, known = st->keep_v;
+    float s = st->speed, top;
+    if (known >= 0.0f && cfg->keep_q > 0.0f) {
+        const float v_s = st->sb_p[DR_FUSED_SB_PSS] - 2.0f * t * st->sb_p[DR_FUSED_SB_PSB] +
+                          t * t * st->sb_p[DR_FUSED_SB_PBB] + cfg->speed_q * t +
+                          dr_fused_bias_walk(cfg, st) * t * t * t * (1.0f / 3.0f);
+        const float v_k = 0.5f * cfg->kf_vel_r + cfg->keep_q * t;
+        s += v_s * dr_recip(v_s + v_k) * (known - s);
+    }
+    top = (known > 0.0f ? known : 0.0f) + cfg->max_accel_ms2 * t;
+    return s > top ? top : s;
+}
+
 /* The speed along u (codegen.fused's _speed): at rest 0, after a vehicle's zero-velocity update of the position;
  * walking the learned walking speed; a pedestrian whose steps stopped without a rest: decaying to 0 over
  * stand_tau_s, never integrated; a vehicle's integrated (dr_fused_vehicle_speed). */
 static inline void dr_fused_speed(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st,
-                                  const dr_fused_loop *lp) {
+                                  dr_fused_loop *lp) {
     const int rest = lp->rest, walking = lp->walking, walked = lp->walked;
     int i;
     if (rest || walking || walked) { /* the median ring restarts when the vehicle branch is entered again */
@@ -787,6 +836,13 @@ static inline void dr_fused_speed(const dr_config *kcfg, const dr_fused_config *
         }
         st->speed = 0.0f;
         st->zr_v = 0.0f;
+        /* the speed known (0); a vehicle that stood starts from 0, not from the speed it kept; the gyro bias
+         * re-learnt */
+        st->sb_p[DR_FUSED_SB_PSS] = 0.0f;
+        st->sb_p[DR_FUSED_SB_PSB] = 0.0f;
+        st->sk_t = 0.0f;
+        st->cal_moved = 0.0f;
+        st->keep_v = -1.0f;
     } else if (walking || walked) {
         if (walking) {
             st->speed = st->walk_speed;
@@ -798,6 +854,7 @@ static inline void dr_fused_speed(const dr_config *kcfg, const dr_fused_config *
     } else {
         dr_fused_vehicle_speed(kcfg, cfg, st, lp);
     }
+    lp->sp = rest || walking || walked ? st->speed : dr_fused_kept_speed(cfg, st);
     if (rest || walking || walked) {
         st->zr_t = 0.0f;
         st->zr_turn = 0.0f;
@@ -852,6 +909,7 @@ static inline void dr_fused_fix_integrals(const dr_fused_config *cfg, dr_fused_s
     st->m2[DR_FUSED_M02] += lp->r02 * dt;
     st->m2[DR_FUSED_M12] += lp->r12 * dt;
     st->since_fix += dt;
+    st->sk_t += dt;
     st->kf_t += dt;
 }
 
@@ -862,10 +920,10 @@ static inline void dr_fused_advance_position(const dr_fused_config *cfg, dr_fuse
     const float dt = lp->dt;
     const float ue = st->cos_t * st->ux - st->sin_t * st->uy;
     const float un = st->sin_t * st->ux + st->cos_t * st->uy;
-    st->pe += st->speed * ue * dt;
-    st->pn += st->speed * un * dt;
+    st->pe += lp->sp * ue * dt;
+    st->pn += lp->sp * un * dt;
     if (!(lp->rest || lp->walking || lp->walked)) {
-        float lag = (st->zr_v - st->speed) * dt;
+        float lag = (st->zr_v - lp->sp) * dt; /* what the floor and the kept speed moved it by, beyond zr_v */
         st->zr_turn += dr_absf(lp->r) * dt;
         st->zr_t += (1.0f + st->zr_turn * cfg->zupt_turn_weight) * dt;
         st->zr_p[DR_FUSED_ZR_PE] += st->zr_t * ue * dt;
@@ -957,6 +1015,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
     for (i = 0; i < 4; i++) {
         lp.q[i] = st->q[i];
     }
+    lp.sp = st->speed;
     for (k = 0; k < count; k++) {
         dr_fused_sample_in(kcfg, st, &lp, samples + 6 * k, dt_us[k]);
         dr_fused_motion_statistics(cfg, st, &lp);
@@ -978,8 +1037,8 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
     out[0] = st->pe - pe0;
     out[1] = st->pn - pn0;
     out[2] = 0.0f;
-    out[3] = st->speed * (st->cos_t * st->ux - st->sin_t * st->uy);
-    out[4] = st->speed * (st->sin_t * st->ux + st->cos_t * st->uy);
+    out[3] = lp.sp * (st->cos_t * st->ux - st->sin_t * st->uy);
+    out[4] = lp.sp * (st->sin_t * st->ux + st->cos_t * st->uy);
     out[5] = 0.0f;
     return DR_OK;
 }
@@ -1084,6 +1143,64 @@ int dr_fused_position_correct(const dr_fused_config *cfg, dr_fused_state *st, fl
     return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_POSITION, DR_FUSED_STEP_UPDATE, 1);
 }
 
+/* The speed/bias filter's start and repair (codegen.fused's _speed_prior): the bias 0 +- nhc_leak_sigma (a
+ * still calibration) or kf_bias_init_g (one that moved), uncorrelated with the speed, whose variance stays. */
+static void dr_fused_speed_prior(const dr_fused_config *cfg, dr_fused_state *st) {
+    const float pss = st->sb_p[DR_FUSED_SB_PSS];
+    if (!(pss >= 0.0f && pss <= DR_FUSED_COV_MAX)) {
+        st->sb_p[DR_FUSED_SB_PSS] = DR_FUSED_SPEED_UNKNOWN_VAR;
+    }
+    st->sb_p[DR_FUSED_SB_PSB] = 0.0f;
+    st->sb_p[DR_FUSED_SB_PBB] = st->cal_moved > 0.0f ? cfg->kf_bias_var : cfg->nhc_leak_var;
+}
+
+/* The speed/bias filter's predict over t s, P <- F P F^T + Q, F = [[1, -t], [0, 1]], Q = diag(q_speed, q_bias)
+ * (codegen.fused's _speed_predict). Returns 0 if the covariance went wrong (reset to the prior). */
+int dr_fused_speed_predict(const dr_fused_config *cfg, dr_fused_state *st, float t, float q_speed, float q_bias) {
+    const float pss = st->sb_p[DR_FUSED_SB_PSS], psb = st->sb_p[DR_FUSED_SB_PSB], pbb = st->sb_p[DR_FUSED_SB_PBB];
+    st->sb_p[DR_FUSED_SB_PSS] = pss - 2.0f * t * psb + t * t * pbb + q_speed;
+    st->sb_p[DR_FUSED_SB_PSB] = psb - t * pbb;
+    st->sb_p[DR_FUSED_SB_PBB] = pbb + q_bias;
+    return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_SPEED, DR_FUSED_STEP_PREDICT, 1);
+}
+
+/* The speed/bias filter's update with the fix's speed, H = [1, 0], variance r (codegen.fused's _speed_correct):
+ * P <- P - K S K^T. gain: K. Returns 0 if the covariance went wrong (reset to the prior). */
+int dr_fused_speed_correct(const dr_fused_config *cfg, dr_fused_state *st, float r, float gain[2]) {
+    const float pss = st->sb_p[DR_FUSED_SB_PSS], psb = st->sb_p[DR_FUSED_SB_PSB], pbb = st->sb_p[DR_FUSED_SB_PBB];
+    const float s = pss + r;
+    float inv_s;
+    if (!(s > 0.0f && s <= DR_FUSED_COV_MAX)) {
+        return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_SPEED, DR_FUSED_STEP_UPDATE, 0);
+    }
+    inv_s = dr_recip(s);
+    gain[0] = pss * inv_s;
+    gain[1] = psb * inv_s;
+    st->sb_p[DR_FUSED_SB_PSS] = pss - gain[0] * gain[0] * s;
+    st->sb_p[DR_FUSED_SB_PSB] = psb - gain[0] * gain[1] * s;
+    st->sb_p[DR_FUSED_SB_PBB] = pbb - gain[1] * gain[1] * s;
+    return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_SPEED, DR_FUSED_STEP_UPDATE, 1);
+}
+
+/* A vehicle's speed/bias filter at a fix (codegen.fused's _speed_update): started on its first fix, predicted over
+ * the sk_t s since the speed was known, updated with the fix's speed. gain: K. Returns 0 if nothing is to be fed
+ * back (a covariance gone wrong). */
+static int dr_fused_speed_update(const dr_fused_config *cfg, dr_fused_state *st, float gain[2]) {
+    const float t = st->sk_t;
+    float q_bias;
+    if (!(st->sb_p[DR_FUSED_SB_PBB] > 0.0f)) {
+        dr_fused_speed_prior(cfg, st);
+        if (!dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_SPEED, DR_FUSED_STEP_START, 1)) {
+            return 0;
+        }
+    }
+    q_bias = dr_fused_bias_walk(cfg, st) * t + cfg->kf_turn_q * st->turn * st->turn;
+    if (!dr_fused_speed_predict(cfg, st, t, cfg->speed_q * t, q_bias)) {
+        return 0;
+    }
+    return dr_fused_speed_correct(cfg, st, 0.5f * cfg->kf_vel_r, gain);
+}
+
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn) {
     float s2 = ve * ve + vn * vn;
     float inv_speed = dr_inv_sqrt(s2);
@@ -1113,6 +1230,31 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
         ae = st->cos_t * me + st->sin_t * mn;
         an = -st->sin_t * me + st->cos_t * mn;
     }
+    if (moving && (flags & DR_FUSED_WALKING)) { /* what people walk and run: a pedestrian's speed is bounded */
+        float bounded = speed < cfg->pedestrian_max_ms ? speed : cfg->pedestrian_max_ms;
+        st->walk_speed += cfg->walk_speed_gain * (bounded - st->walk_speed);
+    }
+    /* the speed (before the tilt/offset filter's predict restarts st->turn, which the bias's noise reads) */
+    e = speed - st->speed;
+    if (flags & (DR_FUSED_AT_REST | DR_FUSED_WALKING | DR_FUSED_WALKED)) {
+        /* a pedestrian's speed or a rest's: not integrated, so the interval says nothing of the bias */
+        const float left = (1.0f - cfg->speed_gain) * e;
+        st->speed += cfg->speed_gain * e;
+        st->sb_p[DR_FUSED_SB_PSS] = left * left + 0.5f * cfg->kf_vel_r;
+        st->sb_p[DR_FUSED_SB_PSB] = 0.0f;
+    } else {
+        float gain[2];
+        if (!(t > 0.0f && t < cfg->gps_timeout_s)) { /* after an outage or before any fix: from the fix */
+            st->sb_p[DR_FUSED_SB_PSS] = DR_FUSED_SPEED_UNKNOWN_VAR;
+            st->sb_p[DR_FUSED_SB_PSB] = 0.0f;
+        }
+        if (dr_fused_speed_update(cfg, st, gain)) {
+            st->speed += gain[0] * e;
+            st->bias += gain[1] * e;
+        }
+    }
+    st->keep_v = speed;
+    st->sk_t = 0.0f;
     if (cfg->kf_bias_var > 0.0f) {
         dr_fused_filter(cfg, st, ve, vn, moving, t);
     }
@@ -1134,15 +1276,6 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
             st->ux = ux * norm;
             st->uy = uy * norm;
         }
-        if (flags & DR_FUSED_WALKING) { /* what people walk and run: a pedestrian's speed is bounded */
-            float bounded = speed < cfg->pedestrian_max_ms ? speed : cfg->pedestrian_max_ms;
-            st->walk_speed += cfg->walk_speed_gain * (bounded - st->walk_speed);
-        }
-    }
-    e = speed - st->speed;
-    st->speed += cfg->speed_gain * e;
-    if (t > 0.0f && !(flags & (DR_FUSED_AT_REST | DR_FUSED_WALKING))) {
-        st->bias -= cfg->bias_gain * e * dr_recip(t);
     }
     st->gps_ve = ve;
     st->gps_vn = vn;

@@ -80,5 +80,9 @@ int dr_fused_lateral_correct(const dr_fused_config *cfg, dr_fused_state *st, con
  * update with y = x + e (gain: K, not applied to the estimates here). */
 int dr_fused_position_predict(const dr_fused_config *cfg, dr_fused_state *st, float t, float *phi);
 int dr_fused_position_correct(const dr_fused_config *cfg, dr_fused_state *st, float gain[2]);
+/* A vehicle's speed/bias filter (speed m/s, along-track bias m/s^2): predict over t s with F = [[1, -t], [0, 1]],
+ * Q = diag(q_speed, q_bias); the update with the fix's speed (variance r), gain: K (not applied here). */
+int dr_fused_speed_predict(const dr_fused_config *cfg, dr_fused_state *st, float t, float q_speed, float q_bias);
+int dr_fused_speed_correct(const dr_fused_config *cfg, dr_fused_state *st, float r, float gain[2]);
 
 #endif /* DR_FUSED_H */

@@ -127,6 +127,11 @@ def _apply_c(fk, fn, state, args):
     elif fn == "_position_correct":
         gain = ffi.new("float[2]")
         returned = list(gain) if lib.dr_fused_position_correct(cfg, st, gain) else None
+    elif fn == "_speed_predict":
+        returned = bool(lib.dr_fused_speed_predict(cfg, st, *args))
+    elif fn == "_speed_correct":
+        gain = ffi.new("float[2]")
+        returned = list(gain) if lib.dr_fused_speed_correct(cfg, st, args[0], gain) else None
     else:
         raise ValueError(fn)
     return session.state_vector().astype(float), returned
@@ -243,6 +248,50 @@ def test_position_predict_and_update_are_the_matrix_forms(impl, tmp_path):
         assert got_phi == pytest.approx(phi, abs=1e-6)
         np.testing.assert_allclose(_covariance(updated, F.FILTER_POSITION), post, rtol=0, atol=_tolerance(impl, prior))
         np.testing.assert_allclose(got_gain, gain, rtol=0, atol=1e-5)
+
+
+def test_speed_and_bias_predict_and_update_are_the_matrix_forms(impl, tmp_path):
+    """A vehicle's speed s and along-track bias b, s integrating the acceleration less b: over t s F = [[1, -t],
+    [0, 1]], Q = diag(q_speed, q_bias); the fix's speed, H = [1, 0], R = r."""
+    rng = np.random.default_rng(31)
+    cases, want = [], []
+    for _ in range(CASES):
+        p = _random_covariance(rng, 2, rng.uniform(0.01, 1.0))
+        t = float(rng.uniform(0.2, 30.0))
+        q_speed, q_bias = (float(v) for v in rng.uniform(0.0, 0.05, 2))
+        r = float(rng.uniform(0.005, 0.1))
+        f = np.array([[1.0, -t], [0.0, 1.0]])
+        prior = f @ p @ f.T + np.diag([q_speed, q_bias])
+        post, k = _joseph(p, np.array([[1.0, 0.0]]), np.array([[r]]))
+        want.append((prior, post, k[:, 0]))
+        cases.append(("_speed_predict", _with_covariance(F.FusedState().vector(), F.FILTER_SPEED, p),
+                      [t, q_speed, q_bias]))
+        cases.append(("_speed_correct", _with_covariance(F.FusedState().vector(), F.FILTER_SPEED, p), [r]))
+    answers = _apply(impl, cases, tmp_path)
+    for k, (prior, post, gain) in enumerate(want):
+        (predicted, ok), (updated, got_gain) = answers[2 * k], answers[2 * k + 1]
+        assert ok is True
+        np.testing.assert_allclose(_covariance(predicted, F.FILTER_SPEED), prior, rtol=0, atol=_tolerance(impl, prior))
+        np.testing.assert_allclose(_covariance(updated, F.FILTER_SPEED), post, rtol=0, atol=_tolerance(impl, post))
+        np.testing.assert_allclose(got_gain, gain, rtol=0, atol=1e-5)
+
+
+def test_a_broken_speed_and_bias_covariance_is_reset_counted_and_not_used(impl, tmp_path):
+    """The speed/bias filter's steps on a covariance gone wrong: the step says so, cov_repairs counts it, the speed
+    is not known (the next fix restarts it) and the bias's variance is its start's (a still calibration:
+    nhc_leak_sigma_ms2^2); speed and bias untouched."""
+    base = F.FusedState().vector()
+    base[F.IDX["cov_repairs"]] = 2.0
+    base[F.IDX["speed"]], base[F.IDX["bias"]] = 12.0, 0.3
+    negative = _with_covariance(base, F.FILTER_SPEED, np.diag([0.04, -0.5]))
+    not_a_number = _with_covariance(base, F.FILTER_SPEED, np.array([[np.nan, 0.0], [0.0, 0.01]]))
+    cases = [("_speed_predict", negative, [1.0, 0.01, 0.001]), ("_speed_correct", not_a_number, [0.02])]
+    for (fn, _, _), (state, returned) in zip(cases, _apply(impl, cases, tmp_path)):
+        assert returned in (False, None), fn
+        assert state[F.IDX["cov_repairs"]] == 3.0, fn
+        np.testing.assert_allclose(_covariance(state, F.FILTER_SPEED),
+                                   np.diag([F.SPEED_UNKNOWN_VAR, FCFG.nhc_leak_sigma_ms2 ** 2]), rtol=1e-6)
+        assert (state[F.IDX["speed"]], state[F.IDX["bias"]]) == pytest.approx((12.0, 0.3)), fn
 
 
 # ----------------------------------------------------------------------------------------- the repair on device

@@ -366,8 +366,62 @@ def test_a_vehicle_quiet_after_shaking_comes_to_rest_and_levels_its_tilt(impl, t
     assert not int(plain.at(-1, "flags")) & F.AT_REST
 
 
+def test_a_calibration_that_moved_leaves_the_speed_to_the_first_fix_not_to_a_bias(impl, tmp_path):
+    """A car calibrated while it drives (its speed taken as 0, not known: sb_pss large) keeps an even 20 m/s for
+    1 s, then a fix says so: the speed/bias filter takes the 20 m/s for the speed (gain ~1) and leaves the
+    along-track bias alone. Had calibration stood still (the speed known 0), the same fix would have been a bias:
+    that was the real highway drive's -2.6 m/s^2 from its first fix."""
+    samples, dt = _samples(200)
+    moving = dict(flags=float(F.VEHICLE), since_fix=0.0, gps_ok=19.5, gps_speed=20.0)
+    unknown = run(impl, [("p", samples, dt), ("v", 20.0, 0.0)], tmp_path,
+                  start=_still(**moving, sb_pss=F.SPEED_UNKNOWN_VAR, cal_moved=1.0))
+    assert not int(unknown.states[0][F.IDX["flags"]]) & F.AT_REST
+    assert unknown.at(-1, "speed") == pytest.approx(20.0, abs=0.01)
+    assert abs(unknown.at(-1, "bias")) < 0.01
+    assert unknown.at(-1, "keep_v") == pytest.approx(20.0) and unknown.at(-1, "sk_t") == 0.0
+    known = run(impl, [("p", samples, dt), ("v", 20.0, 0.0)], tmp_path, start=_still(**moving))
+    assert known.at(-1, "bias") < -1.0
+
+
+def test_a_fix_that_finds_a_pedestrian_teaches_no_along_track_bias(impl, tmp_path):
+    """A pedestrian whose steps stopped (WALKED: his speed decays, never integrated) gets a fix 2 m/s faster than
+    his speed: the speed moves speed_gain of it, the bias not at all (a car in slow traffic taken for a walker once
+    learned -12 m/s^2 that way and ran to 700 m/s when it drove on)."""
+    start = _still(flags=float(F.WALKED), since_fix=1.0, gps_ok=0.5, speed=1.0, bias=0.2)
+    trace = run(impl, [("v", 3.0, 0.0)], tmp_path, start=start)
+    assert trace.at(-1, "bias") == pytest.approx(0.2)
+    assert trace.at(-1, "speed") == pytest.approx(1.0 + FCFG.speed_gain * 2.0, rel=1e-6)
+
+
+def test_a_vehicle_weighs_its_integrated_speed_against_the_speed_it_keeps(impl, tmp_path):
+    """A car at 20 m/s by its last fix, calibrated while it drove (so its tilt drifts and the along-track bias walks
+    at speed_bias_noise), in an outage 30 s on a level straight road at an even speed, its accelerometer reading
+    0.05 g along the track too much: integrated, the speed runs to 35 m/s and the car 225 m too far. The integrated
+    speed's variance grows with t^3 (the bias's walk), the kept speed's with t (keep_speed_noise): weighed by them,
+    V_s / (V_s + V_k) of the excess is taken off (half of it by 30 s), so the position follows
+    int (20 + a t (1 - w(t))) dt; without the kept speed (keep_speed_noise 0) it is all there."""
+    counts = round(0.05 * ONE_G)
+    samples, dt = _samples(6000, accel_g=(counts / ONE_G, 0.0, 1.0))
+    start = _still(flags=float(F.VEHICLE), speed=20.0, zr_v=20.0, keep_v=20.0, cal_moved=1.0, sb_pss=0.02,
+                   sb_psb=-0.002, sb_pbb=0.004, gps_speed=20.0)
+    kept = run(impl, chunks(samples, dt, 500), tmp_path, start=start)
+    alone = run(impl, chunks(samples, dt, 500), tmp_path, start=start, params=replace(FCFG, keep_speed_noise=0.0))
+    a = counts * KCFG.accel_ms2_per_lsb
+    assert not np.any(kept.series("flags").astype(int) & F.AT_REST)
+    assert alone.at(-1, "pe") == pytest.approx(600.0 + 0.5 * a * 30.0 ** 2, rel=0.02)
+    t = (np.arange(6000) + 1) * 0.005
+    v_s = (0.02 + 0.004 * t + 0.004 * t * t + FCFG.speed_noise ** 2 * t + FCFG.speed_bias_noise ** 2 * t ** 3 / 3)
+    v_k = FCFG.kf_vel_sigma_ms ** 2 + FCFG.keep_speed_noise ** 2 * t
+    excess = a * np.maximum(t - _gated(a, 6000) * 0.005, 0.0)  # the deadband holds the first samples back
+    weighed = np.sum((20.0 + excess * (1.0 - v_s / (v_s + v_k))) * 0.005)
+    assert kept.at(-1, "pe") == pytest.approx(weighed, abs=0.02 * (weighed - 600.0))
+    assert kept.at(-1, "pe") - 600.0 < 0.8 * (alone.at(-1, "pe") - 600.0)
+    assert kept.at(-1, "speed") == pytest.approx(alone.at(-1, "speed"))  # the integration itself is unchanged
+    assert kept.outs[-1][3] < kept.at(-1, "speed")  # the velocity out is the weighed one
+
+
 def test_zero_velocity_update_takes_back_a_steady_drift(impl, tmp_path):
-    """A vehicle at 10 m/s East (the speed a fix just gave) brakes evenly to a stop over 10 s (50 m), shaken by its
+    """A vehicle at 10 m/s East (the speed a fix just gave, which it keeps) brakes evenly to a stop over 10 s (50 m), shaken by its
     road (0.05 g rms of vertical noise) until it stops, but its accelerometer reads 0.2 m/s^2 too much along the
     track (-0.8 instead of -1 m/s^2), and still reads it when stopped. Integrated, the speed is still ~2 m/s when the
     vehicle stops and the position ~10 m too far; the device then needs ~2 s to see itself still (the road's
@@ -382,7 +436,7 @@ def test_zero_velocity_update_takes_back_a_steady_drift(impl, tmp_path):
     samples = np.stack([np.round(a / G * ONE_G), np.zeros_like(t), np.round((1.0 + road) * ONE_G), np.zeros_like(t),
                         np.zeros_like(t), np.zeros_like(t)], axis=-1).astype(np.int16)
     dt = np.full(len(t), DT_US, dtype=np.int32)
-    start = _still(speed=10.0, zr_v=10.0, flags=float(F.VEHICLE | F.SHAKEN))
+    start = _still(speed=10.0, zr_v=10.0, keep_v=10.0, flags=float(F.VEHICLE | F.SHAKEN))
     trace = run(impl, chunks(samples, dt, 200), tmp_path, start=start)
     assert int(trace.at(-1, "flags")) & F.AT_REST
     assert trace.at(-1, "pe") == pytest.approx(50.0, abs=3.0) and abs(trace.at(-1, "pn")) < 1e-6

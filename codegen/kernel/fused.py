@@ -36,9 +36,11 @@ AT_REST, WALKING, TURNING, VEHICLE, SHAKEN, FAST, WALKED = (
     next(f.value for f in FUSED.flags if f.name == name)
     for name in ("AT_REST", "WALKING", "TURNING", "VEHICLE", "SHAKEN", "FAST", "WALKED"))
 PLATFORM_PEDESTRIAN, PLATFORM_VEHICLE = (FUSED.param("platform").code(name) for name in ("pedestrian", "vehicle"))
-FILTER_TILT, FILTER_LATERAL, FILTER_POSITION = (COVARIANCE_FILTERS.index(n) for n in ("TILT", "LATERAL", "POSITION"))
+FILTER_TILT, FILTER_LATERAL, FILTER_POSITION, FILTER_SPEED = (
+    COVARIANCE_FILTERS.index(n) for n in ("TILT", "LATERAL", "POSITION", "SPEED"))
 STEP_START, STEP_PREDICT, STEP_UPDATE = (FILTER_STEPS.index(n) for n in ("START", "PREDICT", "UPDATE"))
 COV_MAX = 1e30  # a covariance entry beyond this in magnitude (or not a number) is broken (float32 ends at 3.4e38)
+SPEED_UNKNOWN_VAR = 1e4  # (m/s)^2: the speed's variance after a calibration that moved (a speed nobody measured)
 
 
 def _from_board(cls, board) -> "FusedConfig":
@@ -103,7 +105,15 @@ def calibrate(st: FusedState, samples, kcfg: KernelConfig) -> bool:
     st.speed = 0.0
     st.bax = st.bay = st.baz = 0.0
     std_g = body[:, :3].std(axis=0) / kcfg.accel_lsb_per_g
-    return bool(np.any(std_g > kcfg.motion_threshold_g))
+    moved = bool(np.any(std_g > kcfg.motion_threshold_g))
+    # the speed is 0 if the device stood still; after a calibration that moved (a car calibrated while it drives)
+    # it is not known, so the first fix must not take the whole speed it finds for an along-track bias, and the
+    # gyro bias took the motion's mean rate: the tilt drifts until a rest
+    st.sb_pss = SPEED_UNKNOWN_VAR if moved else 0.0
+    st.sb_psb = st.sb_pbb = st.sk_t = 0.0
+    st.keep_v = -1.0
+    st.cal_moved = 1.0 if moved else 0.0
+    return moved
 
 
 # The per-sample loop, as named steps in the order `process` calls them (docs/fused.md "Per sample"; dr_fused.c's
@@ -126,7 +136,9 @@ class _Loop:
         "was_walking", "vehicle", "driven", "fast", "walked", "turning",
         # this sample: its interval, specific force and rate, their statistics, R(q)'s rows, the horizontal force
         "dt", "fx", "fy", "fz", "wx", "wy", "wz", "nf", "d", "alpha", "shaken", "broadband",
-        "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "ae", "an", "rest", "walking", "r")
+        "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "ae", "an", "rest", "walking", "r",
+        # the speed the position moves by (a vehicle's: its integrated speed weighed against the one it keeps)
+        "sp")
 
     def __init__(self, st: FusedState, kcfg: KernelConfig, fcfg: FusedConfig):
         g = STANDARD_GRAVITY
@@ -164,6 +176,7 @@ class _Loop:
         self.fast = bool(flags & FAST) and self.platform != PLATFORM_PEDESTRIAN
         self.walked = bool(flags & WALKED)
         self.turning = bool(flags & TURNING)
+        self.sp = st.speed
 
     def flags(self) -> int:
         """The sample's flags (AT_REST | WALKING | ...), as the state keeps the last one's."""
@@ -200,8 +213,8 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     for k in range(FUSED_MEDIAN_MAX):
         setattr(st, f"med{k}", lp.ring[k])
     st.flags = float(flags[-1]) if len(flags) else st.flags
-    ve = st.speed * (st.cos_t * st.ux - st.sin_t * st.uy)
-    vn = st.speed * (st.sin_t * st.ux + st.cos_t * st.uy)
+    ve = lp.sp * (st.cos_t * st.ux - st.sin_t * st.uy)
+    vn = lp.sp * (st.sin_t * st.ux + st.cos_t * st.uy)
     out = np.array([st.pe - pe0, st.pn - pn0, 0.0, ve, vn, 0.0])
     return out, flags
 
@@ -367,7 +380,8 @@ def _speed(lp: _Loop, st: FusedState) -> None:
     a rest; the position moved by that error's integral along the way it went, and by what the floor kept out: both
     taken back); walking the learned walking speed; a pedestrian whose steps stopped without a rest (the hand
     still moves) decays to 0 over stand_tau_s, never integrated (a standing hand's along-track acceleration less a
-    bias is a drift: 29 m/s in 18 s on a real stand); a vehicle's integrated (_vehicle_speed)."""
+    bias is a drift: 29 m/s in 18 s on a real stand); a vehicle's integrated (_vehicle_speed) and, for its
+    position, weighed against the speed it keeps (_kept_speed)."""
     rest, walking, walked = lp.rest, lp.walking, lp.walked
     if rest or walking or walked:
         st.med_i = st.med_n = 0.0  # the median ring restarts when the vehicle branch is entered again
@@ -379,6 +393,10 @@ def _speed(lp: _Loop, st: FusedState) -> None:
             st.pn += st.zr_cn - k * st.zr_pn
         st.speed = 0.0
         st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_v = st.zr_turn = 0.0
+        # the speed known (0, exactly); a vehicle that stood starts again from 0, not from the speed it kept, and
+        # the rest re-learns the gyro bias (rest_update)
+        st.sb_pss = st.sb_psb = st.sk_t = st.cal_moved = 0.0
+        st.keep_v = -1.0
     elif walking or walked:
         if walking:
             st.speed = st.walk_speed
@@ -388,6 +406,9 @@ def _speed(lp: _Loop, st: FusedState) -> None:
         st.zr_v = st.speed
     else:
         _vehicle_speed(lp, st)
+        lp.sp = _kept_speed(st, lp.fcfg)
+        return
+    lp.sp = st.speed
 
 
 def _vehicle_speed(lp: _Loop, st: FusedState) -> None:
@@ -412,6 +433,26 @@ def _vehicle_speed(lp: _Loop, st: FusedState) -> None:
     st.zr_v += a * dt
     if st.speed < 0.0:
         st.speed = 0.0
+
+
+def _kept_speed(st: FusedState, fcfg: FusedConfig) -> float:
+    """A vehicle's speed for its position: two estimates weighed by their variances. The integrated speed s (the
+    along-track acceleration less the bias since the speed was last known, t = sk_t ago) has the speed/bias filter's
+    variance carried on, V_s = P_ss - 2 t P_sb + t^2 P_bb + speed_noise^2 t + q_b t^3 / 3 (the bias's uncertainty
+    grows it with t^2, the bias's own random walk q_b, _bias_walk, with t^3); the kept speed s_k (a car keeps its
+    speed: the last fix's) has V_k = kf_vel_sigma_ms^2 + keep_speed_noise^2 t. Their weighted mean
+    s + V_s / (V_s + V_k) (s_k - s), bounded to [0, the speed last known + max_accel_ms2 t]. No kept speed after a
+    rest (a car that stood starts from 0)."""
+    t = st.sk_t
+    s = st.speed
+    known = st.keep_v
+    if known >= 0.0 and fcfg.keep_speed_noise > 0.0:
+        v_s = (st.sb_pss - 2.0 * t * st.sb_psb + t * t * st.sb_pbb + fcfg.speed_noise * fcfg.speed_noise * t
+               + _bias_walk(st, fcfg) * t * t * t * (1.0 / 3.0))
+        v_k = fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms + fcfg.keep_speed_noise * fcfg.keep_speed_noise * t
+        s += v_s / (v_s + v_k) * (known - s)
+    top = (known if known > 0.0 else 0.0) + fcfg.max_accel_ms2 * t
+    return top if s > top else s
 
 
 def _lateral_update(lp: _Loop, st: FusedState) -> None:
@@ -457,25 +498,27 @@ def _fix_integrals(lp: _Loop, st: FusedState) -> None:
     st.m02 += lp.r02 * dt
     st.m12 += lp.r12 * dt
     st.since_fix += dt
+    st.sk_t += dt
     st.kf_t += dt
 
 
 def _advance_position(lp: _Loop, st: FusedState) -> None:
-    """The position in true ENU, p += s (A u) dt (A: the kernel frame -> true ENU), and, for a vehicle, the
-    integrals a zero-velocity update corrects it by: the weight w(t) = 1 + zupt_turn_weight x the turn since the
-    speed was known, its integral W, int W (A u) dt, and int (zr_v - s) (A u) dt (what the floor at 0 kept out)."""
+    """The position in true ENU, p += s (A u) dt (A: the kernel frame -> true ENU; s a vehicle's kept-speed
+    weighted one), and, for a vehicle, the integrals a zero-velocity update corrects it by: the weight w(t) = 1 +
+    zupt_turn_weight x the turn since the speed was known, its integral W, int W (A u) dt, and int (zr_v - s) (A u)
+    dt (what the floor at 0 and the kept speed moved it by)."""
     dt = lp.dt
     ue = st.cos_t * st.ux - st.sin_t * st.uy
     un = st.sin_t * st.ux + st.cos_t * st.uy
-    st.pe += st.speed * ue * dt
-    st.pn += st.speed * un * dt
+    st.pe += lp.sp * ue * dt
+    st.pn += lp.sp * un * dt
     if not (lp.rest or lp.walking or lp.walked):
         st.zr_turn += abs(lp.r) * dt
         st.zr_t += (1.0 + st.zr_turn * lp.fcfg.zupt_turn_weight) * dt
         st.zr_pe += st.zr_t * ue * dt
         st.zr_pn += st.zr_t * un * dt
-        st.zr_ce += (st.zr_v - st.speed) * ue * dt
-        st.zr_cn += (st.zr_v - st.speed) * un * dt
+        st.zr_ce += (st.zr_v - lp.sp) * ue * dt  # what the floor and the kept speed moved it by, beyond zr_v
+        st.zr_cn += (st.zr_v - lp.sp) * un * dt
 
 
 def _tilt_correction(lp: _Loop, st: FusedState) -> None:
@@ -693,6 +736,70 @@ def position_update(st: FusedState, ve: float, vn: float, de: float, dn: float, 
     st.fix_en = en - ke * (an + en)
 
 
+def _speed_update(st: FusedState, e: float, fcfg: FusedConfig):
+    """A vehicle's speed/bias filter at a fix: states the speed s and the along-track bias b, s integrating the
+    along-track acceleration less b. Started on its first fix (_speed_prior), predicted over the sk_t seconds since
+    the speed was last known and updated with the fix's speed (innovation e). Returns the gain (k_s, k_b), or None
+    if the covariance went wrong (reset, nothing fed back)."""
+    if st.sb_pbb <= 0.0:
+        _speed_prior(st, fcfg)
+        if not _covariance_checked(st, FILTER_SPEED, STEP_START, fcfg):
+            return None
+    t = st.sk_t
+    qb = _bias_walk(st, fcfg) * t + (fcfg.kf_turn_noise * st.turn) ** 2
+    if not _speed_predict(st, t, fcfg.speed_noise * fcfg.speed_noise * t, qb, fcfg):
+        return None
+    return _speed_correct(st, fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms, fcfg)
+
+
+def _bias_walk(st: FusedState, fcfg: FusedConfig) -> float:
+    """The along-track bias's random walk, (m/s^2)^2/s: the gravity leak's (kf_tilt_noise^2), or after a calibration
+    that moved, until a rest re-learns the gyro bias, speed_bias_noise^2 (the tilt drifts at the rate calibration
+    took for the gyro's bias)."""
+    q = fcfg.speed_bias_noise if st.cal_moved > 0.0 else fcfg.kf_tilt_noise
+    return q * q
+
+
+def _speed_prior(st: FusedState, fcfg: FusedConfig) -> None:
+    """The speed/bias filter's start (and repair): the bias 0 +- nhc_leak_sigma_ms2 (a still calibration leaves no
+    along-track leak beyond the lateral one's: it folded the offsets into the tilt, and they leak after turns, which
+    the turn term adds), or kf_bias_init_g after a calibration that moved (it took the motion's mean acceleration
+    for gravity); uncorrelated with the speed, whose variance stays what calibration or the last fix left (a repair:
+    not known)."""
+    if not 0.0 <= st.sb_pss <= COV_MAX:
+        st.sb_pss = SPEED_UNKNOWN_VAR
+    st.sb_psb = 0.0
+    sigma = fcfg.kf_bias_init_g * STANDARD_GRAVITY if st.cal_moved > 0.0 else fcfg.nhc_leak_sigma_ms2
+    st.sb_pbb = sigma * sigma
+
+
+def _speed_predict(st: FusedState, t: float, q_speed: float, q_bias: float, fcfg: FusedConfig) -> bool:
+    """The speed/bias filter's predict over t s, P <- F P F^T + Q: F = [[1, -t], [0, 1]] (the speed gathers -t times
+    the bias), Q = diag(q_speed, q_bias). Returns False if the covariance went wrong (reset to the prior)."""
+    pss, psb, pbb = st.sb_pss, st.sb_psb, st.sb_pbb
+    st.sb_pss = pss - 2.0 * t * psb + t * t * pbb + q_speed
+    st.sb_psb = psb - t * pbb
+    st.sb_pbb = pbb + q_bias
+    return _covariance_checked(st, FILTER_SPEED, STEP_PREDICT, fcfg)
+
+
+def _speed_correct(st: FusedState, r: float, fcfg: FusedConfig):
+    """The speed/bias filter's update with the fix's speed (H = [1, 0], variance r): P <- P - K S K^T, K = P H^T / S
+    (the Joseph form's value for this optimal gain). Returns the gain (k_s, k_b), or None if the covariance went
+    wrong (reset to the prior)."""
+    pss, psb, pbb = st.sb_pss, st.sb_psb, st.sb_pbb
+    s = pss + r
+    if not 0.0 < s <= COV_MAX:
+        _covariance_checked(st, FILTER_SPEED, STEP_UPDATE, fcfg, innovation_ok=False)
+        return None
+    ks = pss / s
+    kb = psb / s
+    st.sb_pss = pss - ks * ks * s
+    st.sb_psb = psb - ks * kb * s
+    st.sb_pbb = pbb - kb * kb * s
+    return (ks, kb) if _covariance_checked(st, FILTER_SPEED, STEP_UPDATE, fcfg) else None
+
+
 def _position_prior(st: FusedState, fcfg: FusedConfig) -> None:
     """The position filter (re)started at the fix itself: x_hat = y, e_hat = 0, their errors +-pos_sigma_m,
     perfectly anti-correlated (their sum is the fix, known)."""
@@ -768,9 +875,24 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
         if int(st.flags) & WALKING:  # what people walk and run: a pedestrian's speed is bounded
             st.walk_speed += fcfg.walk_speed_gain * (min(speed, fcfg.pedestrian_max_ms) - st.walk_speed)
     e = speed - st.speed
-    st.speed += fcfg.speed_gain * e
-    if t > 0.0 and not int(st.flags) & (AT_REST | WALKING):
-        st.bias -= fcfg.bias_gain * e / t
+    if int(st.flags) & (AT_REST | WALKING | WALKED):
+        # a pedestrian's speed or a rest's: not integrated, so the interval says nothing of the along-track bias
+        # (a car in slow traffic taken for a walker once learned -12 m/s^2 here, and ran to 700 m/s when it drove on)
+        st.speed += fcfg.speed_gain * e
+        st.sb_pss = (1.0 - fcfg.speed_gain) ** 2 * e * e + fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms
+        st.sb_psb = 0.0
+    else:
+        if not 0.0 < t < fcfg.gps_timeout_s:
+            # after an outage (its speed corrected by lateral and zero-velocity updates) or before any fix: the speed
+            # starts from the fix, the interval teaches the bias nothing
+            st.sb_pss = SPEED_UNKNOWN_VAR
+            st.sb_psb = 0.0
+        gain = _speed_update(st, e, fcfg)
+        if gain is not None:
+            st.speed += gain[0] * e
+            st.bias += gain[1] * e
+    st.keep_v = speed
+    st.sk_t = 0.0
     if st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s:
         # the motion acceleration over the last interval, into the kernel frame (A^T)
         me = (ve - st.gps_ve) / t
@@ -811,7 +933,9 @@ NHC_FIELDS = ("nh_t", "nh_z", "nh_r", "nh_b") + tuple(
     n for f in ("nh_f", "nh_u0", "nh_i", "nh_p") for n in FUSED.field(f).element_names())
 POSITION_PIJ = {(0, 0): "fix_pxx", (0, 1): "fix_pxe", (1, 1): "fix_pee"}  # the position filter's (per axis)
 # each filter: its covariance's upper triangle, (row, column) -> field
-FILTER_COVARIANCES = {FILTER_TILT: _PIJ, FILTER_LATERAL: _NHC_PIJ, FILTER_POSITION: POSITION_PIJ}
+SPEED_PIJ = {(0, 0): "sb_pss", (0, 1): "sb_psb", (1, 1): "sb_pbb"}  # the speed/bias filter's
+FILTER_COVARIANCES = {FILTER_TILT: _PIJ, FILTER_LATERAL: _NHC_PIJ, FILTER_POSITION: POSITION_PIJ,
+                      FILTER_SPEED: SPEED_PIJ}
 
 _observer = None
 
@@ -850,6 +974,9 @@ def _covariance_checked(st: FusedState, which: int, step: int, fcfg: FusedConfig
         _kf_prior(st, fcfg)
     elif which == FILTER_LATERAL:
         _nhc_restart(st, fcfg)
+    elif which == FILTER_SPEED:
+        st.sb_pss = SPEED_UNKNOWN_VAR  # the speed not known: the next fix restarts it
+        _speed_prior(st, fcfg)
     else:
         _position_prior(st, fcfg)
     return False

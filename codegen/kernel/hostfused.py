@@ -40,6 +40,8 @@ int dr_fused_lateral_correct(const dr_fused_config *cfg, dr_fused_state *st, con
                              float x[4]);
 int dr_fused_position_predict(const dr_fused_config *cfg, dr_fused_state *st, float t, float *phi);
 int dr_fused_position_correct(const dr_fused_config *cfg, dr_fused_state *st, float gain[2]);
+int dr_fused_speed_predict(const dr_fused_config *cfg, dr_fused_state *st, float t, float q_speed, float q_bias);
+int dr_fused_speed_correct(const dr_fused_config *cfg, dr_fused_state *st, float r, float gain[2]);
 extern "Python+C" void dr_fused_observed(const dr_fused_state *st, int filter, int step);
 """
 # the host build observes every filter step (dr_fused.c's DR_FUSED_OBSERVE; nothing on the device)

@@ -231,7 +231,7 @@ class Kernel:
 # The fused method's Kalman filters and the steps after which each one's covariance is checked (and, on the host,
 # observed): DR_FUSED_FILTER_* / DR_FUSED_STEP_* in C, _FILTER_* / _STEP_* in the fallback, FILTER_* / STEP_* in
 # codegen.kernel.fused.
-COVARIANCE_FILTERS = ("TILT", "LATERAL", "POSITION")
+COVARIANCE_FILTERS = ("TILT", "LATERAL", "POSITION", "SPEED")
 FILTER_STEPS = ("START", "PREDICT", "UPDATE")
 
 RETURN_CODES = (
@@ -389,6 +389,15 @@ FUSED = Kernel(
         Field("cov_repairs", "", "how often a filter's covariance went wrong (a negative variance, a value not finite, "
               "an update's innovation variance not positive) and was reset to its prior instead of used (a whole "
               "number)", public="COV_REPAIRS", group="the filters' health"),
+        Field("sb_p", "", "the speed/bias filter's covariance at the last fix (or rest), upper triangle: speed (m/s), "
+              "along-track bias (m/s^2); the bias's 0 until its first fix, the speed's large after a calibration that "
+              "moved", 3, ("sb_pss", "sb_psb", "sb_pbb"),
+              group="a vehicle's speed and along-track bias filter, and the speed it keeps"),
+        Field("sk_t", "s", "time since the speed was last known (a fix, a rest, calibration)", local="carry"),
+        Field("keep_v", "m/s", "the speed a vehicle is taken to keep (the last fix's); < 0 before a fix and after a "
+              "rest: none", initial=(-1.0,), local="carry"),
+        Field("cal_moved", "", "1 from a calibration that moved until the next rest (the gyro bias took the motion's "
+              "mean rate for a bias: the tilt drifts), else 0"),
     ),
     params=(
         Param("tilt_tau_s", "s", "tilt correction time constant while GPS fixes arrive", Store("kp", "1/s", "recip"),
@@ -423,8 +432,6 @@ FUSED = Kernel(
               0.98, ge=0, le=1),
         Param("speed_gain", "per fix", "pull of the speed towards the GPS speed", Store("speed_gain", "per fix"), 0.5,
               ge=0, le=1),
-        Param("bias_gain", "per fix", "along-track accel bias correction gain (m/s^2 per m/s of speed error per s)",
-              Store("bias_gain", "per fix"), 0.1, ge=0, le=1),
         Param("walk_speed_gain", "per fix", "pull of the walking speed towards the GPS speed",
               Store("walk_speed_gain", "per fix"), 0.2, ge=0, le=1),
         Param("kf_bias_init_g", "g",
@@ -512,6 +519,16 @@ FUSED = Kernel(
               Store("idle_var", "(m/s^2)^2", "square", "GRAVITY_MS2"), 0.03, ge=0),
         Param("stand_tau_s", "s", "a pedestrian whose steps stopped without a rest: the speed decays to 0 with this "
               "time constant, never integrated (0: held)", Store("inv_stand_tau", "1/s", "rate"), 1.0, ge=0),
+        Param("speed_noise", "m/s/sqrt(s)", "a vehicle's integrated speed: random walk of its error beyond the "
+              "along-track bias's (what the deadband keeps out)", Store("speed_q", "(m/s)^2/s", "square"), 0.1, ge=0),
+        Param("speed_bias_noise", "m/s^2/sqrt(s)", "random walk of the along-track bias after a calibration that moved "
+              "and before a rest (the gyro bias is off by the motion's mean rate during calibration, so the tilt "
+              "drifts; otherwise fused_kf_tilt_noise)", Store("speed_bias_q", "(m/s^2)^2/s", "square"), 0.05, ge=0),
+        Param("keep_speed_noise", "m/s/sqrt(s)", "a vehicle keeps its speed: random walk of its true speed away from "
+              "the last fix's, the prior its integrated speed is weighed against by their variances (0: no prior)",
+              Store("keep_q", "(m/s)^2/s", "square"), 1.0, ge=0),
+        Param("max_accel_ms2", "m/s^2", "a vehicle's speed stays within [0, the speed last known + this x the time "
+              "since]", Store("max_accel_ms2", "m/s^2"), 4.0, gt=0),
     ),
     flags=(
         Flag("AT_REST", 1, "the last sample was at rest"),

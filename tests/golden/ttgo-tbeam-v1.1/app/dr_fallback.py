@@ -379,8 +379,8 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(208)
-_F_KCFG = const(196)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(217)
+_F_KCFG = const(205)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
@@ -455,6 +455,10 @@ _F_NH_I = const(130)  # s: the integral of u over the time gathered towards the 
 _F_NH_P = const(132)  # the lateral filter's covariance, upper triangle row by row: speed error (m/s), lateral leak, folded offsets x, y (m/s^2); all 0 until the outage's first sample
 _F_COV_REPAIRS = const(142)  # how often a filter's covariance went wrong (a negative variance, a value not finite, an update's innovation variance not positive) and was reset to its prior instead of used (a whole number)
 COV_REPAIRS = const(142)  # public: cov_repairs
+_F_SB_P = const(143)  # the speed/bias filter's covariance at the last fix (or rest), upper triangle: speed (m/s), along-track bias (m/s^2); the bias's 0 until its first fix, the speed's large after a calibration that moved
+_F_SK_T = const(146)  # s: time since the speed was last known (a fix, a rest, calibration)
+_F_KEEP_V = const(147)  # m/s: the speed a vehicle is taken to keep (the last fix's); < 0 before a fix and after a rest: none
+_F_CAL_MOVED = const(148)  # 1 from a calibration that moved until the next rest (the gyro bias took the motion's mean rate for a bias: the tilt drifts), else 0
 _F_QW = const(0)  # q[0]
 _F_QX = const(1)  # q[1]
 _F_QY = const(2)  # q[2]
@@ -510,59 +514,65 @@ _F_NH_PBY = const(138)  # nh_p[6]
 _F_NH_PXX = const(139)  # nh_p[7]
 _F_NH_PXY = const(140)  # nh_p[8]
 _F_NH_PYY = const(141)  # nh_p[9]
-_FC_KP = const(143)  # 1/s, from tilt_tau_s (s)
-_FC_REJECT_MS2 = const(144)  # m/s^2, from accel_reject_g (g)
-_FC_KP_DARK = const(145)  # 1/s, from tilt_tau_dark_s (s)
-_FC_STEADY_MS2 = const(146)  # m/s^2, from steady_accel_ms2 (m/s^2)
-_FC_INV_SPEED_TAU = const(147)  # 1/s, from speed_tau_s (s)
-_FC_GPS_TIMEOUT_S = const(148)  # s, from gps_timeout_s (s)
-_FC_INV_STAT_TAU = const(149)  # 1/s, from stat_tau_s (s)
-_FC_REST_VAR = const(150)  # (m/s^2)^2, from rest_accel_g (g)
-_FC_REST_W2 = const(151)  # (rad/s)^2, from rest_gyro_dps (degree/s)
-_FC_REST_TIME_S = const(152)  # s, from rest_time_s (s)
-_FC_INV_BIAS_TAU = const(153)  # 1/s, from bias_tau_s (s)
-_FC_WALK_VAR = const(154)  # (m/s^2)^2, from walk_accel_g (g)
-_FC_MIN_SPEED_MS = const(155)  # m/s, from min_speed_ms (m/s)
-_FC_HEADING_GAIN = const(156)  # per fix, from heading_gain (per fix)
-_FC_ALIGN_FORGET = const(157)  # per fix, from align_forget (per fix)
-_FC_SPEED_GAIN = const(158)  # per fix, from speed_gain (per fix)
-_FC_BIAS_GAIN = const(159)  # per fix, from bias_gain (per fix)
-_FC_WALK_SPEED_GAIN = const(160)  # per fix, from walk_speed_gain (per fix)
-_FC_KF_BIAS_VAR = const(161)  # (m/s^2)^2, from kf_bias_init_g (g)
-_FC_KF_BIAS_Q = const(162)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
-_FC_KF_TILT_Q = const(163)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
-_FC_KF_TURN_Q = const(164)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
-_FC_KF_VEL_R = const(165)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
-_FC_KF_ALIGN_MIN = const(166)  # (m/s)^2, from kf_align_min ((m/s)^2)
-_FC_MEDIAN = const(167)  # 1: on, from median
-_FC_POS_VAR = const(168)  # m^2, from pos_sigma_m (m)
-_FC_INV_POS_TAU = const(169)  # 1/s, from pos_tau_s (s)
-_FC_POS_STEP_Q = const(170)  # (m/s)^2, from pos_step_sigma_ms (m/s)
-_FC_HOLD_RATE = const(171)  # 1/s, from turn_hold_tau_s (s)
-_FC_TURN_START = const(172)  # rad/s, from turn_start_dps (degree/s)
-_FC_TURN_END = const(173)  # rad/s, from turn_end_dps (degree/s)
-_FC_PLATFORM = const(174)  # choice, from platform
-_FC_VIB_RATE = const(175)  # rad/s, from vibration_hz (Hz)
-_FC_VIB_RATIO = const(176)  # , from vibration_ratio
-_FC_INV_VIB_TAU = const(177)  # 1/s, from vibration_tau_s (s)
-_FC_WALK_TIME_S = const(178)  # s, from walk_time_s (s)
-_FC_REST_SPEED_MS = const(179)  # m/s, from rest_speed_ms (m/s)
-_FC_REST_UPDATE_S = const(180)  # s, from rest_update_s (s)
-_FC_KF_REST_R = const(181)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
-_FC_ZUPT_TURN_WEIGHT = const(182)  # 1/rad, from zupt_turn_weight (1/rad)
-_FC_INV_ACCEL_TAU = const(183)  # 1/s, from accel_tau_s (s)
-_FC_NHC_VAR = const(184)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
-_FC_NHC_PERIOD_S = const(185)  # s, from nhc_period_s (s)
-_FC_NHC_SPEED_Q = const(186)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
-_FC_NHC_LEAK_VAR = const(187)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
-_FC_NHC_MIN_RATE = const(188)  # rad/s, from nhc_min_rate (rad/s)
-_FC_NHC_POSITION = const(189)  # , from nhc_position
-_FC_NHC_LEAK_TURN = const(190)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
-_FC_NHC_FOLD_SCALE = const(191)  # , from nhc_fold_scale
-_FC_PEDESTRIAN_MAX_MS = const(192)  # m/s, from pedestrian_max_ms (m/s)
-_FC_STILL_VAR = const(193)  # (m/s^2)^2, from still_accel_g (g)
-_FC_IDLE_VAR = const(194)  # (m/s^2)^2, from idle_accel_g (g)
-_FC_INV_STAND_TAU = const(195)  # 1/s, from stand_tau_s (s)
+_F_SB_PSS = const(143)  # sb_p[0]
+_F_SB_PSB = const(144)  # sb_p[1]
+_F_SB_PBB = const(145)  # sb_p[2]
+_FC_KP = const(149)  # 1/s, from tilt_tau_s (s)
+_FC_REJECT_MS2 = const(150)  # m/s^2, from accel_reject_g (g)
+_FC_KP_DARK = const(151)  # 1/s, from tilt_tau_dark_s (s)
+_FC_STEADY_MS2 = const(152)  # m/s^2, from steady_accel_ms2 (m/s^2)
+_FC_INV_SPEED_TAU = const(153)  # 1/s, from speed_tau_s (s)
+_FC_GPS_TIMEOUT_S = const(154)  # s, from gps_timeout_s (s)
+_FC_INV_STAT_TAU = const(155)  # 1/s, from stat_tau_s (s)
+_FC_REST_VAR = const(156)  # (m/s^2)^2, from rest_accel_g (g)
+_FC_REST_W2 = const(157)  # (rad/s)^2, from rest_gyro_dps (degree/s)
+_FC_REST_TIME_S = const(158)  # s, from rest_time_s (s)
+_FC_INV_BIAS_TAU = const(159)  # 1/s, from bias_tau_s (s)
+_FC_WALK_VAR = const(160)  # (m/s^2)^2, from walk_accel_g (g)
+_FC_MIN_SPEED_MS = const(161)  # m/s, from min_speed_ms (m/s)
+_FC_HEADING_GAIN = const(162)  # per fix, from heading_gain (per fix)
+_FC_ALIGN_FORGET = const(163)  # per fix, from align_forget (per fix)
+_FC_SPEED_GAIN = const(164)  # per fix, from speed_gain (per fix)
+_FC_WALK_SPEED_GAIN = const(165)  # per fix, from walk_speed_gain (per fix)
+_FC_KF_BIAS_VAR = const(166)  # (m/s^2)^2, from kf_bias_init_g (g)
+_FC_KF_BIAS_Q = const(167)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
+_FC_KF_TILT_Q = const(168)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
+_FC_KF_TURN_Q = const(169)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
+_FC_KF_VEL_R = const(170)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
+_FC_KF_ALIGN_MIN = const(171)  # (m/s)^2, from kf_align_min ((m/s)^2)
+_FC_MEDIAN = const(172)  # 1: on, from median
+_FC_POS_VAR = const(173)  # m^2, from pos_sigma_m (m)
+_FC_INV_POS_TAU = const(174)  # 1/s, from pos_tau_s (s)
+_FC_POS_STEP_Q = const(175)  # (m/s)^2, from pos_step_sigma_ms (m/s)
+_FC_HOLD_RATE = const(176)  # 1/s, from turn_hold_tau_s (s)
+_FC_TURN_START = const(177)  # rad/s, from turn_start_dps (degree/s)
+_FC_TURN_END = const(178)  # rad/s, from turn_end_dps (degree/s)
+_FC_PLATFORM = const(179)  # choice, from platform
+_FC_VIB_RATE = const(180)  # rad/s, from vibration_hz (Hz)
+_FC_VIB_RATIO = const(181)  # , from vibration_ratio
+_FC_INV_VIB_TAU = const(182)  # 1/s, from vibration_tau_s (s)
+_FC_WALK_TIME_S = const(183)  # s, from walk_time_s (s)
+_FC_REST_SPEED_MS = const(184)  # m/s, from rest_speed_ms (m/s)
+_FC_REST_UPDATE_S = const(185)  # s, from rest_update_s (s)
+_FC_KF_REST_R = const(186)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
+_FC_ZUPT_TURN_WEIGHT = const(187)  # 1/rad, from zupt_turn_weight (1/rad)
+_FC_INV_ACCEL_TAU = const(188)  # 1/s, from accel_tau_s (s)
+_FC_NHC_VAR = const(189)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
+_FC_NHC_PERIOD_S = const(190)  # s, from nhc_period_s (s)
+_FC_NHC_SPEED_Q = const(191)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
+_FC_NHC_LEAK_VAR = const(192)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
+_FC_NHC_MIN_RATE = const(193)  # rad/s, from nhc_min_rate (rad/s)
+_FC_NHC_POSITION = const(194)  # , from nhc_position
+_FC_NHC_LEAK_TURN = const(195)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
+_FC_NHC_FOLD_SCALE = const(196)  # , from nhc_fold_scale
+_FC_PEDESTRIAN_MAX_MS = const(197)  # m/s, from pedestrian_max_ms (m/s)
+_FC_STILL_VAR = const(198)  # (m/s^2)^2, from still_accel_g (g)
+_FC_IDLE_VAR = const(199)  # (m/s^2)^2, from idle_accel_g (g)
+_FC_INV_STAND_TAU = const(200)  # 1/s, from stand_tau_s (s)
+_FC_SPEED_Q = const(201)  # (m/s)^2/s, from speed_noise (m/s/sqrt(s))
+_FC_SPEED_BIAS_Q = const(202)  # (m/s^2)^2/s, from speed_bias_noise (m/s^2/sqrt(s))
+_FC_KEEP_Q = const(203)  # (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s))
+_FC_MAX_ACCEL_MS2 = const(204)  # m/s^2, from max_accel_ms2 (m/s^2)
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
@@ -576,10 +586,12 @@ _PLATFORM_AUTO = const(2)  # platform: auto
 _FILTER_TILT = const(0)  # a Kalman filter, as the covariance observer is told
 _FILTER_LATERAL = const(1)  # a Kalman filter, as the covariance observer is told
 _FILTER_POSITION = const(2)  # a Kalman filter, as the covariance observer is told
+_FILTER_SPEED = const(3)  # a Kalman filter, as the covariance observer is told
 _STEP_START = const(0)  # a filter's step, as the covariance observer is told
 _STEP_PREDICT = const(1)  # a filter's step, as the covariance observer is told
 _STEP_UPDATE = const(2)  # a filter's step, as the covariance observer is told
 _COV_MAX = 1e30  # a covariance entry beyond this (or not a number) is broken
+_SPEED_UNKNOWN_VAR = 1e4  # (m/s)^2: the speed's variance after a calibration that moved
 _observer = None  # tests and benchmarks: called as _observer(fstate, filter, step) after every filter step
 _MEDIAN_MAX = const(32)
 _MEDIAN_WINDOW = array("f", bytes(4 * _MEDIAN_MAX))  # the median option's scratch, allocated once
@@ -601,7 +613,6 @@ _FUSED_PARAMS = (
     0.3,  # heading_gain, per fix
     0.98,  # align_forget, per fix
     0.5,  # speed_gain, per fix
-    0.1,  # bias_gain, per fix
     0.2,  # walk_speed_gain, per fix
     0.05,  # kf_bias_init_g, g
     0.001,  # kf_bias_noise, m/s^2/sqrt(s)
@@ -638,11 +649,15 @@ _FUSED_PARAMS = (
     0.04,  # still_accel_g, g
     0.03,  # idle_accel_g, g
     1.0,  # stand_tau_s, s
+    0.1,  # speed_noise, m/s/sqrt(s)
+    0.05,  # speed_bias_noise, m/s^2/sqrt(s)
+    1.0,  # keep_speed_noise, m/s/sqrt(s)
+    4.0,  # max_accel_ms2, m/s^2
 )
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 53 values in the
+    """Reset the fused state and store the configuration: the board's, or 56 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -680,82 +695,89 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     if not (p[15] >= 0 and p[15] <= 1):
         raise ValueError("speed_gain must be >= 0 and <= 1")
     if not (p[16] >= 0 and p[16] <= 1):
-        raise ValueError("bias_gain must be >= 0 and <= 1")
-    if not (p[17] >= 0 and p[17] <= 1):
         raise ValueError("walk_speed_gain must be >= 0 and <= 1")
-    if not (p[18] >= 0):
+    if not (p[17] >= 0):
         raise ValueError("kf_bias_init_g must be >= 0")
-    if not (p[19] >= 0):
+    if not (p[18] >= 0):
         raise ValueError("kf_bias_noise must be >= 0")
-    if not (p[20] >= 0):
+    if not (p[19] >= 0):
         raise ValueError("kf_tilt_noise must be >= 0")
-    if not (p[21] >= 0):
+    if not (p[20] >= 0):
         raise ValueError("kf_turn_noise must be >= 0")
-    if not (p[22] > 0):
+    if not (p[21] > 0):
         raise ValueError("kf_vel_sigma_ms must be > 0")
-    if not (p[23] >= 0):
+    if not (p[22] >= 0):
         raise ValueError("kf_align_min must be >= 0")
-    if not (p[25] >= 0):
+    if not (p[24] >= 0):
         raise ValueError("pos_sigma_m must be >= 0")
-    if not (p[26] > 0):
+    if not (p[25] > 0):
         raise ValueError("pos_tau_s must be > 0")
-    if not (p[27] > 0):
+    if not (p[26] > 0):
         raise ValueError("pos_step_sigma_ms must be > 0")
-    if not (p[28] >= 0):
+    if not (p[27] >= 0):
         raise ValueError("turn_hold_tau_s must be >= 0")
-    if not (p[29] > 0):
+    if not (p[28] > 0):
         raise ValueError("turn_start_dps must be > 0")
-    if not (p[30] >= 0 and p[30] <= p[29]):
+    if not (p[29] >= 0 and p[29] <= p[28]):
         raise ValueError("turn_end_dps must be >= 0 and <= turn_start_dps")
-    if not (0 <= p[31] <= 2):
+    if not (0 <= p[30] <= 2):
         raise ValueError("platform must be one of 0 (pedestrian), 1 (vehicle), 2 (auto)")
-    if not (p[32] > 0):
+    if not (p[31] > 0):
         raise ValueError("vibration_hz must be > 0")
-    if not (p[33] >= 0 and p[33] <= 1):
+    if not (p[32] >= 0 and p[32] <= 1):
         raise ValueError("vibration_ratio must be >= 0 and <= 1")
-    if not (p[34] > 0):
+    if not (p[33] > 0):
         raise ValueError("vibration_tau_s must be > 0")
-    if not (p[35] >= 0):
+    if not (p[34] >= 0):
         raise ValueError("walk_time_s must be >= 0")
-    if not (p[36] >= 0):
+    if not (p[35] >= 0):
         raise ValueError("rest_speed_ms must be >= 0")
-    if not (p[37] > 0):
+    if not (p[36] > 0):
         raise ValueError("rest_update_s must be > 0")
-    if not (p[38] >= 0):
+    if not (p[37] >= 0):
         raise ValueError("kf_rest_sigma_ms2 must be >= 0")
-    if not (p[39] >= 0):
+    if not (p[38] >= 0):
         raise ValueError("zupt_turn_weight must be >= 0")
-    if not (p[40] >= 0):
+    if not (p[39] >= 0):
         raise ValueError("accel_tau_s must be >= 0")
-    if not (p[41] >= 0):
+    if not (p[40] >= 0):
         raise ValueError("nhc_sigma_ms2 must be >= 0")
-    if not (p[42] > 0):
+    if not (p[41] > 0):
         raise ValueError("nhc_period_s must be > 0")
-    if not (p[43] >= 0):
+    if not (p[42] >= 0):
         raise ValueError("nhc_speed_noise must be >= 0")
-    if not (p[44] >= 0):
+    if not (p[43] >= 0):
         raise ValueError("nhc_leak_sigma_ms2 must be >= 0")
-    if not (p[45] >= 0):
+    if not (p[44] >= 0):
         raise ValueError("nhc_min_rate must be >= 0")
-    if not (p[46] >= 0 and p[46] <= 1):
+    if not (p[45] >= 0 and p[45] <= 1):
         raise ValueError("nhc_position must be >= 0 and <= 1")
-    if not (p[47] >= 0):
+    if not (p[46] >= 0):
         raise ValueError("nhc_leak_turn must be >= 0")
-    if not (p[48] >= 0):
+    if not (p[47] >= 0):
         raise ValueError("nhc_fold_scale must be >= 0")
-    if not (p[49] > 0):
+    if not (p[48] > 0):
         raise ValueError("pedestrian_max_ms must be > 0")
-    if not (p[50] >= 0):
+    if not (p[49] >= 0):
         raise ValueError("still_accel_g must be >= 0")
-    if not (p[51] >= 0):
+    if not (p[50] >= 0):
         raise ValueError("idle_accel_g must be >= 0")
-    if not (p[52] >= 0):
+    if not (p[51] >= 0):
         raise ValueError("stand_tau_s must be >= 0")
+    if not (p[52] >= 0):
+        raise ValueError("speed_noise must be >= 0")
+    if not (p[53] >= 0):
+        raise ValueError("speed_bias_noise must be >= 0")
+    if not (p[54] >= 0):
+        raise ValueError("keep_speed_noise must be >= 0")
+    if not (p[55] > 0):
+        raise ValueError("max_accel_ms2 must be > 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
     fstate[_F_Q + 0] = 1.0
     fstate[_F_UX] = 1.0
     fstate[_F_COS_T] = 1.0
+    fstate[_F_KEEP_V] = -1.0
     fstate[_FC_KP] = 1.0 / p[0]
     fstate[_FC_REJECT_MS2] = p[1] * _GRAVITY_MS2
     fstate[_FC_KP_DARK] = 1.0 / p[2] if p[2] > 0 else 0.0
@@ -772,43 +794,46 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_HEADING_GAIN] = p[13]
     fstate[_FC_ALIGN_FORGET] = p[14]
     fstate[_FC_SPEED_GAIN] = p[15]
-    fstate[_FC_BIAS_GAIN] = p[16]
-    fstate[_FC_WALK_SPEED_GAIN] = p[17]
-    fstate[_FC_KF_BIAS_VAR] = p[18] * p[18] * (_GRAVITY_MS2 * _GRAVITY_MS2)
-    fstate[_FC_KF_BIAS_Q] = p[19] * p[19]
-    fstate[_FC_KF_TILT_Q] = p[20] * p[20]
-    fstate[_FC_KF_TURN_Q] = p[21] * p[21]
-    fstate[_FC_KF_VEL_R] = 2.0 * p[22] * p[22]
-    fstate[_FC_KF_ALIGN_MIN] = p[23]
-    fstate[_FC_MEDIAN] = p[24]
-    fstate[_FC_POS_VAR] = p[25] * p[25]
-    fstate[_FC_INV_POS_TAU] = 1.0 / p[26]
-    fstate[_FC_POS_STEP_Q] = p[27] * p[27]
-    fstate[_FC_HOLD_RATE] = 1.0 / p[28] if p[28] > 0 else 0.0
-    fstate[_FC_TURN_START] = p[29] * _RAD_PER_DEG
-    fstate[_FC_TURN_END] = p[30] * _RAD_PER_DEG
-    fstate[_FC_PLATFORM] = p[31]
-    fstate[_FC_VIB_RATE] = p[32] * _RAD_PER_CYCLE
-    fstate[_FC_VIB_RATIO] = p[33]
-    fstate[_FC_INV_VIB_TAU] = 1.0 / p[34]
-    fstate[_FC_WALK_TIME_S] = p[35]
-    fstate[_FC_REST_SPEED_MS] = p[36]
-    fstate[_FC_REST_UPDATE_S] = p[37]
-    fstate[_FC_KF_REST_R] = p[38] * p[38]
-    fstate[_FC_ZUPT_TURN_WEIGHT] = p[39]
-    fstate[_FC_INV_ACCEL_TAU] = 1.0 / p[40] if p[40] > 0 else 0.0
-    fstate[_FC_NHC_VAR] = p[41] * p[41]
-    fstate[_FC_NHC_PERIOD_S] = p[42]
-    fstate[_FC_NHC_SPEED_Q] = p[43] * p[43]
-    fstate[_FC_NHC_LEAK_VAR] = p[44] * p[44]
-    fstate[_FC_NHC_MIN_RATE] = p[45]
-    fstate[_FC_NHC_POSITION] = p[46]
-    fstate[_FC_NHC_LEAK_TURN] = p[47]
-    fstate[_FC_NHC_FOLD_SCALE] = p[48]
-    fstate[_FC_PEDESTRIAN_MAX_MS] = p[49]
-    fstate[_FC_STILL_VAR] = p[50] * p[50] * (_GRAVITY_MS2 * _GRAVITY_MS2)
-    fstate[_FC_IDLE_VAR] = p[51] * p[51] * (_GRAVITY_MS2 * _GRAVITY_MS2)
-    fstate[_FC_INV_STAND_TAU] = 1.0 / p[52] if p[52] > 0 else 0.0
+    fstate[_FC_WALK_SPEED_GAIN] = p[16]
+    fstate[_FC_KF_BIAS_VAR] = p[17] * p[17] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_KF_BIAS_Q] = p[18] * p[18]
+    fstate[_FC_KF_TILT_Q] = p[19] * p[19]
+    fstate[_FC_KF_TURN_Q] = p[20] * p[20]
+    fstate[_FC_KF_VEL_R] = 2.0 * p[21] * p[21]
+    fstate[_FC_KF_ALIGN_MIN] = p[22]
+    fstate[_FC_MEDIAN] = p[23]
+    fstate[_FC_POS_VAR] = p[24] * p[24]
+    fstate[_FC_INV_POS_TAU] = 1.0 / p[25]
+    fstate[_FC_POS_STEP_Q] = p[26] * p[26]
+    fstate[_FC_HOLD_RATE] = 1.0 / p[27] if p[27] > 0 else 0.0
+    fstate[_FC_TURN_START] = p[28] * _RAD_PER_DEG
+    fstate[_FC_TURN_END] = p[29] * _RAD_PER_DEG
+    fstate[_FC_PLATFORM] = p[30]
+    fstate[_FC_VIB_RATE] = p[31] * _RAD_PER_CYCLE
+    fstate[_FC_VIB_RATIO] = p[32]
+    fstate[_FC_INV_VIB_TAU] = 1.0 / p[33]
+    fstate[_FC_WALK_TIME_S] = p[34]
+    fstate[_FC_REST_SPEED_MS] = p[35]
+    fstate[_FC_REST_UPDATE_S] = p[36]
+    fstate[_FC_KF_REST_R] = p[37] * p[37]
+    fstate[_FC_ZUPT_TURN_WEIGHT] = p[38]
+    fstate[_FC_INV_ACCEL_TAU] = 1.0 / p[39] if p[39] > 0 else 0.0
+    fstate[_FC_NHC_VAR] = p[40] * p[40]
+    fstate[_FC_NHC_PERIOD_S] = p[41]
+    fstate[_FC_NHC_SPEED_Q] = p[42] * p[42]
+    fstate[_FC_NHC_LEAK_VAR] = p[43] * p[43]
+    fstate[_FC_NHC_MIN_RATE] = p[44]
+    fstate[_FC_NHC_POSITION] = p[45]
+    fstate[_FC_NHC_LEAK_TURN] = p[46]
+    fstate[_FC_NHC_FOLD_SCALE] = p[47]
+    fstate[_FC_PEDESTRIAN_MAX_MS] = p[48]
+    fstate[_FC_STILL_VAR] = p[49] * p[49] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_IDLE_VAR] = p[50] * p[50] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_INV_STAND_TAU] = 1.0 / p[51] if p[51] > 0 else 0.0
+    fstate[_FC_SPEED_Q] = p[52] * p[52]
+    fstate[_FC_SPEED_BIAS_Q] = p[53] * p[53]
+    fstate[_FC_KEEP_Q] = p[54] * p[54]
+    fstate[_FC_MAX_ACCEL_MS2] = p[55]
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -836,6 +861,12 @@ def fused_calibrate(fstate, samples):
     st[_F_BAX] = 0.0
     st[_F_BAY] = 0.0
     st[_F_BAZ] = 0.0
+    # the speed 0 if the device stood still; after a calibration that moved not known, and the gyro bias took the
+    # motion's mean rate (the tilt drifts until a rest)
+    st[_F_SB_PSS] = _SPEED_UNKNOWN_VAR if moved else 0.0
+    st[_F_SB_PSB] = st[_F_SB_PBB] = st[_F_SK_T] = 0.0
+    st[_F_KEEP_V] = -1.0
+    st[_F_CAL_MOVED] = 1.0 if moved else 0.0
     return moved
 
 
@@ -881,6 +912,12 @@ def fused_process(fstate, samples, dt_us, out):
     vib_ratio = st[_FC_VIB_RATIO]
     inv_vib = st[_FC_INV_VIB_TAU]
     turn_weight = st[_FC_ZUPT_TURN_WEIGHT]
+    speed_q = st[_FC_SPEED_Q]
+    keep_q = st[_FC_KEEP_Q]
+    vel_var = 0.5 * st[_FC_KF_VEL_R]
+    max_accel = st[_FC_MAX_ACCEL_MS2]
+    # the along-track bias's random walk (a calibration that moved: until a rest)
+    bias_q = st[_FC_SPEED_BIAS_Q] if st[_F_CAL_MOVED] > 0.0 else st[_FC_KF_TILT_Q]
     nhc = st[_FC_NHC_VAR] > 0.0
     nhc_period = st[_FC_NHC_PERIOD_S]
     nhc_position = st[_FC_NHC_POSITION]
@@ -975,11 +1012,14 @@ def fused_process(fstate, samples, dt_us, out):
     nh_u0y = st[_F_NH_U0Y]
     nh_ix = st[_F_NH_IX]
     nh_iy = st[_F_NH_IY]
+    sk_t = st[_F_SK_T]
+    keep_v = st[_F_KEEP_V]
     moving_ref = acc_e != 0.0 or acc_n != 0.0  # the tilt reference subtracts a GPS motion acceleration
     steady = st[_F_STEADY] > 0.0
     gps_ok = st[_F_GPS_OK] > 0.0
     pe0 = pe
     pn0 = pn
+    sp = speed  # the speed the position moves by (a vehicle's weighed against the speed it keeps)
     nh_fresh = False  # the lateral filter restarted in this call (its buffer need not be written again)
     flags = int(st[_F_FLAGS])
     turning = flags & _TURNING
@@ -1138,6 +1178,12 @@ def fused_process(fstate, samples, dt_us, out):
                     pn += zr_cn - kzr * zr_pn
                 speed = 0.0
                 zr_v = 0.0
+                # the speed known (0); a vehicle that stood starts from 0, not from the speed it kept; the gyro
+                # bias re-learnt
+                st[_F_SB_PSS] = st[_F_SB_PSB] = st[_F_CAL_MOVED] = 0.0
+                sk_t = 0.0
+                keep_v = -1.0
+                bias_q = st[_FC_KF_TILT_Q]
             elif walking:
                 speed = walk_speed
                 zr_v = speed
@@ -1146,6 +1192,7 @@ def fused_process(fstate, samples, dt_us, out):
                 speed -= speed * (decay if decay < 1.0 else 1.0)
                 zr_v = speed
             zr_t = zr_turn = zr_pe = zr_pn = zr_ce = zr_cn = 0.0
+            sp = speed
         else:
             a = ae * ux + an * uy
             if median:  # the seed's block median, sliding: the median of the last b along-track accelerations
@@ -1178,6 +1225,15 @@ def fused_process(fstate, samples, dt_us, out):
                 zr_v += a * dt
             if speed < 0.0:
                 speed = 0.0
+            # for the position: weighed by the variances against the speed it keeps, bounded (_kept_speed)
+            sp = speed
+            if keep_v >= 0.0 and keep_q > 0.0:
+                v_s = (st[_F_SB_PSS] - 2.0 * sk_t * st[_F_SB_PSB] + sk_t * sk_t * st[_F_SB_PBB] + speed_q * sk_t
+                       + bias_q * sk_t * sk_t * sk_t * (1.0 / 3.0))
+                sp += v_s / (v_s + vel_var + keep_q * sk_t) * (keep_v - sp)
+            top = (keep_v if keep_v > 0.0 else 0.0) + max_accel * sk_t
+            if sp > top:
+                sp = top
         # step: lateral_update (a vehicle in an outage: no sideways sliding, a_lat - s r = leak - (s - s_true) r)
         if not nhc:
             pass
@@ -1229,12 +1285,13 @@ def fused_process(fstate, samples, dt_us, out):
         m02 += r02 * dt
         m12 += r12 * dt
         since_fix += dt
+        sk_t += dt
         kf_t += dt
         # step: advance_position (true ENU; a vehicle's zero-velocity update integrals)
         ue = cos_t * ux - sin_t * uy
         un = sin_t * ux + cos_t * uy
-        if speed != 0.0:
-            sdt = speed * dt
+        if sp != 0.0:
+            sdt = sp * dt
             pe += sdt * ue
             pn += sdt * un
         if integrating:
@@ -1242,7 +1299,7 @@ def fused_process(fstate, samples, dt_us, out):
             zr_t += (1.0 + zr_turn * turn_weight) * dt
             zr_pe += zr_t * ue * dt
             zr_pn += zr_t * un * dt
-            lag = (zr_v - speed) * dt
+            lag = (zr_v - sp) * dt  # what the floor and the kept speed moved it by, beyond zr_v
             if lag != 0.0:
                 zr_ce += lag * ue
                 zr_cn += lag * un
@@ -1375,13 +1432,15 @@ def fused_process(fstate, samples, dt_us, out):
     st[_F_NH_R] = nh_r
     st[_F_NH_IX] = nh_ix
     st[_F_NH_IY] = nh_iy
+    st[_F_SK_T] = sk_t
+    st[_F_KEEP_V] = keep_v
     st[_F_FLAGS] = ((_AT_REST if rest else 0) | (_WALKING if walking else 0) | turning | (_VEHICLE if vehicle else 0)
                     | driven | (_FAST if fast else 0) | walked)  # the last sample's
     out[0] = st[_F_PE] - pe0
     out[1] = st[_F_PN] - pn0
     out[2] = 0.0
-    out[3] = speed * (cos_t * ux - sin_t * uy)
-    out[4] = speed * (sin_t * ux + cos_t * uy)
+    out[3] = sp * (cos_t * ux - sin_t * uy)
+    out[4] = sp * (sin_t * ux + cos_t * uy)
     out[5] = 0.0
 
 
@@ -1425,6 +1484,10 @@ def _covariance_checked(st, which, step, innovation_ok=True):
         first = _F_NH_P
         n = 4
         extra = -1
+    elif which == _FILTER_SPEED:
+        first = _F_SB_P
+        n = 2
+        extra = -1
     else:
         first = _F_FIX_PXX  # fix_pxx, fix_pxe, fix_pee: a 2 x 2 upper triangle
         n = 2
@@ -1449,6 +1512,9 @@ def _covariance_checked(st, which, step, innovation_ok=True):
         _kf_prior(st)
     elif which == _FILTER_LATERAL:
         _nhc_restart(st)
+    elif which == _FILTER_SPEED:
+        st[_F_SB_PSS] = _SPEED_UNKNOWN_VAR  # the speed not known: the next fix restarts it
+        _speed_prior(st)
     else:
         _position_prior(st)
     return False
@@ -1772,6 +1838,61 @@ def _position_correct(st):
     return (kx, ke) if _covariance_checked(st, _FILTER_POSITION, _STEP_UPDATE) else None
 
 
+def _speed_prior(st):
+    # the speed/bias filter's start and repair (codegen.kernel.fused's _speed_prior): the bias 0 +- nhc_leak_sigma
+    # (a still calibration) or kf_bias_init_g (one that moved), uncorrelated with the speed, whose variance stays
+    if not 0.0 <= st[_F_SB_PSS] <= _COV_MAX:
+        st[_F_SB_PSS] = _SPEED_UNKNOWN_VAR
+    st[_F_SB_PSB] = 0.0
+    st[_F_SB_PBB] = st[_FC_KF_BIAS_VAR] if st[_F_CAL_MOVED] > 0.0 else st[_FC_NHC_LEAK_VAR]
+
+
+def _speed_predict(st, t, q_speed, q_bias):
+    # the speed/bias filter's predict over t s (codegen.kernel.fused's _speed_predict): P <- F P F^T + Q,
+    # F = [[1, -t], [0, 1]], Q = diag(q_speed, q_bias). False if the covariance went wrong (reset).
+    pss = st[_F_SB_PSS]
+    psb = st[_F_SB_PSB]
+    pbb = st[_F_SB_PBB]
+    st[_F_SB_PSS] = pss - 2.0 * t * psb + t * t * pbb + q_speed
+    st[_F_SB_PSB] = psb - t * pbb
+    st[_F_SB_PBB] = pbb + q_bias
+    return _covariance_checked(st, _FILTER_SPEED, _STEP_PREDICT)
+
+
+def _speed_correct(st, r):
+    # the speed/bias filter's update with the fix's speed, H = [1, 0], variance r (codegen.kernel.fused's
+    # _speed_correct): P <- P - K S K^T. The gain (k_s, k_b), or None if the covariance went wrong (reset).
+    pss = st[_F_SB_PSS]
+    psb = st[_F_SB_PSB]
+    pbb = st[_F_SB_PBB]
+    s = pss + r
+    if not 0.0 < s <= _COV_MAX:
+        _covariance_checked(st, _FILTER_SPEED, _STEP_UPDATE, False)
+        return None
+    ks = pss / s
+    kb = psb / s
+    st[_F_SB_PSS] = pss - ks * ks * s
+    st[_F_SB_PSB] = psb - ks * kb * s
+    st[_F_SB_PBB] = pbb - kb * kb * s
+    return (ks, kb) if _covariance_checked(st, _FILTER_SPEED, _STEP_UPDATE) else None
+
+
+def _speed_update(st):
+    # a vehicle's speed/bias filter at a fix (codegen.kernel.fused's _speed_update): started on its first fix,
+    # predicted over the sk_t s since the speed was known, updated with the fix's speed. The gain, or None.
+    if not st[_F_SB_PBB] > 0.0:
+        _speed_prior(st)
+        if not _covariance_checked(st, _FILTER_SPEED, _STEP_START):
+            return None
+    t = st[_F_SK_T]
+    turn = st[_F_TURN]
+    q_bias = st[_FC_SPEED_BIAS_Q] if st[_F_CAL_MOVED] > 0.0 else st[_FC_KF_TILT_Q]
+    q_bias = q_bias * t + st[_FC_KF_TURN_Q] * turn * turn
+    if not _speed_predict(st, t, st[_FC_SPEED_Q] * t, q_bias):
+        return None
+    return _speed_correct(st, 0.5 * st[_FC_KF_VEL_R])
+
+
 def fused_gps(fstate, ve, vn):
     """One GPS fix's Doppler velocity, m/s East and North (0, 0 when the receiver gives no course)."""
     st = fstate
@@ -1805,6 +1926,28 @@ def fused_gps(fstate, ve, vn):
         mn = gy / t
         ae = st[_F_COS_T] * me + st[_F_SIN_T] * mn
         an = -st[_F_SIN_T] * me + st[_F_COS_T] * mn
+    if moving and flags & _WALKING:  # what people walk and run: a pedestrian's speed is bounded
+        bounded = speed if speed < st[_FC_PEDESTRIAN_MAX_MS] else st[_FC_PEDESTRIAN_MAX_MS]
+        st[_F_WALK_SPEED] += st[_FC_WALK_SPEED_GAIN] * (bounded - st[_F_WALK_SPEED])
+    # the speed (before the tilt/offset filter's predict restarts the turn, which the bias's noise reads)
+    e = speed - st[_F_SPEED]
+    if flags & (_AT_REST | _WALKING | _WALKED):
+        # a pedestrian's speed or a rest's: not integrated, so the interval says nothing of the bias
+        gain = st[_FC_SPEED_GAIN]
+        left = (1.0 - gain) * e
+        st[_F_SPEED] += gain * e
+        st[_F_SB_PSS] = left * left + 0.5 * st[_FC_KF_VEL_R]
+        st[_F_SB_PSB] = 0.0
+    else:
+        if not 0.0 < t < st[_FC_GPS_TIMEOUT_S]:  # after an outage or before any fix: from the fix
+            st[_F_SB_PSS] = _SPEED_UNKNOWN_VAR
+            st[_F_SB_PSB] = 0.0
+        gain = _speed_update(st)
+        if gain is not None:
+            st[_F_SPEED] += gain[0] * e
+            st[_F_BIAS] += gain[1] * e
+    st[_F_KEEP_V] = speed
+    st[_F_SK_T] = 0.0
     if st[_FC_KF_BIAS_VAR] > 0.0:
         _fused_filter(st, ve, vn, moving, t)
     de = ae - st[_F_ACC_E]
@@ -1826,13 +1969,6 @@ def fused_gps(fstate, ve, vn):
         if norm > 0.0:
             st[_F_UX] = ux / norm
             st[_F_UY] = uy / norm
-        if flags & _WALKING:  # what people walk and run: a pedestrian's speed is bounded
-            bounded = speed if speed < st[_FC_PEDESTRIAN_MAX_MS] else st[_FC_PEDESTRIAN_MAX_MS]
-            st[_F_WALK_SPEED] += st[_FC_WALK_SPEED_GAIN] * (bounded - st[_F_WALK_SPEED])
-    e = speed - st[_F_SPEED]
-    st[_F_SPEED] += st[_FC_SPEED_GAIN] * e
-    if t > 0.0 and not flags & (_AT_REST | _WALKING):
-        st[_F_BIAS] -= st[_FC_BIAS_GAIN] * e / t
     st[_F_GPS_VE] = ve
     st[_F_GPS_VN] = vn
     st[_F_GPS_SPEED] = speed

@@ -45,7 +45,6 @@
 #define DR_FUSED_HEADING_GAIN (0.3f) /* per fix */
 #define DR_FUSED_ALIGN_FORGET (0.98f) /* per fix */
 #define DR_FUSED_SPEED_GAIN (0.5f) /* per fix */
-#define DR_FUSED_BIAS_GAIN (0.1f) /* per fix */
 #define DR_FUSED_WALK_SPEED_GAIN (0.2f) /* per fix */
 #define DR_FUSED_KF_BIAS_INIT_G (0.05f) /* g */
 #define DR_FUSED_KF_BIAS_NOISE (0.001f) /* m/s^2/sqrt(s) */
@@ -82,5 +81,9 @@
 #define DR_FUSED_STILL_ACCEL_G (0.04f) /* g */
 #define DR_FUSED_IDLE_ACCEL_G (0.03f) /* g */
 #define DR_FUSED_STAND_TAU_S (1.0f) /* s */
+#define DR_FUSED_SPEED_NOISE (0.1f) /* m/s/sqrt(s) */
+#define DR_FUSED_SPEED_BIAS_NOISE (0.05f) /* m/s^2/sqrt(s) */
+#define DR_FUSED_KEEP_SPEED_NOISE (1.0f) /* m/s/sqrt(s) */
+#define DR_FUSED_MAX_ACCEL_MS2 (4.0f) /* m/s^2 */
 
 #endif /* DR_BOARD_H */

@@ -32,6 +32,7 @@
 #define DR_FUSED_FILTER_TILT (0)
 #define DR_FUSED_FILTER_LATERAL (1)
 #define DR_FUSED_FILTER_POSITION (2)
+#define DR_FUSED_FILTER_SPEED (3)
 #define DR_FUSED_STEP_START (0)
 #define DR_FUSED_STEP_PREDICT (1)
 #define DR_FUSED_STEP_UPDATE (2)
@@ -150,7 +151,6 @@ typedef struct {
     float heading_gain; /* per fix, from heading_gain (per fix) */
     float align_forget; /* per fix, from align_forget (per fix) */
     float speed_gain; /* per fix, from speed_gain (per fix) */
-    float bias_gain; /* per fix, from bias_gain (per fix) */
     float walk_speed_gain; /* per fix, from walk_speed_gain (per fix) */
     float kf_bias_var; /* (m/s^2)^2, from kf_bias_init_g (g) */
     float kf_bias_q; /* (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s)) */
@@ -187,6 +187,10 @@ typedef struct {
     float still_var; /* (m/s^2)^2, from still_accel_g (g) */
     float idle_var; /* (m/s^2)^2, from idle_accel_g (g) */
     float inv_stand_tau; /* 1/s, from stand_tau_s (s) */
+    float speed_q; /* (m/s)^2/s, from speed_noise (m/s/sqrt(s)) */
+    float speed_bias_q; /* (m/s^2)^2/s, from speed_bias_noise (m/s^2/sqrt(s)) */
+    float keep_q; /* (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s)) */
+    float max_accel_ms2; /* m/s^2, from max_accel_ms2 (m/s^2) */
 } dr_fused_config;
 
 /* The state, by concern. */
@@ -283,11 +287,21 @@ typedef struct {
     /* how often a filter's covariance went wrong (a negative variance, a value not finite, an update's innovation
      * variance not positive) and was reset to its prior instead of used (a whole number) */
     float cov_repairs;
+    /* ---- a vehicle's speed and along-track bias filter, and the speed it keeps ---- */
+    /* the speed/bias filter's covariance at the last fix (or rest), upper triangle: speed (m/s), along-track bias
+     * (m/s^2); the bias's 0 until its first fix, the speed's large after a calibration that moved */
+    float sb_p[3];
+    float sk_t; /* s: time since the speed was last known (a fix, a rest, calibration) */
+    /* m/s: the speed a vehicle is taken to keep (the last fix's); < 0 before a fix and after a rest: none */
+    float keep_v;
+    /* 1 from a calibration that moved until the next rest (the gyro bias took the motion's mean rate for a bias: the
+     * tilt drifts), else 0 */
+    float cal_moved;
 } dr_fused_state;
 
-#define DR_FUSED_STATE_FLOATS (143) /* floats in dr_fused_state */
-#define DR_FUSED_CONFIG_FLOATS (53) /* floats in dr_fused_config */
-#define DR_FUSED_PARAMS (53) /* parameters dr_fused_config_set takes */
+#define DR_FUSED_STATE_FLOATS (149) /* floats in dr_fused_state */
+#define DR_FUSED_CONFIG_FLOATS (56) /* floats in dr_fused_config */
+#define DR_FUSED_PARAMS (56) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
 #define DR_FUSED_STATE_Q (0)
 #define DR_FUSED_STATE_GYRO_BIAS_LSB (4)
@@ -361,6 +375,10 @@ typedef struct {
 #define DR_FUSED_STATE_NH_I (130)
 #define DR_FUSED_STATE_NH_P (132)
 #define DR_FUSED_STATE_COV_REPAIRS (142)
+#define DR_FUSED_STATE_SB_P (143)
+#define DR_FUSED_STATE_SK_T (146)
+#define DR_FUSED_STATE_KEEP_V (147)
+#define DR_FUSED_STATE_CAL_MOVED (148)
 /* each named element's index into its array field (st->p[DR_FUSED_P22], not st->p[7]) */
 #define DR_FUSED_QW (0) /* q[0] */
 #define DR_FUSED_QX (1) /* q[1] */
@@ -417,10 +435,13 @@ typedef struct {
 #define DR_FUSED_NH_PXX (7) /* nh_p[7] */
 #define DR_FUSED_NH_PXY (8) /* nh_p[8] */
 #define DR_FUSED_NH_PYY (9) /* nh_p[9] */
-typedef char dr_fused_state_is_143_floats[
-    sizeof(dr_fused_state) == 143 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_53_floats[
-    sizeof(dr_fused_config) == 53 * sizeof(float) ? 1 : -1];
+#define DR_FUSED_SB_PSS (0) /* sb_p[0] */
+#define DR_FUSED_SB_PSB (1) /* sb_p[1] */
+#define DR_FUSED_SB_PBB (2) /* sb_p[2] */
+typedef char dr_fused_state_is_149_floats[
+    sizeof(dr_fused_state) == 149 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_56_floats[
+    sizeof(dr_fused_config) == 56 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
     ? 1 : -1];
@@ -449,86 +470,95 @@ typedef char dr_fused_cov_repairs_at_142[
 #define DR_FUSED_P_HEADING_GAIN (13) /* per fix: pull of the travel direction towards the GPS course */
 #define DR_FUSED_P_ALIGN_FORGET (14) /* per fix: forgetting factor of the heading alignment */
 #define DR_FUSED_P_SPEED_GAIN (15) /* per fix: pull of the speed towards the GPS speed */
-/* per fix: along-track accel bias correction gain (m/s^2 per m/s of speed error per s) */
-#define DR_FUSED_P_BIAS_GAIN (16)
-#define DR_FUSED_P_WALK_SPEED_GAIN (17) /* per fix: pull of the walking speed towards the GPS speed */
+#define DR_FUSED_P_WALK_SPEED_GAIN (16) /* per fix: pull of the walking speed towards the GPS speed */
 /* g: initial sigma of the horizontal accelerometer offsets (0: no tilt/offset filter) */
-#define DR_FUSED_P_KF_BIAS_INIT_G (18)
-#define DR_FUSED_P_KF_BIAS_NOISE (19) /* m/s^2/sqrt(s): random walk of those offsets */
-#define DR_FUSED_P_KF_TILT_NOISE (20) /* m/s^2/sqrt(s): random walk of the gravity leak (tilt error times g) */
+#define DR_FUSED_P_KF_BIAS_INIT_G (17)
+#define DR_FUSED_P_KF_BIAS_NOISE (18) /* m/s^2/sqrt(s): random walk of those offsets */
+#define DR_FUSED_P_KF_TILT_NOISE (19) /* m/s^2/sqrt(s): random walk of the gravity leak (tilt error times g) */
 /* m/s^2 per rad: gravity leak a turn may add (gyro scale and cross-axis errors) */
-#define DR_FUSED_P_KF_TURN_NOISE (21)
-#define DR_FUSED_P_KF_VEL_SIGMA_MS (22) /* m/s: GPS Doppler velocity error per axis, with unmodelled motion */
-#define DR_FUSED_P_KF_ALIGN_MIN (23) /* (m/s)^2: heading alignment sums needed before the filter updates */
+#define DR_FUSED_P_KF_TURN_NOISE (20)
+#define DR_FUSED_P_KF_VEL_SIGMA_MS (21) /* m/s: GPS Doppler velocity error per axis, with unmodelled motion */
+#define DR_FUSED_P_KF_ALIGN_MIN (22) /* (m/s)^2: heading alignment sums needed before the filter updates */
 /* a vehicle's along-track acceleration is the median of the last b (block) samples: the seed's block median, sliding
  * (b <= 32) */
-#define DR_FUSED_P_MEDIAN (24)
+#define DR_FUSED_P_MEDIAN (23)
 /* m: the receiver's position error per axis, for smoothing the fix an outage starts from (0: raw fixes) */
-#define DR_FUSED_P_POS_SIGMA_M (25)
-#define DR_FUSED_P_POS_TAU_S (26) /* s: correlation time of that error */
+#define DR_FUSED_P_POS_SIGMA_M (24)
+#define DR_FUSED_P_POS_TAU_S (25) /* s: correlation time of that error */
 /* m/s: error of the step between fixes (Doppler trapezoid + IMU), per second */
-#define DR_FUSED_P_POS_STEP_SIGMA_MS (27)
+#define DR_FUSED_P_POS_STEP_SIGMA_MS (26)
 /* s: a walker's slow rotations about Up (the hand swinging about the course) reach the travel direction over this;
  * turns at once (0: everything at once) */
-#define DR_FUSED_P_TURN_HOLD_TAU_S (28)
+#define DR_FUSED_P_TURN_HOLD_TAU_S (27)
 /* degree/s: a walker's turn starts when the smoothed rate about Up exceeds this */
-#define DR_FUSED_P_TURN_START_DPS (29)
-#define DR_FUSED_P_TURN_END_DPS (30) /* degree/s: and ends when it falls below this (at most fused_turn_start_dps) */
+#define DR_FUSED_P_TURN_START_DPS (28)
+#define DR_FUSED_P_TURN_END_DPS (29) /* degree/s: and ends when it falls below this (at most fused_turn_start_dps) */
 /* what carries the device: a pedestrian (any shaking is steps), a vehicle (never steps) or auto (steps only while
  * the shaking stays below vibration_hz) */
-#define DR_FUSED_P_PLATFORM (31)
+#define DR_FUSED_P_PLATFORM (30)
 /* Hz: the gait band's upper edge: |f| varying faster is a vehicle's road or engine */
-#define DR_FUSED_P_VIBRATION_HZ (32)
+#define DR_FUSED_P_VIBRATION_HZ (31)
 /* auto: shaking with more than this share of its variance above vibration_hz is a vehicle's, not steps */
-#define DR_FUSED_P_VIBRATION_RATIO (33)
-#define DR_FUSED_P_VIBRATION_TAU_S (34) /* s: time constant of the two variances that share is of */
+#define DR_FUSED_P_VIBRATION_RATIO (32)
+#define DR_FUSED_P_VIBRATION_TAU_S (33) /* s: time constant of the two variances that share is of */
 /* s: steps this long start a walk (a vehicle's odd second of calm shaking does not) */
-#define DR_FUSED_P_WALK_TIME_S (35)
+#define DR_FUSED_P_WALK_TIME_S (34)
 /* m/s: a quiet vehicle comes to rest with any steady horizontal specific force (its tilt error in an outage) while
  * its speed is below this, or after it shook */
-#define DR_FUSED_P_REST_SPEED_MS (36)
+#define DR_FUSED_P_REST_SPEED_MS (35)
 /* s: at rest, every this long (after the first), the gyro bias and the tilt/offset filter take the smoothed rate and
  * horizontal specific force as their errors */
-#define DR_FUSED_P_REST_UPDATE_S (37)
+#define DR_FUSED_P_REST_UPDATE_S (36)
 /* m/s^2: error of that smoothed horizontal specific force (0: no filter update at rest) */
-#define DR_FUSED_P_KF_REST_SIGMA_MS2 (38)
+#define DR_FUSED_P_KF_REST_SIGMA_MS2 (37)
 /* 1/rad: a vehicle's zero-velocity update takes its speed error as grown at a rate 1 + this x the turn since its
  * speed was last known (turns make the tilt errors) */
-#define DR_FUSED_P_ZUPT_TURN_WEIGHT (39)
+#define DR_FUSED_P_ZUPT_TURN_WEIGHT (38)
 /* s: a vehicle's along-track acceleration passes the deadband while its average over this does (the road's shaking
  * averages out; 0: each sample on its own) */
-#define DR_FUSED_P_ACCEL_TAU_S (40)
+#define DR_FUSED_P_ACCEL_TAU_S (39)
 /* m/s^2: a vehicle in an outage: error of the lateral residual a_lat - speed x rate about Up averaged over 1 s,
  * which sees the speed error in turns (0: no lateral update) */
-#define DR_FUSED_P_NHC_SIGMA_MS2 (41)
-#define DR_FUSED_P_NHC_PERIOD_S (42) /* s: the lateral residual is averaged over this between updates */
-#define DR_FUSED_P_NHC_SPEED_NOISE (43) /* m/s/sqrt(s): random walk of a vehicle's speed error in an outage */
+#define DR_FUSED_P_NHC_SIGMA_MS2 (40)
+#define DR_FUSED_P_NHC_PERIOD_S (41) /* s: the lateral residual is averaged over this between updates */
+#define DR_FUSED_P_NHC_SPEED_NOISE (42) /* m/s/sqrt(s): random walk of a vehicle's speed error in an outage */
 /* m/s^2: the lateral leak's sigma when the outage starts (or after a rest) */
-#define DR_FUSED_P_NHC_LEAK_SIGMA_MS2 (44)
+#define DR_FUSED_P_NHC_LEAK_SIGMA_MS2 (43)
 /* rad/s: the speed error is seen only while the rate about Up averaged over nhc_period_s exceeds this (a turn, not a
  * wobble) */
-#define DR_FUSED_P_NHC_MIN_RATE (45)
+#define DR_FUSED_P_NHC_MIN_RATE (44)
 /* the share of the position error a lateral update's speed correction implies (as the zero-velocity update takes it)
  * that is taken back */
-#define DR_FUSED_P_NHC_POSITION (46)
-#define DR_FUSED_P_NHC_LEAK_TURN (47) /* m/s^2 per rad: lateral leak a turn may add (offsets folded into the tilt) */
+#define DR_FUSED_P_NHC_POSITION (45)
+#define DR_FUSED_P_NHC_LEAK_TURN (46) /* m/s^2 per rad: lateral leak a turn may add (offsets folded into the tilt) */
 /* a vehicle in an outage: the accelerometer offsets the tilt/offset filter has not told apart from the tilt (its
  * covariance, times this) are estimated too; a turn turns them against the tilt, which shows them along and across
  * the track (0: not estimated) */
-#define DR_FUSED_P_NHC_FOLD_SCALE (48)
+#define DR_FUSED_P_NHC_FOLD_SCALE (47)
 /* m/s: auto: a fix faster than this (people walk at up to ~3 m/s and run at up to ~6) makes the device a vehicle,
  * which no steps turn into a pedestrian until it has rested; nor do steps while a vehicle's own speed is above it */
-#define DR_FUSED_P_PEDESTRIAN_MAX_MS (49)
+#define DR_FUSED_P_PEDESTRIAN_MAX_MS (48)
 /* g: |f| standard deviation up to which a pedestrian may still be at rest if the rest is more than quiet: a hand
  * (steady horizontal force, averaged rate below fused_rest_gyro_dps) */
-#define DR_FUSED_P_STILL_ACCEL_G (50)
+#define DR_FUSED_P_STILL_ACCEL_G (49)
 /* g: and a vehicle, if its shaking is above fused_vibration_hz (an idling engine) and its speed below
  * fused_rest_speed_ms (a real highway drive shook less than 30 mg with its averaged rate below fused_rest_gyro_dps
  * in 6.6 % of its samples, 40 mg in 40 %) */
-#define DR_FUSED_P_IDLE_ACCEL_G (51)
+#define DR_FUSED_P_IDLE_ACCEL_G (50)
 /* s: a pedestrian whose steps stopped without a rest: the speed decays to 0 with this time constant, never
  * integrated (0: held) */
-#define DR_FUSED_P_STAND_TAU_S (52)
+#define DR_FUSED_P_STAND_TAU_S (51)
+/* m/s/sqrt(s): a vehicle's integrated speed: random walk of its error beyond the along-track bias's (what the
+ * deadband keeps out) */
+#define DR_FUSED_P_SPEED_NOISE (52)
+/* m/s^2/sqrt(s): random walk of the along-track bias after a calibration that moved and before a rest (the gyro bias
+ * is off by the motion's mean rate during calibration, so the tilt drifts; otherwise fused_kf_tilt_noise) */
+#define DR_FUSED_P_SPEED_BIAS_NOISE (53)
+/* m/s/sqrt(s): a vehicle keeps its speed: random walk of its true speed away from the last fix's, the prior its
+ * integrated speed is weighed against by their variances (0: no prior) */
+#define DR_FUSED_P_KEEP_SPEED_NOISE (54)
+/* m/s^2: a vehicle's speed stays within [0, the speed last known + this x the time since] */
+#define DR_FUSED_P_MAX_ACCEL_MS2 (55)
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
@@ -581,10 +611,6 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     }
     /* speed_gain must be >= 0 and <= 1 */
     if (!(p[DR_FUSED_P_SPEED_GAIN] >= 0.0f) || !(p[DR_FUSED_P_SPEED_GAIN] <= 1.0f)) {
-        return DR_ERR_RANGE;
-    }
-    /* bias_gain must be >= 0 and <= 1 */
-    if (!(p[DR_FUSED_P_BIAS_GAIN] >= 0.0f) || !(p[DR_FUSED_P_BIAS_GAIN] <= 1.0f)) {
         return DR_ERR_RANGE;
     }
     /* walk_speed_gain must be >= 0 and <= 1 */
@@ -697,6 +723,18 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     if (!(p[DR_FUSED_P_STAND_TAU_S] >= 0.0f)) { /* stand_tau_s must be >= 0 */
         return DR_ERR_RANGE;
     }
+    if (!(p[DR_FUSED_P_SPEED_NOISE] >= 0.0f)) { /* speed_noise must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_SPEED_BIAS_NOISE] >= 0.0f)) { /* speed_bias_noise must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_KEEP_SPEED_NOISE] >= 0.0f)) { /* keep_speed_noise must be >= 0 */
+        return DR_ERR_RANGE;
+    }
+    if (!(p[DR_FUSED_P_MAX_ACCEL_MS2] > 0.0f)) { /* max_accel_ms2 must be > 0 */
+        return DR_ERR_RANGE;
+    }
     return DR_OK;
 }
 
@@ -718,7 +756,6 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->heading_gain = p[DR_FUSED_P_HEADING_GAIN];
     cfg->align_forget = p[DR_FUSED_P_ALIGN_FORGET];
     cfg->speed_gain = p[DR_FUSED_P_SPEED_GAIN];
-    cfg->bias_gain = p[DR_FUSED_P_BIAS_GAIN];
     cfg->walk_speed_gain = p[DR_FUSED_P_WALK_SPEED_GAIN];
     cfg->kf_bias_var = p[DR_FUSED_P_KF_BIAS_INIT_G] * p[DR_FUSED_P_KF_BIAS_INIT_G] * (DR_GRAVITY_MS2 * DR_GRAVITY_MS2);
     cfg->kf_bias_q = p[DR_FUSED_P_KF_BIAS_NOISE] * p[DR_FUSED_P_KF_BIAS_NOISE];
@@ -755,6 +792,10 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->still_var = p[DR_FUSED_P_STILL_ACCEL_G] * p[DR_FUSED_P_STILL_ACCEL_G] * (DR_GRAVITY_MS2 * DR_GRAVITY_MS2);
     cfg->idle_var = p[DR_FUSED_P_IDLE_ACCEL_G] * p[DR_FUSED_P_IDLE_ACCEL_G] * (DR_GRAVITY_MS2 * DR_GRAVITY_MS2);
     cfg->inv_stand_tau = p[DR_FUSED_P_STAND_TAU_S] > 0.0f ? dr_recip(p[DR_FUSED_P_STAND_TAU_S]) : 0.0f;
+    cfg->speed_q = p[DR_FUSED_P_SPEED_NOISE] * p[DR_FUSED_P_SPEED_NOISE];
+    cfg->speed_bias_q = p[DR_FUSED_P_SPEED_BIAS_NOISE] * p[DR_FUSED_P_SPEED_BIAS_NOISE];
+    cfg->keep_q = p[DR_FUSED_P_KEEP_SPEED_NOISE] * p[DR_FUSED_P_KEEP_SPEED_NOISE];
+    cfg->max_accel_ms2 = p[DR_FUSED_P_MAX_ACCEL_MS2];
 }
 
 /* p <- the board's parameters (dr_board.h), in the order of DR_FUSED_P_*. */
@@ -775,7 +816,6 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_HEADING_GAIN] = DR_FUSED_HEADING_GAIN;
     p[DR_FUSED_P_ALIGN_FORGET] = DR_FUSED_ALIGN_FORGET;
     p[DR_FUSED_P_SPEED_GAIN] = DR_FUSED_SPEED_GAIN;
-    p[DR_FUSED_P_BIAS_GAIN] = DR_FUSED_BIAS_GAIN;
     p[DR_FUSED_P_WALK_SPEED_GAIN] = DR_FUSED_WALK_SPEED_GAIN;
     p[DR_FUSED_P_KF_BIAS_INIT_G] = DR_FUSED_KF_BIAS_INIT_G;
     p[DR_FUSED_P_KF_BIAS_NOISE] = DR_FUSED_KF_BIAS_NOISE;
@@ -812,6 +852,10 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_STILL_ACCEL_G] = DR_FUSED_STILL_ACCEL_G;
     p[DR_FUSED_P_IDLE_ACCEL_G] = DR_FUSED_IDLE_ACCEL_G;
     p[DR_FUSED_P_STAND_TAU_S] = DR_FUSED_STAND_TAU_S;
+    p[DR_FUSED_P_SPEED_NOISE] = DR_FUSED_SPEED_NOISE;
+    p[DR_FUSED_P_SPEED_BIAS_NOISE] = DR_FUSED_SPEED_BIAS_NOISE;
+    p[DR_FUSED_P_KEEP_SPEED_NOISE] = DR_FUSED_KEEP_SPEED_NOISE;
+    p[DR_FUSED_P_MAX_ACCEL_MS2] = DR_FUSED_MAX_ACCEL_MS2;
 }
 
 /* st <- every field 0, then the declared starting values. */
@@ -824,13 +868,14 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
     st->q[0] = 1.0f;
     st->ux = 1.0f;
     st->cos_t = 1.0f;
+    st->keep_v = -1.0f;
 }
 
 /* The buffers dr_native hands the app, in floats: the seed's dr_state | dr_config | scratch (3 * block), the fused
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
-#define DR_FUSED_CONFIG_AT (143)
-#define DR_FUSED_KERNEL_CONFIG_AT (196)
-#define DR_FUSED_BUFFER_FLOATS (208)
+#define DR_FUSED_CONFIG_AT (149)
+#define DR_FUSED_KERNEL_CONFIG_AT (205)
+#define DR_FUSED_BUFFER_FLOATS (217)
 
 #endif /* DR_LAYOUT_H */
