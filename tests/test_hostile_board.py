@@ -98,9 +98,9 @@ CASES = [
      "b.yaml", ["micropython.filesystem.size: the app", "does not fit in the 64 KiB filesystem"]),
     ("filesystem-without-room-for-logs", {
         "t.csv": "nvs, data, nvs, 0x9000, 0x6000\nphy_init, data, phy, 0xf000, 0x1000\n"
-                 "factory, app, factory, 0x10000, 0x3C0000\nvfs, data, fat, 0x3D0000, 0x30000\n",
+                 "factory, app, factory, 0x10000, 0x3B0000\nvfs, data, fat, 0x3C0000, 0x40000\n",
         "b.yaml": BASE + "micropython:\n  partitions: {table: t.csv}\n"
-                         "  filesystem: {offset: 0x3D0000, size: 0x30000}\n"},
+                         "  filesystem: {offset: 0x3C0000, size: 0x40000}\n"},
      "b.yaml", ["its log needs 260 KiB"]),
     ("extends-cycle", {"a.yaml": "extends: ./b.yaml\nname: a\n", "b.yaml": "extends: ./a.yaml\nname: b\n"},
      "a.yaml", ["`extends:` forms a cycle"]),
