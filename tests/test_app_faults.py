@@ -1,4 +1,4 @@
-"""Faults on the emulated board (issue 16): the device keeps or regains GPS mode, says what failed, and its log
+"""Faults on the emulated board: the device keeps or regains GPS mode, says what failed, and its log
 loses at most the open block.
 
 Each run is the default board (fused, T-Beam v1.1) walking with fixes, on the board's clock and heap, with one

@@ -1,4 +1,4 @@
-"""The app's dead reckoning through GPS outages equals its method's reference (issue 16).
+"""The app's dead reckoning through GPS outages equals its method's reference.
 
 The generated app runs unmodified on the emulated board (codegen/sim/mpsim) through simulated walks and drives with
 three GPS outages each: walk and car, algorithm seed and fused, the generated fallback and the x64 natmod, 24 outages.

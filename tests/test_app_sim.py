@@ -1,4 +1,4 @@
-"""The app against the simulator's sensor models (codegen/sim, issue 6): a simulated car drive's MPU-6050 counts in
+"""The app against the simulator's sensor models (codegen/sim): a simulated car drive's MPU-6050 counts in
 the emulated chip, the NEO-6M model's NMEA in the UART, a GPS outage; the app follows the fixes, then dead-reckons.
 """
 
@@ -87,7 +87,7 @@ def test_simulated_drive_with_outage(tmp_path, mode):
     assert len(imu_windows) >= 3
     for line in run.console("DIAG")[1:]:
         assert "dropped=0" in line, line
-    # how far the dead-reckoned position is from the truth at the end (printed: accuracy is issue 6's table)
+    # how far the dead-reckoned position is from the truth at the end (printed: accuracy is docs/accuracy.md's table)
     last = [line for line in run.stdout.splitlines() if line.startswith("WIN")][-1]
     fields = dict(item.split("=") for item in last.split()[2:])
     import numpy as np

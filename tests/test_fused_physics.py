@@ -174,7 +174,7 @@ def test_rest_pulls_the_gyro_bias_with_its_time_constant(impl, tmp_path):
 def _engine(n, seed=0):
     """n samples of a device at rest, level, in a vehicle whose engine idles: the firing order's shake at 27 Hz
     (sampled at 200 Hz), 0.9 degree/s rms on the gyro about a random axis and 0.1 m/s^2 rms on the accelerometer,
-    as codegen.sim.vibration models the real drive of issue 19."""
+    as codegen.sim.vibration models a real roof-mounted car drive."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) * 0.005
     wave = np.sin(2 * np.pi * 27.0 * t + rng.uniform(0, 2 * np.pi))

@@ -1,4 +1,4 @@
-"""The NMEA parser's epochs on receivers it has not seen (issue 16), each defect from sentences written here.
+"""The NMEA parser's epochs on receivers it has not seen, each defect from sentences written here.
 
 - a climb rate only from consecutive fixes: after a gap (silent, or epochs without a fix) the first fix has none;
 - the receiver's GSA fix type is its word: 2D stays 2D when GGA carried an altitude;

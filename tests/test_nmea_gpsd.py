@@ -67,7 +67,7 @@ def test_parser_agrees_with_gpsd(capture, app_dir, tmp_path):
         where = f"{capture} TPV #{i}: gpsd {theirs} ours {ours}"
         if theirs["mode"] == 3 and ours["mode"] == 2 and ours["gsa"] == 2:
             # the receiver's GSA said 2D: gpsd still calls it 3D because GGA carried an altitude (a held one);
-            # the parser keeps the receiver's word (issue 16), so a 2D fix's altitude never makes a climb rate
+            # the parser keeps the receiver's word, so a 2D fix's altitude never makes a climb rate
             compared["gsa_2d"] = compared.get("gsa_2d", 0) + 1
         else:
             assert theirs["mode"] == ours["mode"], where

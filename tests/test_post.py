@@ -1,5 +1,6 @@
-"""Issue 7 acceptance on synthetic runs: known mounting and motion, 0.1 m/s Doppler noise, 50 mg accelerometer bias,
-an injected delay. The run goes through the CSV pair and the CLI, as a user's would; the bounds are the issue's."""
+"""The post-processor's acceptance on synthetic runs: known mounting and motion, 0.1 m/s Doppler noise, 50 mg
+accelerometer bias, an injected delay. The run goes through the CSV pair and the CLI, as a user's would; the bounds
+are written in each test below."""
 
 from __future__ import annotations
 

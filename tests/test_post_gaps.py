@@ -1,4 +1,4 @@
-"""Issue 20: GPS gaps of 1, 5 and 60 s cut out of a synthetic run (truth known) and out of the shared walk (the RTK-fixed
+"""GPS gaps of 1, 5 and 60 s cut out of a synthetic run (truth known) and out of the shared walk (the RTK-fixed
 epochs that were cut are the truth): the path carries across (D1), its 1-sigma covers the error at the nominal rate
 (D2), rows never repeat a time (D3), the report lists the gaps (D4), a delay search that hits its edge says so (D5).
 

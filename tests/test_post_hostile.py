@@ -1,4 +1,4 @@
-"""Issue 15, item 5: `deadreckon post` against hostile and degenerate input, as a user runs it.
+"""`deadreckon post` against hostile and degenerate input, as a user runs it.
 
 Every case runs the real CLI (`python -m codegen post ...`) in a subprocess and must end within a time bound with a
 clear message on stderr, exit status 2 and no traceback, and must leave everything outside the output folder as it

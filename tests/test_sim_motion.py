@@ -3,9 +3,9 @@
 The town car's shaking (codegen.sim.trajectory.car_town through the MPU-6050 model at the board's rate) is compared
 with car-comma2k19's, computed here from the recording by the same codegen.sim.features: at 8-20 m/s (all the
 recording has) the share of |f|'s variance above 8 Hz and the shaking must be the real car's; slow driving must
-shake with a smaller share (issue 26's real car: 0.02-0.04 by the fused method's own statistic on its 100 Hz
-stream, where car-comma2k19 reads 0.05-0.10 at speed) and idling stands at 10-20 mg. The walker who stands is
-compared with gnss-imu-walk's hand-held walking and issue 26's hand-held stands (11-27 mg).
+shake with a smaller share (a real roof-mounted car at 100 Hz in a car park: 0.02-0.04 by the fused method's own
+statistic on its 100 Hz stream, where car-comma2k19 reads 0.05-0.10 at speed) and idling stands at 10-20 mg. The walker who stands is
+compared with gnss-imu-walk's hand-held walking and real hand-held stands at surveyed waypoints (11-27 mg).
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ def test_town_car_creeps_with_a_small_high_frequency_share(real_car, town):
     share_slow = np.median(np.concatenate([w.high_share for w in slow]))
     share_fast = np.median(np.concatenate([w.speeds(8.0, 20.0).high_share for *_, w in town]))
     assert share_slow < 0.8 * share_fast, (share_slow, share_fast)
-    # by the fused method's own statistic on a 100 Hz stream (how issue 26 measured its car park: 0.02-0.04)
+    # by the fused method's own statistic on a 100 Hz stream (how the real car's car park measured: 0.02-0.04)
     real_stat = features.fused_statistic_share(car.t, car.accel)[car.t > 3.0]
     stats = []
     for tr, t, f, speed, _ in town:

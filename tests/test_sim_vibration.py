@@ -1,6 +1,6 @@
 """The shaking world (codegen.sim.vibration, the car, bike and carried-walk scenarios) against what real sensors saw.
 
-Issue 19 measured a real car (roof-mounted IMU at ~100 Hz): the standard deviation of |f| while driving is 0.048 g
+A real car drive measured (roof-mounted IMU at ~100 Hz): the standard deviation of |f| while driving is 0.048 g
 (median), and the running engine gives 0.7-1.0 degree/s rms on the gyro at stops. The simulated car, seen through
 the MPU-6050 model (DLPF, noise, the board's 200 Hz), must show the same figures; the other scenarios must keep the
 truth exact (the trajectory's own invariants) while they shake.
@@ -54,7 +54,7 @@ def test_vibrating_car_matches_the_real_drive(board):
     # the real drive: 0.048 g; roads differ from drive to drive (ISO 8608 class B..C drawn per seed)
     assert 0.035 <= np.median(std_f) <= 0.06, std_f
     assert np.all((std_f > 0.015) & (std_f < 0.1)), std_f
-    # the real drive: 0.7-1.0 degree/s at stops, above the 0.5 degree/s rest limit of issue 19
+    # the real drive: 0.7-1.0 degree/s at stops, above the 0.5 degree/s rest limit the seed kernel had
     assert np.all((rms_w[np.isfinite(rms_w)] > 0.7) & (rms_w[np.isfinite(rms_w)] < 1.0)), rms_w
     assert np.isfinite(rms_w).sum() >= 4  # the drives do stop at lights
 
