@@ -109,6 +109,34 @@ class EskfSession:
         return bool(self.ek.lib.dr_eskf_gps(self.cfg, self.st, float(t_s), float(enu[0]), float(enu[1]),
                                             float(enu[2]), float(vel_en[0]), float(vel_en[1])))
 
+    def set_from_reference(self, ref) -> None:
+        """This state <- a codegen.kernel.eskf.EskfState (rounded to float32)."""
+        st = self.st
+        for name, value in _vector_fields(ref).items():
+            for i, x in enumerate(value):
+                getattr(st, name)[i] = float(x)
+        for name in ("acc_t", "sat_dv", "since_nhc", "mean_f", "var_f", "rest_s", "rate2", "gps_speed", "t_fix",
+                     "al_dot", "al_cross", "al_norm", "cov_repairs"):
+            setattr(st, name, float(getattr(ref, name)))
+        st.aligned = 1.0 if ref.aligned else 0.0
+        st.gyro_moving = 1.0 if ref.gyro_moving else 0.0
+        st.al_have_prev = 0.0 if ref.al_prev is None else 1.0
+        for i in range(2):
+            st.al_du[i] = float(ref.al_du[i])
+            st.al_prev[i] = 0.0 if ref.al_prev is None else float(ref.al_prev[i])
+        for name, value in (("mount", ref.c), ("acc_a", ref.acc_a), ("acc_b", ref.acc_b), ("p", ref.p)):
+            target = getattr(st, name)
+            for i in range(value.shape[0]):
+                for j in range(value.shape[1]):
+                    target[i][j] = float(value[i, j])
+
+    def nominal(self) -> dict[str, np.ndarray]:
+        """pos, vel, q, bg, ba, sg, ge and mount as float64 arrays, for comparison with the reference."""
+        st = self.st
+        out = {name: np.array(list(getattr(st, name))) for name in ("pos", "vel", "q", "bg", "ba", "sg", "ge")}
+        out["mount"] = np.array([list(row) for row in st.mount])
+        return out
+
     def covariance(self) -> np.ndarray:
         return matrix(self.ek.ffi, self.st.p)
 
@@ -118,6 +146,21 @@ class EskfSession:
         other.st = self.ek.ffi.new("dr_eskf_state *", self.st[0])
         other.out = self.ek.ffi.new("float[6]")
         return other
+
+
+def _vector_fields(ref) -> dict[str, tuple]:
+    return {"pos": (ref.pe, ref.pn, ref.pu), "vel": (ref.ve, ref.vn, ref.vu), "q": (ref.qw, ref.qx, ref.qy, ref.qz),
+            "bg": (ref.bgx, ref.bgy, ref.bgz), "ba": (ref.bax, ref.bay, ref.baz), "sg": (ref.sgx, ref.sgy, ref.sgz),
+            "ge": (ref.gee, ref.gen, ref.geu), "ws": (ref.wsx, ref.wsy, ref.wsz), "ah": (ref.ahe, ref.ahn),
+            "acc_dv": tuple(ref.acc_dv)}
+
+
+def reference_nominal(ref) -> dict[str, np.ndarray]:
+    """EskfSession.nominal's fields of a codegen.kernel.eskf.EskfState."""
+    out = {name: np.array(v, dtype=np.float64) for name, v in _vector_fields(ref).items()
+           if name in ("pos", "vel", "q", "bg", "ba", "sg", "ge")}
+    out["mount"] = np.array(ref.c, dtype=np.float64)
+    return out
 
 
 def matrix(ffi, p) -> np.ndarray:
