@@ -194,10 +194,7 @@ int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_
         st->bg[i] = mean[3 + i] * kcfg->gyro_rads_per_lsb;
     }
     st->mean_f = norm * kcfg->accel_ms2_per_lsb;
-    st->gyro_moving = 0.0f;
-    if (moved) { /* LLVM's Xtensa backend cannot select a constant pair */
-        st->gyro_moving = 1.0f;
-    }
+    st->gyro_moving = (float)moved; /* not moved ? 1.0f : 0.0f: LLVM's Xtensa backend cannot select that pair */
     return moved;
 }
 
