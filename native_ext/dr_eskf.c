@@ -8,7 +8,8 @@
 #include "dr_math.h"
 
 #define N DR_ESKF_N
-#define COV_MAX (1.0e30f)         /* an entry beyond this (or not a number) is broken */
+#define COV_MAX (1.0e30f)         /* an innovation variance beyond this (or not a number) is broken */
+#define VAR_MAX (1.0e18f)         /* a variance beyond this is broken (the product of two stays a float32) */
 #define CORR_SLACK (1.0e-3f)      /* |P_ij|^2 may exceed P_ii P_jj by this share (float32 rounding) */
 #define POLAR_STEPS (4)           /* Newton steps onto the nearest rotation (0.5 rad off: 2e-10 left) */
 #define SINCE_SLACK_S (1.0e-6f)   /* s: float32 rounding of the pseudo-measurement clock */
@@ -17,6 +18,13 @@
 #define EXP_LIMIT (80.0f)         /* exp(-x) below this x; 0 beyond */
 #define SATURATED_COUNTS (32767.0f) /* the int16 range's end: a clipped sample */
 #define CAL_SUM_CHUNK (65536)     /* samples per exact int32 sum (|int16| * 65536 <= 2^31) */
+
+/* The per-sample loop keeps its registers when the rare steps are calls, not inlined into it. */
+#if defined(__GNUC__) || defined(__clang__)
+#define DR_ESKF_NOINLINE __attribute__((noinline))
+#else
+#define DR_ESKF_NOINLINE
+#endif
 
 #ifdef DR_ESKF_OBSERVED
 void dr_eskf_observed(const dr_eskf_state *st, int step);
@@ -340,21 +348,25 @@ static int align(const dr_eskf_config *cfg, dr_eskf_state *st, float t_s, float 
 
 /* ------------------------------------------------------------------------------------------------ covariance */
 
-static int bounded(float v) {
-    return v <= COV_MAX && v >= -COV_MAX;
-}
-
 int dr_eskf_covariance_usable(const float p[N][N]) {
+    float limit[N];
     int i, j;
+    /* variances in [0, VAR_MAX] (NaN fails); then |P_ij|^2 <= P_ii P_jj (1 + CORR_SLACK) for every pair, which also
+     * bounds every entry and fails for NaN and infinity. The lower triangle is not read: every step writes it as
+     * the upper's mirror (tests/test_eskf_c.py checks the whole matrix after every step). */
     for (i = 0; i < N; i++) {
-        if (!bounded(p[i][i]) || !(p[i][i] >= 0.0f)) {
+        const float v = p[i][i];
+        if (!(v >= 0.0f && v <= VAR_MAX)) {
             return 0;
         }
+        limit[i] = v * (1.0f + CORR_SLACK);
     }
     for (i = 0; i < N; i++) {
+        const float *row = p[i];
+        const float li = limit[i];
         for (j = i + 1; j < N; j++) {
-            const float v = p[i][j];
-            if (!bounded(v) || v != p[j][i] || v * v > p[i][i] * p[j][j] * (1.0f + CORR_SLACK)) {
+            const float v = row[j];
+            if (!(v * v <= li * p[j][j])) {
                 return 0;
             }
         }
@@ -373,56 +385,63 @@ static int checked(const dr_eskf_config *cfg, dr_eskf_state *st, int step) {
     return 0;
 }
 
-/* Phi's rows applied to column j of m (only dp, dv, dtheta change), Phi = I + the blocks of dr_eskf.h's comment:
- * x <- x + (T v - T/2 ([dV]x th + A ba)),  v <- v - ([dV]x th + A ba),  th <- th - (A bg + B sg). */
-static void phi_apply(float m[N][N], int j, int by_rows, const float a[3][3], const float b[3][3], const float dv[3],
-                      float t) {
-#define M(i) (by_rows ? m[(i)][j] : m[j][(i)])
-    float th[3], ba[3], bgv[3], sgv[3], vv[3], dvth[3], rot[3];
-    int i;
-    for (i = 0; i < 3; i++) {
-        th[i] = M(DR_ESKF_ERR_TH + i);
-        ba[i] = M(DR_ESKF_ERR_BA + i);
-        bgv[i] = M(DR_ESKF_ERR_BG + i);
-        sgv[i] = M(DR_ESKF_ERR_SG + i);
-        vv[i] = M(DR_ESKF_ERR_V + i);
+/* Phi applied to one line x of P (a column: x = &p[0][j], stride N; a row: x = &p[i][0], stride 1), in place; only
+ * the dp, dv and dtheta entries change (Phi = I + the blocks of codegen.kernel.eskf.transition):
+ * x_p += T x_v - T/2 ([dV]x x_th + A x_ba),  x_v -= [dV]x x_th + A x_ba,  x_th -= A x_bg + B x_sg.
+ * Two copies with the stride a constant (the ESP32 then addresses with immediate offsets). */
+#define DR_ESKF_PHI_LINE(name, STRIDE)                                                                               \
+    static void name(float *x, const float a[3][3], const float b[3][3], const float dv[3], float t) {              \
+        float th[3], ba[3], bgv[3], sgv[3], vv[3], dvth[3], rot[3];                                                  \
+        int i;                                                                                                       \
+        for (i = 0; i < 3; i++) {                                                                                    \
+            th[i] = x[(DR_ESKF_ERR_TH + i) * (STRIDE)];                                                              \
+            ba[i] = x[(DR_ESKF_ERR_BA + i) * (STRIDE)];                                                              \
+            bgv[i] = x[(DR_ESKF_ERR_BG + i) * (STRIDE)];                                                             \
+            sgv[i] = x[(DR_ESKF_ERR_SG + i) * (STRIDE)];                                                             \
+            vv[i] = x[(DR_ESKF_ERR_V + i) * (STRIDE)];                                                               \
+        }                                                                                                            \
+        dvth[0] = dv[1] * th[2] - dv[2] * th[1];                                                                     \
+        dvth[1] = dv[2] * th[0] - dv[0] * th[2];                                                                     \
+        dvth[2] = dv[0] * th[1] - dv[1] * th[0];                                                                     \
+        for (i = 0; i < 3; i++) {                                                                                    \
+            dvth[i] += a[i][0] * ba[0] + a[i][1] * ba[1] + a[i][2] * ba[2];                                          \
+            rot[i] = a[i][0] * bgv[0] + a[i][1] * bgv[1] + a[i][2] * bgv[2] + b[i][0] * sgv[0] + b[i][1] * sgv[1] +  \
+                     b[i][2] * sgv[2];                                                                               \
+        }                                                                                                            \
+        for (i = 0; i < 3; i++) {                                                                                    \
+            x[(DR_ESKF_ERR_P + i) * (STRIDE)] += t * vv[i] - 0.5f * t * dvth[i];                                     \
+            x[(DR_ESKF_ERR_V + i) * (STRIDE)] -= dvth[i];                                                            \
+            x[(DR_ESKF_ERR_TH + i) * (STRIDE)] -= rot[i];                                                            \
+        }                                                                                                            \
     }
-    dvth[0] = dv[1] * th[2] - dv[2] * th[1];
-    dvth[1] = dv[2] * th[0] - dv[0] * th[2];
-    dvth[2] = dv[0] * th[1] - dv[1] * th[0];
-    for (i = 0; i < 3; i++) {
-        dvth[i] += a[i][0] * ba[0] + a[i][1] * ba[1] + a[i][2] * ba[2];
-        rot[i] = a[i][0] * bgv[0] + a[i][1] * bgv[1] + a[i][2] * bgv[2] + b[i][0] * sgv[0] + b[i][1] * sgv[1] +
-                 b[i][2] * sgv[2];
-    }
-    for (i = 0; i < 3; i++) {
-        if (by_rows) {
-            m[DR_ESKF_ERR_P + i][j] += t * vv[i] - 0.5f * t * dvth[i];
-            m[DR_ESKF_ERR_V + i][j] -= dvth[i];
-            m[DR_ESKF_ERR_TH + i][j] -= rot[i];
-        } else {
-            m[j][DR_ESKF_ERR_P + i] += t * vv[i] - 0.5f * t * dvth[i];
-            m[j][DR_ESKF_ERR_V + i] -= dvth[i];
-            m[j][DR_ESKF_ERR_TH + i] -= rot[i];
-        }
-    }
-#undef M
-}
+DR_ESKF_PHI_LINE(phi_column, N)
+DR_ESKF_PHI_LINE(phi_row, 1)
+
+/* The rows Phi changes: dp, dv, dtheta. */
+#define CHANGED (DR_ESKF_ERR_TH + 3)
 
 void dr_eskf_propagate_covariance(const dr_eskf_config *cfg, dr_eskf_state *st) {
     const float t = st->acc_t;
     const float qa = cfg->accel_noise * cfg->accel_noise;
+    const float(*a)[3] = (const float(*)[3])st->acc_a;
+    const float(*b)[3] = (const float(*)[3])st->acc_b;
     int i, j;
-    for (j = 0; j < N; j++) { /* M = Phi P, column by column */
-        phi_apply(st->p, j, 1, (const float(*)[3])st->acc_a, (const float(*)[3])st->acc_b, st->acc_dv, t);
+    /* M = Phi P: every column's first CHANGED rows. Then M Phi^T, which is symmetric: its rows from CHANGED on
+     * are M's first CHANGED rows transposed (Phi^T leaves columns beyond CHANGED alone, so those entries of M are
+     * final) and its bottom-right block is P's; only the first CHANGED rows need Phi^T, then the mirror. */
+    for (j = 0; j < N; j++) {
+        phi_column(&st->p[0][j], a, b, st->acc_dv, t);
     }
-    for (i = 0; i < N; i++) { /* M Phi^T, row by row */
-        phi_apply(st->p, i, 0, (const float(*)[3])st->acc_a, (const float(*)[3])st->acc_b, st->acc_dv, t);
+    for (i = 0; i < CHANGED; i++) {
+        phi_row(&st->p[i][0], a, b, st->acc_dv, t);
     }
-    for (i = 0; i < N; i++) {
-        for (j = i + 1; j < N; j++) {
+    for (i = 0; i < CHANGED; i++) {
+        for (j = i + 1; j < CHANGED; j++) {
             const float v = 0.5f * (st->p[i][j] + st->p[j][i]);
             st->p[i][j] = st->p[j][i] = v;
+        }
+        for (j = CHANGED; j < N; j++) {
+            st->p[j][i] = st->p[i][j];
         }
     }
     for (i = 0; i < 3; i++) {
@@ -455,16 +474,35 @@ static void propagate(const dr_eskf_config *cfg, dr_eskf_state *st) {
 
 /* ------------------------------------------------------------------------------------------------ measurements */
 
-int dr_eskf_scalar_update(float p[N][N], float dx[N], const int32_t *h_index, const float *h_value, int32_t nnz,
-                          float y, float r) {
+/* P's upper triangle onto its lower. */
+static void mirror(float p[N][N]) {
+    int i, j;
+    for (i = 0; i < N; i++) {
+        for (j = i + 1; j < N; j++) {
+            p[j][i] = p[i][j];
+        }
+    }
+}
+
+/* One scalar update on P's upper triangle only (the caller mirrors it after a measurement's rows):
+ * u = P h^T, s = h u + r, P <- P - u u^T / s, dx <- dx + u (y - h dx) / s. Returns 0 (nothing changed) if s is not
+ * a positive number within COV_MAX. */
+static int scalar_update_upper(float p[N][N], float dx[N], const int32_t *h_index, const float *h_value, int32_t nnz,
+                               float y, float r) {
     float u[N], s = r, hdx = 0.0f, inv_s, gain;
     int32_t i, j, k;
     for (i = 0; i < N; i++) {
-        float sum = 0.0f;
-        for (k = 0; k < nnz; k++) {
-            sum += p[i][h_index[k]] * h_value[k];
+        u[i] = 0.0f;
+    }
+    for (k = 0; k < nnz; k++) { /* column c of the symmetric P from the upper triangle: p[i][c] above, p[c][i] below */
+        const int32_t c = h_index[k];
+        const float h = h_value[k];
+        for (i = 0; i <= c; i++) {
+            u[i] += p[i][c] * h;
         }
-        u[i] = sum;
+        for (i = c + 1; i < N; i++) {
+            u[i] += p[c][i] * h;
+        }
     }
     for (k = 0; k < nnz; k++) {
         s += h_value[k] * u[h_index[k]];
@@ -476,16 +514,24 @@ int dr_eskf_scalar_update(float p[N][N], float dx[N], const int32_t *h_index, co
     inv_s = dr_recip(s);
     for (i = 0; i < N; i++) {
         const float ui = u[i] * inv_s;
+        float *row = p[i];
         for (j = i; j < N; j++) {
-            const float v = p[i][j] - ui * u[j];
-            p[i][j] = v;
-            p[j][i] = v;
+            row[j] -= ui * u[j];
         }
     }
     gain = (y - hdx) * inv_s;
     for (i = 0; i < N; i++) {
         dx[i] += u[i] * gain;
     }
+    return 1;
+}
+
+int dr_eskf_scalar_update(float p[N][N], float dx[N], const int32_t *h_index, const float *h_value, int32_t nnz,
+                          float y, float r) {
+    if (!scalar_update_upper(p, dx, h_index, h_value, nnz, y, r)) {
+        return 0;
+    }
+    mirror(p);
     return 1;
 }
 
@@ -563,20 +609,22 @@ static int update(const dr_eskf_config *cfg, dr_eskf_state *st, const sparse_row
             int a, b;
             for (a = 0; a < h->nnz; a++) {
                 innovation -= h->value[a] * dx[h->index[a]];
-                for (b = 0; b < h->nnz; b++) {
-                    hph += h->value[a] * st->p[h->index[a]][h->index[b]] * h->value[b];
+                for (b = 0; b < h->nnz; b++) { /* the upper triangle: the lower is stale until the mirror */
+                    const int32_t ia = h->index[a], ib = h->index[b];
+                    hph += h->value[a] * (ia <= ib ? st->p[ia][ib] : st->p[ib][ia]) * h->value[b];
                 }
             }
             if (innovation * innovation > gate * gate * hph) {
                 continue;
             }
         }
-        if (!dr_eskf_scalar_update(st->p, dx, h->index, h->value, h->nnz, ys[k], rs[k])) {
+        if (!scalar_update_upper(st->p, dx, h->index, h->value, h->nnz, ys[k], rs[k])) {
             st->cov_repairs += 1.0f;
             dr_eskf_prior(cfg, st);
             return 0;
         }
     }
+    mirror(st->p);
     if (!checked(cfg, st, DR_ESKF_STEP_UPDATE)) {
         return 0;
     }
@@ -765,7 +813,7 @@ static void zero_velocity_update(const dr_eskf_config *cfg, dr_eskf_state *st) {
 }
 
 /* codegen.kernel.eskf.covariance_step. */
-static void covariance_step(const dr_eskf_config *cfg, dr_eskf_state *st) {
+static DR_ESKF_NOINLINE void covariance_step(const dr_eskf_config *cfg, dr_eskf_state *st) {
     float speed2;
     propagate(cfg, st);
     st->since_nhc += cfg->cov_dt_s;
@@ -783,8 +831,9 @@ static void covariance_step(const dr_eskf_config *cfg, dr_eskf_state *st) {
 
 /* ------------------------------------------------------------------------------------------------ per sample */
 
-int dr_eskf_process(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_state *st, const int16_t *samples,
-                    const int32_t *dt_us, int32_t count, float out[6]) {
+/* restrict: the state's fields may stay in registers across samples (nothing else reaches them meanwhile). */
+int dr_eskf_process(const dr_config *restrict kcfg, const dr_eskf_config *restrict cfg, dr_eskf_state *restrict st,
+                    const int16_t *restrict samples, const int32_t *restrict dt_us, int32_t count, float out[6]) {
     const float rest_var = (cfg->rest_accel_g * DR_GRAVITY_MS2) * (cfg->rest_accel_g * DR_GRAVITY_MS2);
     const float rest_w = cfg->rest_gyro_dps * DR_RAD_PER_DEG;
     const float horizontal2 = cfg->rest_horizontal_ms2 * cfg->rest_horizontal_ms2;
@@ -867,7 +916,9 @@ int dr_eskf_process(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_st
         nq[1] = st->q[1] + h[0] * st->q[0] + h[2] * st->q[2] - h[1] * st->q[3];
         nq[2] = st->q[2] + h[1] * st->q[0] - h[2] * st->q[1] + h[0] * st->q[3];
         nq[3] = st->q[3] + h[2] * st->q[0] + h[1] * st->q[1] - h[0] * st->q[2];
-        inv = dr_inv_sqrt(nq[0] * nq[0] + nq[1] * nq[1] + nq[2] * nq[2] + nq[3] * nq[3]);
+        /* |nq|^2 = 1 + e with e ~ |w dt|^2 / 4 (1e-4 at 5 rad/s): one Newton step of 1/sqrt from 1 leaves
+         * 3e^2/8 (float32 rounding), and each step corrects what the last left */
+        inv = 1.5f - 0.5f * (nq[0] * nq[0] + nq[1] * nq[1] + nq[2] * nq[2] + nq[3] * nq[3]);
         for (i = 0; i < 4; i++) {
             st->q[i] = nq[i] * inv;
         }
