@@ -391,28 +391,30 @@ static int checked(const dr_eskf_config *cfg, dr_eskf_state *st, int step) {
  * Two copies with the stride a constant (the ESP32 then addresses with immediate offsets). */
 #define DR_ESKF_PHI_LINE(name, STRIDE)                                                                               \
     static void name(float *x, const float a[3][3], const float b[3][3], const float dv[3], float t) {              \
-        float th[3], ba[3], bgv[3], sgv[3], vv[3], dvth[3], rot[3];                                                  \
-        int i;                                                                                                       \
-        for (i = 0; i < 3; i++) {                                                                                    \
-            th[i] = x[(DR_ESKF_ERR_TH + i) * (STRIDE)];                                                              \
-            ba[i] = x[(DR_ESKF_ERR_BA + i) * (STRIDE)];                                                              \
-            bgv[i] = x[(DR_ESKF_ERR_BG + i) * (STRIDE)];                                                             \
-            sgv[i] = x[(DR_ESKF_ERR_SG + i) * (STRIDE)];                                                             \
-            vv[i] = x[(DR_ESKF_ERR_V + i) * (STRIDE)];                                                               \
-        }                                                                                                            \
-        dvth[0] = dv[1] * th[2] - dv[2] * th[1];                                                                     \
-        dvth[1] = dv[2] * th[0] - dv[0] * th[2];                                                                     \
-        dvth[2] = dv[0] * th[1] - dv[1] * th[0];                                                                     \
-        for (i = 0; i < 3; i++) {                                                                                    \
-            dvth[i] += a[i][0] * ba[0] + a[i][1] * ba[1] + a[i][2] * ba[2];                                          \
-            rot[i] = a[i][0] * bgv[0] + a[i][1] * bgv[1] + a[i][2] * bgv[2] + b[i][0] * sgv[0] + b[i][1] * sgv[1] +  \
-                     b[i][2] * sgv[2];                                                                               \
-        }                                                                                                            \
-        for (i = 0; i < 3; i++) {                                                                                    \
-            x[(DR_ESKF_ERR_P + i) * (STRIDE)] += t * vv[i] - 0.5f * t * dvth[i];                                     \
-            x[(DR_ESKF_ERR_V + i) * (STRIDE)] -= dvth[i];                                                            \
-            x[(DR_ESKF_ERR_TH + i) * (STRIDE)] -= rot[i];                                                            \
-        }                                                                                                            \
+        const float th0 = x[(DR_ESKF_ERR_TH + 0) * (STRIDE)], th1 = x[(DR_ESKF_ERR_TH + 1) * (STRIDE)];            \
+        const float th2 = x[(DR_ESKF_ERR_TH + 2) * (STRIDE)];                                                       \
+        const float ba0 = x[(DR_ESKF_ERR_BA + 0) * (STRIDE)], ba1 = x[(DR_ESKF_ERR_BA + 1) * (STRIDE)];            \
+        const float ba2 = x[(DR_ESKF_ERR_BA + 2) * (STRIDE)];                                                       \
+        const float bg0 = x[(DR_ESKF_ERR_BG + 0) * (STRIDE)], bg1 = x[(DR_ESKF_ERR_BG + 1) * (STRIDE)];            \
+        const float bg2 = x[(DR_ESKF_ERR_BG + 2) * (STRIDE)];                                                       \
+        const float sg0 = x[(DR_ESKF_ERR_SG + 0) * (STRIDE)], sg1 = x[(DR_ESKF_ERR_SG + 1) * (STRIDE)];            \
+        const float sg2 = x[(DR_ESKF_ERR_SG + 2) * (STRIDE)];                                                       \
+        const float d0 = dv[1] * th2 - dv[2] * th1 + (a[0][0] * ba0 + a[0][1] * ba1 + a[0][2] * ba2);             \
+        const float d1 = dv[2] * th0 - dv[0] * th2 + (a[1][0] * ba0 + a[1][1] * ba1 + a[1][2] * ba2);             \
+        const float d2 = dv[0] * th1 - dv[1] * th0 + (a[2][0] * ba0 + a[2][1] * ba1 + a[2][2] * ba2);             \
+        const float half_t = 0.5f * t;                                                                               \
+        x[(DR_ESKF_ERR_P + 0) * (STRIDE)] += t * x[(DR_ESKF_ERR_V + 0) * (STRIDE)] - half_t * d0;                  \
+        x[(DR_ESKF_ERR_P + 1) * (STRIDE)] += t * x[(DR_ESKF_ERR_V + 1) * (STRIDE)] - half_t * d1;                  \
+        x[(DR_ESKF_ERR_P + 2) * (STRIDE)] += t * x[(DR_ESKF_ERR_V + 2) * (STRIDE)] - half_t * d2;                  \
+        x[(DR_ESKF_ERR_V + 0) * (STRIDE)] -= d0;                                                                     \
+        x[(DR_ESKF_ERR_V + 1) * (STRIDE)] -= d1;                                                                     \
+        x[(DR_ESKF_ERR_V + 2) * (STRIDE)] -= d2;                                                                     \
+        x[(DR_ESKF_ERR_TH + 0) * (STRIDE)] = th0 - (a[0][0] * bg0 + a[0][1] * bg1 + a[0][2] * bg2 +                 \
+                                                    (b[0][0] * sg0 + b[0][1] * sg1 + b[0][2] * sg2));               \
+        x[(DR_ESKF_ERR_TH + 1) * (STRIDE)] = th1 - (a[1][0] * bg0 + a[1][1] * bg1 + a[1][2] * bg2 +                 \
+                                                    (b[1][0] * sg0 + b[1][1] * sg1 + b[1][2] * sg2));               \
+        x[(DR_ESKF_ERR_TH + 2) * (STRIDE)] = th2 - (a[2][0] * bg0 + a[2][1] * bg1 + a[2][2] * bg2 +                 \
+                                                    (b[2][0] * sg0 + b[2][1] * sg1 + b[2][2] * sg2));               \
     }
 DR_ESKF_PHI_LINE(phi_column, N)
 DR_ESKF_PHI_LINE(phi_row, 1)
@@ -831,7 +833,8 @@ static DR_ESKF_NOINLINE void covariance_step(const dr_eskf_config *cfg, dr_eskf_
 
 /* ------------------------------------------------------------------------------------------------ per sample */
 
-/* restrict: the state's fields may stay in registers across samples (nothing else reaches them meanwhile). */
+/* The strapdown step per sample, written out by component (the ESP32 code at -Os does not unroll loops of three).
+ * restrict: the state's fields may stay in registers across samples (nothing else reaches them meanwhile). */
 int dr_eskf_process(const dr_config *restrict kcfg, const dr_eskf_config *restrict cfg, dr_eskf_state *restrict st,
                     const int16_t *restrict samples, const int32_t *restrict dt_us, int32_t count, float out[6]) {
     const float rest_var = (cfg->rest_accel_g * DR_GRAVITY_MS2) * (cfg->rest_accel_g * DR_GRAVITY_MS2);
@@ -839,67 +842,96 @@ int dr_eskf_process(const dr_config *restrict kcfg, const dr_eskf_config *restri
     const float horizontal2 = cfg->rest_horizontal_ms2 * cfg->rest_horizontal_ms2;
     const float inv_stat = dr_recip(cfg->stat_tau_s);
     const float saturated = SATURATED_COUNTS * kcfg->accel_ms2_per_lsb;
+    const float ascale = kcfg->accel_ms2_per_lsb, gscale = kcfg->gyro_rads_per_lsb;
+    const int32_t sx = kcfg->axis_source[0], sy = kcfg->axis_source[1], sz = kcfg->axis_source[2];
+    const float gx_sign = kcfg->axis_sign[0], gy_sign = kcfg->axis_sign[1], gz_sign = kcfg->axis_sign[2];
     int32_t k;
-    int i;
     if (count < 0) {
         return DR_ESKF_ERR_COUNT;
     }
     for (k = 0; k < count; k++) {
         const int16_t *s = samples + 6 * k;
         const float dt = (float)dt_us[k] * DR_S_PER_US;
-        float f[3], w[3], r[3][3], se, sn, su, turn, alpha, nf, d, h[3], nq[4], inv;
-        for (i = 0; i < 3; i++) {
-            f[i] = kcfg->axis_sign[i] * (float)s[kcfg->axis_source[i]] * kcfg->accel_ms2_per_lsb;
-            w[i] = kcfg->axis_sign[i] * (float)s[3 + kcfg->axis_source[i]] * kcfg->gyro_rads_per_lsb;
-        }
-        if (dr_absf(f[0]) >= saturated || dr_absf(f[1]) >= saturated || dr_absf(f[2]) >= saturated) {
+        const float qw = st->q[0], qx = st->q[1], qy = st->q[2], qz = st->q[3];
+        float fx, fy, fz, wx, wy, wz, r00, r01, r02, r10, r11, r12, r20, r21, r22, se, sn, su, turn, alpha, nf, d;
+        float hx, hy, hz, nw, nx, ny, nz, inv, wsx, wsy, wsz;
+        fx = gx_sign * (float)s[sx] * ascale;
+        fy = gy_sign * (float)s[sy] * ascale;
+        fz = gz_sign * (float)s[sz] * ascale;
+        if (dr_absf(fx) >= saturated || dr_absf(fy) >= saturated || dr_absf(fz) >= saturated) {
             st->sat_dv += cfg->saturation_excess_ms2 * dt;
         }
-        for (i = 0; i < 3; i++) {
-            f[i] -= st->ba[i];
-            w[i] -= st->bg[i];
-        }
-        rotation(st->q, r);
-        turn = r[2][0] * w[0] + r[2][1] * w[1] + r[2][2] * w[2];
-        for (i = 0; i < 3; i++) {
-            w[i] -= turn * st->sg[i];
-        }
+        fx -= st->ba[0];
+        fy -= st->ba[1];
+        fz -= st->ba[2];
+        wx = gx_sign * (float)s[3 + sx] * gscale - st->bg[0];
+        wy = gy_sign * (float)s[3 + sy] * gscale - st->bg[1];
+        wz = gz_sign * (float)s[3 + sz] * gscale - st->bg[2];
+        r20 = 2.0f * (qx * qz - qw * qy);
+        r21 = 2.0f * (qy * qz + qw * qx);
+        r22 = 1.0f - 2.0f * (qx * qx + qy * qy);
+        turn = r20 * wx + r21 * wy + r22 * wz;
+        wx -= turn * st->sg[0];
+        wy -= turn * st->sg[1];
+        wz -= turn * st->sg[2];
         /* rest statistics over stat_tau_s */
         alpha = dt * inv_stat;
         if (alpha > 1.0f) {
             alpha = 1.0f;
         }
-        nf = dr_sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+        nf = dr_sqrt(fx * fx + fy * fy + fz * fz);
         st->mean_f += alpha * (nf - st->mean_f);
         d = nf - st->mean_f;
         st->var_f += alpha * (d * d - st->var_f);
-        for (i = 0; i < 3; i++) {
-            st->ws[i] += alpha * (w[i] - st->ws[i]);
-        }
-        se = r[0][0] * f[0] + r[0][1] * f[1] + r[0][2] * f[2];
-        sn = r[1][0] * f[0] + r[1][1] * f[1] + r[1][2] * f[2];
-        su = r[2][0] * f[0] + r[2][1] * f[1] + r[2][2] * f[2];
+        wsx = st->ws[0] + alpha * (wx - st->ws[0]);
+        wsy = st->ws[1] + alpha * (wy - st->ws[1]);
+        wsz = st->ws[2] + alpha * (wz - st->ws[2]);
+        st->ws[0] = wsx;
+        st->ws[1] = wsy;
+        st->ws[2] = wsz;
+        r00 = 1.0f - 2.0f * (qy * qy + qz * qz);
+        r01 = 2.0f * (qx * qy - qw * qz);
+        r02 = 2.0f * (qx * qz + qw * qy);
+        r10 = 2.0f * (qx * qy + qw * qz);
+        r11 = 1.0f - 2.0f * (qx * qx + qz * qz);
+        r12 = 2.0f * (qy * qz - qw * qx);
+        se = r00 * fx + r01 * fy + r02 * fz;
+        sn = r10 * fx + r11 * fy + r12 * fz;
+        su = r20 * fx + r21 * fy + r22 * fz;
         st->ah[0] += alpha * (se - st->ah[0]);
         st->ah[1] += alpha * (sn - st->ah[1]);
-        if (st->var_f < rest_var && st->ws[0] * st->ws[0] + st->ws[1] * st->ws[1] + st->ws[2] * st->ws[2] <
-                                        rest_w * rest_w &&
+        if (st->var_f < rest_var && wsx * wsx + wsy * wsy + wsz * wsz < rest_w * rest_w &&
             st->ah[0] * st->ah[0] + st->ah[1] * st->ah[1] < horizontal2) {
             st->rest_s += dt;
         } else {
             st->rest_s = 0.0f;
         }
         if (st->aligned != 0.0f) {
-            const float a[3] = {se, sn, su - DR_GRAVITY_MS2};
-            const float td = turn * dt;
-            int j;
-            for (i = 0; i < 3; i++) {
-                st->pos[i] += (st->vel[i] + 0.5f * a[i] * dt) * dt;
-                st->vel[i] += a[i] * dt;
-                for (j = 0; j < 3; j++) {
-                    st->acc_a[i][j] += r[i][j] * dt;
-                    st->acc_b[i][j] += r[i][j] * td;
-                }
-            }
+            const float ae = se, an = sn, au = su - DR_GRAVITY_MS2, td = turn * dt;
+            st->pos[0] += (st->vel[0] + 0.5f * ae * dt) * dt;
+            st->pos[1] += (st->vel[1] + 0.5f * an * dt) * dt;
+            st->pos[2] += (st->vel[2] + 0.5f * au * dt) * dt;
+            st->vel[0] += ae * dt;
+            st->vel[1] += an * dt;
+            st->vel[2] += au * dt;
+            st->acc_a[0][0] += r00 * dt;
+            st->acc_a[0][1] += r01 * dt;
+            st->acc_a[0][2] += r02 * dt;
+            st->acc_a[1][0] += r10 * dt;
+            st->acc_a[1][1] += r11 * dt;
+            st->acc_a[1][2] += r12 * dt;
+            st->acc_a[2][0] += r20 * dt;
+            st->acc_a[2][1] += r21 * dt;
+            st->acc_a[2][2] += r22 * dt;
+            st->acc_b[0][0] += r00 * td;
+            st->acc_b[0][1] += r01 * td;
+            st->acc_b[0][2] += r02 * td;
+            st->acc_b[1][0] += r10 * td;
+            st->acc_b[1][1] += r11 * td;
+            st->acc_b[1][2] += r12 * td;
+            st->acc_b[2][0] += r20 * td;
+            st->acc_b[2][1] += r21 * td;
+            st->acc_b[2][2] += r22 * td;
             st->acc_dv[0] += se * dt;
             st->acc_dv[1] += sn * dt;
             st->acc_dv[2] += su * dt;
@@ -908,28 +940,30 @@ int dr_eskf_process(const dr_config *restrict kcfg, const dr_eskf_config *restri
             st->al_du[0] += se * dt;
             st->al_du[1] += sn * dt;
         }
-        /* q <- q (x) [1, w dt / 2], normalised */
-        for (i = 0; i < 3; i++) {
-            h[i] = 0.5f * w[i] * dt;
-        }
-        nq[0] = st->q[0] - h[0] * st->q[1] - h[1] * st->q[2] - h[2] * st->q[3];
-        nq[1] = st->q[1] + h[0] * st->q[0] + h[2] * st->q[2] - h[1] * st->q[3];
-        nq[2] = st->q[2] + h[1] * st->q[0] - h[2] * st->q[1] + h[0] * st->q[3];
-        nq[3] = st->q[3] + h[2] * st->q[0] + h[1] * st->q[1] - h[0] * st->q[2];
-        /* |nq|^2 = 1 + e with e ~ |w dt|^2 / 4 (1e-4 at 5 rad/s): one Newton step of 1/sqrt from 1 leaves
-         * 3e^2/8 (float32 rounding), and each step corrects what the last left */
-        inv = 1.5f - 0.5f * (nq[0] * nq[0] + nq[1] * nq[1] + nq[2] * nq[2] + nq[3] * nq[3]);
-        for (i = 0; i < 4; i++) {
-            st->q[i] = nq[i] * inv;
-        }
-        st->rate2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
+        /* q <- q (x) [1, w dt / 2]; |q|^2 = 1 + e with e ~ |w dt|^2 / 4 (1e-4 at 5 rad/s): one Newton step of
+         * 1/sqrt from 1 leaves 3e^2/8 (float32 rounding), and each step corrects what the last left */
+        hx = 0.5f * wx * dt;
+        hy = 0.5f * wy * dt;
+        hz = 0.5f * wz * dt;
+        nw = qw - hx * qx - hy * qy - hz * qz;
+        nx = qx + hx * qw + hz * qy - hy * qz;
+        ny = qy + hy * qw - hz * qx + hx * qz;
+        nz = qz + hz * qw + hy * qx - hx * qy;
+        inv = 1.5f - 0.5f * (nw * nw + nx * nx + ny * ny + nz * nz);
+        st->q[0] = nw * inv;
+        st->q[1] = nx * inv;
+        st->q[2] = ny * inv;
+        st->q[3] = nz * inv;
+        st->rate2 = wx * wx + wy * wy + wz * wz;
         if (st->aligned != 0.0f && st->acc_t >= cfg->cov_dt_s) {
             covariance_step(cfg, st);
         }
     }
-    for (i = 0; i < 3; i++) {
-        out[i] = st->pos[i];
-        out[3 + i] = st->vel[i];
-    }
+    out[0] = st->pos[0];
+    out[1] = st->pos[1];
+    out[2] = st->pos[2];
+    out[3] = st->vel[0];
+    out[4] = st->vel[1];
+    out[5] = st->vel[2];
     return DR_ESKF_OK;
 }

@@ -85,7 +85,7 @@ def build(native_dir: Path, tree: Path, work: Path) -> EskfImage:
     return EskfImage(qemu_xtensa._text_of(boot), mpy, len(mpy.text), _text_size(work / "dr_eskf.o"))
 
 
-def _input(steps: list) -> bytes:
+def _input(steps: list, cov_dt_s: float = 0.0, nhc_dt_s: float = 0.0) -> bytes:
     body = bytearray()
     for item in steps:
         kind = item[0]
@@ -100,11 +100,13 @@ def _input(steps: list) -> bytes:
             body += struct.pack("<II6f", ord("G"), 6, *item[1:7])
         else:
             raise ValueError(f"unknown step kind {kind!r}")
-    header = struct.pack("<4I", MAGIC, len(steps), qemu_xtensa.WORKSPACE, qemu_xtensa.OUTPUT)
+    header = struct.pack("<4I2f", MAGIC, len(steps), qemu_xtensa.WORKSPACE, qemu_xtensa.OUTPUT, cov_dt_s, nhc_dt_s)
     return header + bytes(4 * HEADER_WORDS - len(header)) + bytes(body)
 
 
-def run(image: EskfImage, steps: list, timeout: float = 900) -> list[EskfAnswer]:
+def run(image: EskfImage, steps: list, cov_dt_s: float = 0.0, nhc_dt_s: float = 0.0,
+        timeout: float = 900) -> list[EskfAnswer]:
+    """The steps through the filter on qemu-system-xtensa (cov_dt_s, nhc_dt_s: s; 0 keeps dr_eskf_config_init's)."""
     qemu = find_tool("qemu-system-xtensa")
     if qemu is None:
         raise qemu_xtensa.XtensaSimError("qemu-system-xtensa is not installed",
@@ -115,7 +117,7 @@ def run(image: EskfImage, steps: list, timeout: float = 900) -> list[EskfAnswer]
     if len(image.mpy.text) > qemu_xtensa.HARNESS_RODATA - qemu_xtensa.HARNESS_TEXT:
         raise qemu_xtensa.XtensaSimError(f"the filter's image ({len(image.mpy.text)} bytes) overlaps its rodata")
     text, rodata = mpyfile.relocate(image.mpy, bases)
-    blob = _input(steps)
+    blob = _input(steps, cov_dt_s, nhc_dt_s)
     with tempfile.TemporaryDirectory(prefix="dr-xtensa-eskf-") as tmp:
         images = {"boot.bin": (image.boot, qemu_xtensa.VECBASE), "text.bin": (bytes(text), qemu_xtensa.HARNESS_TEXT),
                   "rodata.bin": (bytes(rodata), qemu_xtensa.HARNESS_RODATA), "input.bin": (blob, qemu_xtensa.INPUT)}

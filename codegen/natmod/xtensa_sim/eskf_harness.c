@@ -4,7 +4,7 @@
  * and runs it. The filter is not in dr_native.mpy yet, so it is linked here directly; the instructions counted are
  * the filter's own, as in harness.c.
  *
- *   magic "DRE1" | steps | workspace | output | steps: kind ('C', 'P', 'G') | samples n | payload
+ *   magic "DRE1" | steps | workspace | output | cov_dt_s | nhc_dt_s (floats; 0: the default) | steps: kind ('C', 'P', 'G') | samples n | payload
  *   C: int16 samples[6n]   P: int16 samples[6n], int32 dt_us[n]   G: float t e n u ve vn (n = 6)
  *   one step alone, on the state as it is (n = 0; the state is saved before and restored after, so the run goes on
  *   unchanged): Q the covariance propagation, K the covariance check, U one scalar update with the constraint's
@@ -86,6 +86,12 @@ uint32_t mpy_init(const uint32_t *input) {
     }
     dr_config_init(&w->kcfg);
     dr_eskf_config_init(&w->cfg);
+    if (((const float *)input)[4] > 0.0f) {
+        w->cfg.cov_dt_s = ((const float *)input)[4];
+    }
+    if (((const float *)input)[5] > 0.0f) {
+        w->cfg.nhc_dt_s = ((const float *)input)[5];
+    }
     dr_eskf_state_init(&w->st);
     for (k = 0; k < steps; k++) {
         uint32_t kind = step[0], n = step[1];
