@@ -260,14 +260,14 @@ def eskf_steps(board, scenario: str, seed: int, duration: float) -> tuple[list, 
     return steps, window_of
 
 
-def _host_positions(steps: list, cov_dt_s: float) -> np.ndarray:
+def _host_positions(steps: list, cov_dt_s: float, nhc_dt_s: float) -> np.ndarray:
     """The same steps through the host build of the C (cffi): the position after each."""
     from dataclasses import replace
 
     from codegen.kernel.eskf import EskfConfig
     from codegen.kernel.hosteskf import load_eskf
 
-    s = load_eskf().session(replace(EskfConfig(), cov_dt_s=cov_dt_s))
+    s = load_eskf().session(replace(EskfConfig(), cov_dt_s=cov_dt_s, nhc_dt_s=nhc_dt_s))
     out = []
     for item in steps:
         if item[0] == "C":
@@ -280,8 +280,14 @@ def _host_positions(steps: list, cov_dt_s: float) -> np.ndarray:
     return np.array(out)
 
 
-def eskf_table(loaded, scenario: str = "car", seed: int = 0, duration: float = 120.0, cov_dt_s: float = 0.1) -> None:
-    """Instructions per window of the error-state filter's ESP32 code on qemu-system-xtensa."""
+def eskf_table(loaded, scenario: str = "car", seed: int = 0, duration: float = 120.0, cov_dt_s: float = 0.0,
+               nhc_dt_s: float = 0.0) -> None:
+    """Instructions per window of the error-state filter's ESP32 code on qemu-system-xtensa (cadences in s; 0: the
+    defaults of codegen.kernel.eskf.EskfConfig, which dr_eskf_config_init holds too)."""
+    from codegen.kernel.eskf import EskfConfig
+
+    cov_dt_s = cov_dt_s or EskfConfig().cov_dt_s
+    nhc_dt_s = nhc_dt_s or EskfConfig().nhc_dt_s
     from codegen.generate import render_tree
     from codegen.natmod import xtensa_eskf
 
@@ -293,7 +299,7 @@ def eskf_table(loaded, scenario: str = "car", seed: int = 0, duration: float = 1
         folder = Path(tmp)
         try:
             image = xtensa_eskf.build(_native_dir(folder, render_tree(loaded)), micropython_tree(), folder / "eskf")
-            answers = xtensa_eskf.run(image, steps + alone, cov_dt_s=cov_dt_s)
+            answers = xtensa_eskf.run(image, steps + alone, cov_dt_s=cov_dt_s, nhc_dt_s=nhc_dt_s)
         except Exception as exc:  # a missing tool is a row with its reason, not a crashed benchmark
             print(f"\neskf on ESP32 code: - ({str(exc).strip().splitlines()[0][:90]})")
             return
@@ -309,10 +315,10 @@ def eskf_table(loaded, scenario: str = "car", seed: int = 0, duration: float = 1
             fixes[w] += item[0] == "G"
             started[w] = answer.started
     running = per[started]
-    host = _host_positions(steps, cov_dt_s)
+    host = _host_positions(steps, cov_dt_s, nhc_dt_s)
     device = np.array([a.position for a in answers])
     print(f"\nthe error-state filter (eskf, 23 states) on ESP32 code, de233_fpu, bare filter: simulated {scenario} "
-          f"seed {seed}, {duration:.0f} s, covariance every {cov_dt_s:g} s, instructions per window of {n} samples and its fixes (exact ICOUNT)")
+          f"seed {seed}, {duration:.0f} s, covariance every {cov_dt_s:g} s, pseudo-measurements every {nhc_dt_s:g} s, instructions per window of {n} samples and its fixes (exact ICOUNT)")
     print(f"code: {image.filter_text_bytes} bytes (dr_eskf.o text + literals, -Os); state {xtensa_eskf_state_bytes()} "
           f"bytes; config {xtensa_eskf_config_bytes()} bytes")
     print(f"{'windows':24s} {'count':>6s} {'median':>10s} {'p90':>10s} {'max':>10s} {'ms @240MHz, 1-2 cyc/insn':>26s}")
@@ -357,7 +363,10 @@ def main(argv=None) -> int:
                         help="default: seed and fused")
     parser.add_argument("--scenario", default="car", help="eskf: the simulated vehicle drive (default car)")
     parser.add_argument("--duration", type=float, default=120.0, help="eskf: its length, s")
-    parser.add_argument("--cov-dt", type=float, default=0.1, help="eskf: s between covariance propagations")
+    parser.add_argument("--cov-dt", type=float, default=0.0, help="eskf: s between covariance propagations "
+                        "(default: the filter's)")
+    parser.add_argument("--nhc-dt", type=float, default=0.0, help="eskf: s between pseudo-measurements (default: "
+                        "the filter's)")
     parser.add_argument("--windows", type=int, default=4, help="natmod windows per run (the median is reported)")
     parser.add_argument("--fallback-windows", type=int, default=2, help="fallback windows per run")
     parser.add_argument("--before", default="", help="git revision whose fallback template (plain) to run beside "
@@ -367,7 +376,7 @@ def main(argv=None) -> int:
 
     loaded = load_board(args.board)
     if args.algorithm == "eskf":
-        eskf_table(loaded, args.scenario, 0, args.duration, args.cov_dt)
+        eskf_table(loaded, args.scenario, 0, args.duration, args.cov_dt, args.nhc_dt)
         return 0
     for algorithm in ([args.algorithm] if args.algorithm else ["seed", "fused"]):
         device_table(loaded, algorithm, args.windows, args.fallback_windows, args.before)

@@ -34,8 +34,8 @@ void dr_eskf_observed(const dr_eskf_state *st, int step);
 #endif
 
 void dr_eskf_config_init(dr_eskf_config *cfg) {
-    cfg->cov_dt_s = 0.1f;
-    cfg->nhc_dt_s = 0.2f;
+    cfg->cov_dt_s = 0.2f;
+    cfg->nhc_dt_s = 0.4f;
     cfg->accel_noise = 0.05f;
     cfg->gyro_noise = 0.002f;
     cfg->accel_bias_walk = 2e-4f;

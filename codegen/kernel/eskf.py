@@ -65,8 +65,9 @@ class EskfConfig:
     """The filter's parameters; noise densities per sqrt(Hz), random walks per sqrt(s). Defaults tuned on the
     simulated car's tuning seeds (docs/eskf.md)."""
 
-    cov_dt_s: float = 0.1  # s between covariance propagations
-    nhc_dt_s: float = 0.2  # s between pseudo-measurements (non-holonomic or zero velocity)
+    cov_dt_s: float = 0.2  # s between covariance propagations (0.1 costs the ESP32 0.15 M instructions per window)
+    nhc_dt_s: float = 0.4  # s between pseudo-measurements (non-holonomic or zero velocity; 0.2 was less accurate on
+    # the tuning seeds, the constraint's errors being correlated over that time: benchmarks/eskf_cadence.py --tuning)
     accel_noise: float = 0.05  # m/s^2/sqrt(Hz): white specific-force noise, the vehicle's shaking included
     gyro_noise: float = 0.002  # rad/s/sqrt(Hz)
     accel_bias_walk: float = 2e-4  # m/s^2/sqrt(s)
