@@ -480,8 +480,16 @@ static void propagate(const dr_eskf_config *cfg, dr_eskf_state *st) {
 static void mirror(float p[N][N]) {
     int i, j;
     for (i = 0; i < N; i++) {
-        for (j = i + 1; j < N; j++) {
-            p[j][i] = p[i][j];
+        const float *row = p[i];
+        float *column = &p[0][i];
+        for (j = i + 1; (N - j) & 3; j++) {
+            column[j * N] = row[j];
+        }
+        for (; j < N; j += 4) {
+            column[j * N] = row[j];
+            column[(j + 1) * N] = row[j + 1];
+            column[(j + 2) * N] = row[j + 2];
+            column[(j + 3) * N] = row[j + 3];
         }
     }
 }
@@ -517,8 +525,14 @@ static int scalar_update_upper(float p[N][N], float dx[N], const int32_t *h_inde
     for (i = 0; i < N; i++) {
         const float ui = u[i] * inv_s;
         float *row = p[i];
-        for (j = i; j < N; j++) {
+        for (j = i; (N - j) & 3; j++) { /* then four at a time: the ESP32 code at -Os does not unroll */
             row[j] -= ui * u[j];
+        }
+        for (; j < N; j += 4) {
+            row[j] -= ui * u[j];
+            row[j + 1] -= ui * u[j + 1];
+            row[j + 2] -= ui * u[j + 2];
+            row[j + 3] -= ui * u[j + 3];
         }
     }
     gain = (y - hdx) * inv_s;

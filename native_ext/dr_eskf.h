@@ -83,7 +83,6 @@ typedef struct {
 
 /* The whole state (codegen.kernel.eskf.EskfState). */
 typedef struct {
-    float p[DR_ESKF_N][DR_ESKF_N]; /* the error state's covariance, symmetric */
     float pos[3];                  /* m, ENU */
     float vel[3];                  /* m/s, ENU */
     float q[4];                    /* attitude w x y z, body -> ENU */
@@ -115,6 +114,9 @@ typedef struct {
     float aligned;                 /* 1 once the filter runs */
     float gyro_moving;             /* 1 if calibration saw motion */
     float cov_repairs;             /* covariances that went wrong and were reset */
+    /* the error state's covariance, symmetric; last, so that the fields above sit within the ESP32's load/store
+     * offsets from the struct's address (0-1020 bytes: one instruction per access instead of three) */
+    float p[DR_ESKF_N][DR_ESKF_N];
 } dr_eskf_state;
 
 /* Fills cfg with codegen.kernel.eskf.EskfConfig's defaults. */

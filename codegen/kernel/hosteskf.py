@@ -24,11 +24,11 @@ CONFIG_FIELDS = tuple(f.name for f in fields(EskfConfig))
 CDEF = hostkernel.CONFIG_CDEF + """
 typedef struct { %s ...; } dr_eskf_config;
 typedef struct {
-    float p[23][23]; float pos[3]; float vel[3]; float q[4]; float bg[3]; float ba[3]; float sg[3]; float ge[3];
+    float pos[3]; float vel[3]; float q[4]; float bg[3]; float ba[3]; float sg[3]; float ge[3];
     float mount[3][3]; float acc_a[3][3]; float acc_b[3][3]; float acc_dv[3]; float acc_t; float sat_dv;
     float since_nhc; float mean_f; float var_f; float ws[3]; float ah[2]; float rest_s; float rate2; float gps_speed;
     float t_fix; float al_du[2]; float al_dot; float al_cross; float al_norm; float al_prev[2]; float al_have_prev;
-    float aligned; float gyro_moving; float cov_repairs; ...;
+    float aligned; float gyro_moving; float cov_repairs; float p[23][23]; ...;
 } dr_eskf_state;
 void dr_eskf_config_init(dr_eskf_config *cfg);
 void dr_eskf_state_init(dr_eskf_state *st);
