@@ -260,3 +260,16 @@ def test_c_positions_follow_the_reference(board, scenario, seed):
     assert np.all(diff <= 0.02 + 0.25 * err_ref)
     assert np.all(np.median(diff, axis=0) <= 0.05)
     assert snaps_c[max(snaps_c)][1].st.cov_repairs == 0
+
+
+def test_c_method_uses_no_gps_after_the_outage_start(car_run):
+    starts = np.array([40.5, 75.5])
+    times = starts[:, None] + np.array([5.0, 20.0])[None, :]
+    clean = H.estimate(car_run, starts, times)
+    corrupted = build_run("car", car_run.board, seed=2, duration=150.0)
+    later = corrupted.gps.t >= starts[0]
+    corrupted.gps.enu[later] += 500.0
+    corrupted.gps.vel[later] *= -1.0
+    corrupted.gps.course[later] = (corrupted.gps.course[later] + 180.0) % 360.0
+    got = H.estimate(corrupted, starts[:1], times[:1])
+    assert np.array_equal(got[0], clean[0])
