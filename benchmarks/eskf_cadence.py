@@ -3,7 +3,8 @@ same outages as benchmarks/accuracy.py: every 5 s, 60 s each) with the covarianc
 default) and slower, on the simulated vehicles. benchmarks/device.py --algorithm eskf --cov-dt S gives each
 cadence's instructions per window on ESP32 code.
 
-    python3 benchmarks/eskf_cadence.py [--seeds 5] [--tuning] [--cov-dt 0.1 --nhc-dt 0.2 ...] [--scenario car ...]
+    python3 benchmarks/eskf_cadence.py [--seeds 5] [--tuning] [--cov-dt 0.1 --nhc-dt 0.2 ...] [--nhc-sigma 0.2]
+                                       [--scenario car ...]
 
 Horizontal error in m against truth, median / p90 over every outage of the seeds, at 10, 30 and 60 s.
 """
@@ -43,6 +44,8 @@ def main(argv=None) -> int:
     parser.add_argument("--cov-dt", type=float, action="append", help="s (repeatable; default 0.1 and 0.2)")
     parser.add_argument("--nhc-dt", type=float, action="append",
                         help="s between pseudo-measurements, one per --cov-dt (default: max(0.2, cov_dt))")
+    parser.add_argument("--nhc-sigma", type=float, default=0.0,
+                        help="m/s: the constraint's noise for every row (default: the filter's)")
     parser.add_argument("--scenario", action="append", help="default car, car-town, bike")
     args = parser.parse_args(argv)
     board = load_board(None).board
@@ -53,12 +56,14 @@ def main(argv=None) -> int:
         parser.error("give one --nhc-dt per --cov-dt")
     started = time.time()
     print(f"eskf (float32 C via cffi, x86-64), seeds {seeds[0]}-{seeds[-1]} "
-          f"({'tuning' if args.tuning else 'reported'}), outages every 5 s; horizontal error m, median / p90")
+          f"({'tuning' if args.tuning else 'reported'}), outages every 5 s, nhc_sigma "
+          f"{args.nhc_sigma or EskfConfig().nhc_sigma:g} m/s; horizontal error m, median / p90")
     print(f"{'scenario':10s} {'cov_dt_s':>8s} {'nhc_dt_s':>8s} " + " ".join(f"{h:>13.0f} s" for h in HORIZONS))
     for scenario in args.scenario or ["car", "car-town", "bike"]:
         runs = [build_run(scenario, board, seed=seed) for seed in seeds]
         for cov_dt, nhc_dt in zip(cadences, nhc):
-            cfg = replace(EskfConfig(), cov_dt_s=cov_dt, nhc_dt_s=nhc_dt)
+            cfg = replace(EskfConfig(), cov_dt_s=cov_dt, nhc_dt_s=nhc_dt,
+                          nhc_sigma=args.nhc_sigma or EskfConfig().nhc_sigma)
             err = np.vstack([errors(run, cfg) for run in runs])
             cells = " ".join(f"{np.median(err[:, h]):>6.1f} / {np.percentile(err[:, h], 90):>6.1f}"
                              for h in range(len(HORIZONS)))

@@ -48,7 +48,7 @@ void dr_eskf_config_init(dr_eskf_config *cfg) {
     cfg->gps_white_sigma = 0.3f;
     cfg->gps_vel_sigma = 0.15f;
     cfg->gps_slow_sigma = 0.4f;
-    cfg->nhc_sigma = 0.2f;
+    cfg->nhc_sigma = 0.6f;
     cfg->saturation_excess_ms2 = 20.0f;
     cfg->nhc_lever_m = 1.0f;
     cfg->nhc_gate = 3.0f;
