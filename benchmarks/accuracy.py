@@ -176,7 +176,7 @@ def platform_goal_lines(results) -> list[str]:
     """The vehicle and walk goals per vehicle scenario (simulated and the real car) and per walk with stops, for each fused
     variant present."""
     lines = []
-    variants = ("fused",) + tuple(f"fused-{p}" for p in PLATFORMS) + ("eskf",)  # eskf: the error-state filter
+    variants = ("fused",) + tuple(f"fused-{p}" for p in PLATFORMS) + ("eskf", "eskf-c")  # the error-state filter
     for res in results:
         vehicle = res.scenario in VEHICLES or res.scenario.startswith("car-comma")
         if not vehicle and res.scenario not in WALKS_WITH_STOPS:

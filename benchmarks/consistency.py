@@ -1,8 +1,10 @@
-"""Consistency of the fused method's Kalman filters: does each filter's covariance describe its real errors?
+"""Consistency of the fused method's Kalman filters and of the error-state filter: does each filter's covariance
+describe its real errors?
 
     python3 benchmarks/consistency.py                         # car and bike, 5 reported seeds each
     python3 benchmarks/consistency.py --scenario car --seeds 10
     python3 benchmarks/consistency.py --tuning                # the tuning seeds
+    python3 benchmarks/consistency.py --eskf reference|c      # the error-state filter's rows too (float64 / C)
 
 For each simulated run (codegen.sim.run.build_run) the fused reference (codegen/kernel/fused.py) runs as the device
 does, and from every outage start benchmarks/accuracy.py uses (every 5 s, codegen.sim.run.outage_starts) through the
@@ -16,6 +18,10 @@ outage's first 60 s; a covariance observer (codegen.kernel.fused.observe_covaria
 Each row: how many samples, the mean normalised error squared (NEES: e^2 / P per degree of freedom; 1 for a
 consistent filter, above 1 overconfident, below 1 too cautious), the share of samples within 1 sigma (68.3 % for a
 consistent Gaussian error) and within 2 sigma (95.4 %), and how often a covariance was repaired (cov_repairs, 0).
+
+The error-state filter (--eskf; codegen/kernel/eskf.py, or its float32 C through cffi): its horizontal position
+against the truth, East and North each against its own variance P_pE / P_pN, at every fix ("eskf fix") and 10, 30
+and 60 s into every outage ("eskf 10 s", ...): the share of outages whose truth lies within 1 and 2 sigma.
 The tilt/offset filter's truth (the tilt error and the offsets left after calibration) is not in the simulator's
 run, so it has no row. benchmarks/accuracy.py may import `consistency_rows` and `format_rows` to print the same table
 beside its own (one module, so the two files do not collide).
@@ -106,6 +112,76 @@ def lateral_samples(run, fcfg=None) -> Samples:
     return Samples("lateral", err[ok, None], var[ok], repairs)
 
 
+ESKF_HORIZONS = (10.0, 30.0, 60.0)  # s into an outage
+
+
+def eskf_samples(run, implementation: str = "reference") -> list[Samples]:
+    """The error-state filter's position errors and variances (East and North as separate samples): at every fix
+    after the start, and at ESKF_HORIZONS into every outage (every STEP s) that starts after it."""
+    from codegen.kernel import eskf as E
+
+    cfg = E.EskfConfig()
+    fixes, horizon = [], {h: [] for h in ESKF_HORIZONS}  # (error E, N), (var E, N)
+    starts = outage_starts(run, LONGEST, STEP)
+    if implementation == "c":
+        from codegen.kernel import hosteskf as H
+
+        H.estimate(run, starts[:1], starts[:1, None] + 1.0)  # fills the cache
+        t, dt_us, snaps = run.cache[("eskf_c_pass", cfg)]
+
+        def view(state):
+            p = H.matrix(state.ek.ffi, state.st.p)
+            return state.st.aligned != 0.0, (state.st.pos[0], state.st.pos[1]), (p[0, 0], p[1, 1])
+
+        def advance(state, a, b):
+            state.process(run.counts[a:b], dt_us[a:b])
+        copy = lambda snap: snap.copy()  # noqa: E731
+        repairs = lambda state: state.st.cov_repairs  # noqa: E731
+    else:
+        E.estimate(run, starts[:1], starts[:1, None] + 1.0, cfg)
+        t, dts, acc, gyr, snaps, kcfg = run.cache[("eskf_pass", cfg)]
+
+        def view(state):
+            return state.aligned, (state.pe, state.pn), (state.p[0, 0], state.p[1, 1])
+
+        def advance(state, a, b):
+            E.mechanise(state, acc[a:b], gyr[a:b], dts[a:b], kcfg, cfg)
+        copy = lambda snap: snap.copy()  # noqa: E731
+        repairs = lambda state: state.cov_repairs  # noqa: E731
+    for j in sorted(snaps):
+        started, pos, var = view(snaps[j][1])
+        if started and run.trusted(np.array([run.gps.t[j]]))[0]:
+            fixes.append((np.subtract(pos, run.truth.at(np.array([run.gps.t[j]]))[0, :2]), var))
+    n_samples = len(dt_us) if implementation == "c" else len(dts)
+    for j, t0 in zip(run.gps.last_valid_before(starts), starts):
+        k, snap = snaps[int(j)]
+        if not view(snap)[0]:
+            continue
+        state = copy(snap)
+        if implementation == "c":
+            state.st.gps_speed = 0.0
+        else:
+            state.gps_speed = 0.0
+        for h in ESKF_HORIZONS:
+            end = min(int(np.searchsorted(t, t0 + h, side="right")) - 1, n_samples)
+            if end > k:
+                advance(state, k, end)
+                k = end
+            _, pos, var = view(state)
+            when = float(t[min(k, len(t) - 1)])
+            horizon[h].append((np.subtract(pos, run.truth.at(np.array([when]))[0, :2]), var))
+    last = snaps[max(snaps)][1] if snaps else None
+    out = []
+    for name, rows in [("eskf fix", fixes)] + [(f"eskf {h:.0f} s", horizon[h]) for h in ESKF_HORIZONS]:
+        if rows:
+            errors = np.concatenate([np.asarray(e) for e, _ in rows])[:, None]
+            variances = np.concatenate([np.asarray(v) for _, v in rows])
+        else:
+            errors, variances = np.zeros((0, 1)), np.zeros(0)
+        out.append(Samples(name, errors, variances, int(repairs(last)) if last is not None else 0))
+    return out
+
+
 def summarise(samples: Samples) -> dict:
     """n, NEES per degree of freedom, the shares within 1 and 2 sigma (per error component)."""
     if len(samples.variances) == 0:
@@ -116,22 +192,26 @@ def summarise(samples: Samples) -> dict:
             "within2": float(np.mean(z <= 2.0)), "repairs": samples.repairs}
 
 
-def consistency_rows(runs, fcfg=None) -> list[tuple[str, str, dict]]:
-    """(scenario, filter, summary) for the runs (codegen.sim.run.RunData), one row per scenario and filter."""
+def consistency_rows(runs, fcfg=None, eskf: str = "") -> list[tuple[str, str, dict]]:
+    """(scenario, filter, summary) for the runs (codegen.sim.run.RunData), one row per scenario and filter; eskf
+    "reference" or "c": the error-state filter's rows too."""
     merged = {}
     for run in runs:
-        for samples in (lateral_samples(run, fcfg), position_samples(run, fcfg)):
+        found = [lateral_samples(run, fcfg), position_samples(run, fcfg)]
+        if eskf:
+            found += eskf_samples(run, eskf)
+        for samples in found:
             key = (run.scenario, samples.filter)
             merged[key] = merged[key].merge(samples) if key in merged else samples
     return [(scenario, name, summarise(samples)) for (scenario, name), samples in sorted(merged.items())]
 
 
 def format_rows(rows, file=sys.stdout) -> None:
-    print(f"{'scenario':<12} {'filter':<9} {'samples':>8} {'NEES':>7} {'<=1 sigma':>10} {'<=2 sigma':>10} "
+    print(f"{'scenario':<12} {'filter':<10} {'samples':>8} {'NEES':>7} {'<=1 sigma':>10} {'<=2 sigma':>10} "
           f"{'repairs':>8}", file=file)
-    print(f"{'(consistent)':<12} {'':<9} {'':>8} {'1.00':>7} {'68.3 %':>10} {'95.4 %':>10} {'0':>8}", file=file)
+    print(f"{'(consistent)':<12} {'':<10} {'':>8} {'1.00':>7} {'68.3 %':>10} {'95.4 %':>10} {'0':>8}", file=file)
     for scenario, name, s in rows:
-        print(f"{scenario:<12} {name:<9} {s['n']:>8d} {s['nees']:>7.2f} {100 * s['within1']:>8.1f} % "
+        print(f"{scenario:<12} {name:<10} {s['n']:>8d} {s['nees']:>7.2f} {100 * s['within1']:>8.1f} % "
               f"{100 * s['within2']:>8.1f} % {s['repairs']:>8d}", file=file)
 
 
@@ -141,14 +221,17 @@ def main(argv=None) -> int:
     parser.add_argument("--scenario", action="append", help="only these (repeatable; default car and bike)")
     parser.add_argument("--seeds", type=int, default=5, help="seeds per scenario (default 5)")
     parser.add_argument("--tuning", action="store_true", help="the tuning seeds instead of the reported ones")
+    parser.add_argument("--eskf", choices=("reference", "c"), default="",
+                        help="the error-state filter's rows too: its float64 reference or its C (cffi, float32)")
     args = parser.parse_args(argv)
     board = load_board(args.board).board
     seeds = list(TUNING_SEEDS if args.tuning else REPORT_SEEDS)[:args.seeds]
     started = time.time()
     rows = []
     for scenario in args.scenario or ["car", "bike"]:
-        rows += consistency_rows(build_run(scenario, board, seed=seed) for seed in seeds)
-    print(f"Consistency of the fused filters, seeds {seeds[0]}-{seeds[-1]} ({'tuning' if args.tuning else 'reported'}),"
+        rows += consistency_rows((build_run(scenario, board, seed=seed) for seed in seeds), eskf=args.eskf)
+    which = f" and the error-state filter ({args.eskf})" if args.eskf else ""
+    print(f"Consistency of the fused filters{which}, seeds {seeds[0]}-{seeds[-1]} ({'tuning' if args.tuning else 'reported'}),"
           f" outages every {STEP:.0f} s, {LONGEST:.0f} s each")
     format_rows(rows)
     print(f"({time.time() - started:.0f} s)")

@@ -1,6 +1,6 @@
 """Instructions per window on the boards' instruction sets, for benchmarks/kernel.py (seed) and fused.py (fused).
 
-    python3 benchmarks/device.py [--algorithm seed|fused] [--windows N] [--before REV]
+    python3 benchmarks/device.py [--algorithm seed|fused|eskf] [--windows N] [--before REV] [--scenario S]
 
 ARM: MicroPython 1.28's QEMU port (codegen.natmod.qemu_arm; MICROBIT = Cortex-M0, the RP2040's armv6m; MPS2_AN385 =
 Cortex-M3, armv7m) runs the board's dr_native.mpy built for that arch and the generated dr_fallback compiled by
@@ -9,6 +9,11 @@ mpy-cross for it (plain; @micropython.native; for the seed kernel also @viper so
 instruction per virtual ns) and the driver reads a hardware timer of the emulated SoC around each call.
 Xtensa: the ESP32 code of the same dr_native.mpy (LLVM route) on qemu-system-xtensa de233_fpu, the kernel called
 by a bare-metal harness, counted by the core's ICOUNT register (codegen.natmod.qemu_xtensa).
+
+eskf: the error-state filter's C (native_ext/dr_eskf.c), not in dr_native.mpy yet, compiled for the ESP32 by the
+same LLVM route with the natmod's flags and run by its own bare-metal harness (codegen.natmod.xtensa_eskf) on a
+simulated vehicle drive (--scenario, default car; seed 0), a GPS fix every second; a window counts its 512 samples
+and the fixes that fall in it. Its positions are checked against the same C built for the host (cffi).
 
 ESP32 time per window is estimated from the Xtensa count: the LX6 is a single-issue 5-stage pipeline, the natmod's
 code sits in IRAM (MicroPython's ESP32 port commits native code there: no flash cache misses) and its data in DRAM,
@@ -224,10 +229,144 @@ def device_table(loaded, algorithm: str, windows: int = 4, fallback_windows: int
           f"MicroPython call around it adds a few thousand instructions")
 
 
+def eskf_steps(board, scenario: str, seed: int, duration: float) -> tuple[list, list]:
+    """The calibration, then the drive cut into windows of the board's size with a fix step ("G", t, e, n, u, ve,
+    vn) wherever a fix falls: (steps, the window index of each step, -1 for the calibration)."""
+    from codegen.sim.run import build_run
+
+    run = build_run(scenario, board, seed=seed, duration=duration)
+    t = run.t_us * 1e-6
+    dt = np.diff(run.t_us).astype(np.int32)
+    k = int(np.searchsorted(t, board.algorithm.calibration_s))
+    n = board.algorithm.window
+    gps, vel = run.gps, run.gps.device_velocity()
+    fixes = [(int(np.searchsorted(t, gps.t[j], side="left")), j) for j in np.flatnonzero(gps.valid & (gps.t >= t[k]))]
+    steps, window_of = [("C", run.counts[:k])], [-1]
+    w = 0
+    while k + n <= len(dt):
+        end = k + n
+        for stop, j in fixes:
+            if k <= stop < end:
+                if stop > k:
+                    steps.append(("P", run.counts[k:stop], dt[k:stop]))
+                    window_of.append(w)
+                steps.append(("G", float(gps.t[j]), *(float(x) for x in gps.enu[j]), float(vel[j, 0]),
+                              float(vel[j, 1])))
+                window_of.append(w)
+                k = stop
+        steps.append(("P", run.counts[k:end], dt[k:end]))
+        window_of.append(w)
+        k, w = end, w + 1
+    return steps, window_of
+
+
+def _host_positions(steps: list, cov_dt_s: float, nhc_dt_s: float) -> np.ndarray:
+    """The same steps through the host build of the C (cffi): the position after each."""
+    from dataclasses import replace
+
+    from codegen.kernel.eskf import EskfConfig
+    from codegen.kernel.hosteskf import load_eskf
+
+    s = load_eskf().session(replace(EskfConfig(), cov_dt_s=cov_dt_s, nhc_dt_s=nhc_dt_s))
+    out = []
+    for item in steps:
+        if item[0] == "C":
+            s.calibrate(item[1])
+        elif item[0] == "P":
+            s.process(item[1], item[2])
+        else:
+            s.gps(item[1], item[2:5], item[5:7])
+        out.append(list(s.st.pos))
+    return np.array(out)
+
+
+def eskf_table(loaded, scenario: str = "car", seed: int = 0, duration: float = 120.0, cov_dt_s: float = 0.0,
+               nhc_dt_s: float = 0.0) -> None:
+    """Instructions per window of the error-state filter's ESP32 code on qemu-system-xtensa (cadences in s; 0: the
+    defaults of codegen.kernel.eskf.EskfConfig, which dr_eskf_config_init holds too)."""
+    from codegen.kernel.eskf import EskfConfig
+
+    cov_dt_s = cov_dt_s or EskfConfig().cov_dt_s
+    nhc_dt_s = nhc_dt_s or EskfConfig().nhc_dt_s
+    from codegen.generate import render_tree
+    from codegen.natmod import xtensa_eskf
+
+    board = loaded.board
+    n = board.algorithm.window
+    steps, window_of = eskf_steps(board, scenario, seed, duration)
+    alone = [("Q",), ("K",), ("N",), ("U",)]  # single steps on the final state, undone after each
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        try:
+            image = xtensa_eskf.build(_native_dir(folder, render_tree(loaded)), micropython_tree(), folder / "eskf")
+            answers = xtensa_eskf.run(image, steps + alone, cov_dt_s=cov_dt_s, nhc_dt_s=nhc_dt_s)
+        except Exception as exc:  # a missing tool is a row with its reason, not a crashed benchmark
+            print(f"\neskf on ESP32 code: - ({str(exc).strip().splitlines()[0][:90]})")
+            return
+    single = {item[0]: answer.instructions for item, answer in zip(alone, answers[len(steps):])}
+    answers = answers[:len(steps)]
+    windows = max(window_of) + 1
+    per = np.zeros(windows)
+    fixes = np.zeros(windows)
+    started = np.zeros(windows, dtype=bool)
+    for item, w, answer in zip(steps, window_of, answers):
+        if w >= 0:
+            per[w] += answer.instructions
+            fixes[w] += item[0] == "G"
+            started[w] = answer.started
+    running = per[started]
+    host = _host_positions(steps, cov_dt_s, nhc_dt_s)
+    device = np.array([a.position for a in answers])
+    print(f"\nthe error-state filter (eskf, 23 states) on ESP32 code, de233_fpu, bare filter: simulated {scenario} "
+          f"seed {seed}, {duration:.0f} s, covariance every {cov_dt_s:g} s, pseudo-measurements every {nhc_dt_s:g} s, instructions per window of {n} samples and its fixes (exact ICOUNT)")
+    print(f"code: {image.filter_text_bytes} bytes (dr_eskf.o text + literals, -Os); state {xtensa_eskf_state_bytes()} "
+          f"bytes; config {xtensa_eskf_config_bytes()} bytes")
+    print(f"{'windows':24s} {'count':>6s} {'median':>10s} {'p90':>10s} {'max':>10s} {'ms @240MHz, 1-2 cyc/insn':>26s}")
+    for label, values in (("before the start", per[~started]), ("filter running", running)):
+        if len(values) == 0:
+            continue
+        med, p90, top = np.median(values), np.percentile(values, 90), np.max(values)
+        print(f"{label:24s} {len(values):6d} {med / 1e6:8.3f} M {p90 / 1e6:8.3f} M {top / 1e6:8.3f} M "
+              f"{med / ESP32_HZ * 1e3:>11.2f}-{2 * med / ESP32_HZ * 1e3:.2f} (max {top / ESP32_HZ * 1e3:.2f}-"
+              f"{2 * top / ESP32_HZ * 1e3:.2f})")
+    kinds = {"P": [], "G": []}
+    for item, w, answer in zip(steps, window_of, answers):
+        if w >= 0 and started[w] and item[0] in kinds:
+            kinds[item[0]].append(answer.instructions / (len(item[1]) if item[0] == "P" else 1))
+    print(f"per sample (mechanisation + its share of propagation and pseudo-measurements): "
+          f"{np.mean(kinds['P']):.0f} instructions; per fix: {np.median(kinds['G']):.0f}; fixes per window "
+          f"{np.median(fixes):.0f}")
+    print(f"single steps: propagation {single['Q']:.0f}, covariance check {single['K']:.0f}, constraint rows "
+          f"{single['N']:.0f}, one scalar update (8 non-zeros) {single['U'] - single['N']:.0f} instructions")
+    print(f"goal <= 5 ms per window; the ESP32 code's positions against the host C (cffi): max "
+          f"{np.max(np.abs(device - host)):.2e} m over {len(steps)} steps, {answers[-1].repairs:.0f} repairs")
+
+
+def xtensa_eskf_state_bytes() -> int:
+    from codegen.kernel.hosteskf import load_eskf
+
+    ek = load_eskf()
+    return ek.ffi.sizeof("dr_eskf_state")
+
+
+def xtensa_eskf_config_bytes() -> int:
+    from codegen.kernel.hosteskf import load_eskf
+
+    ek = load_eskf()
+    return ek.ffi.sizeof("dr_eskf_config")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--board", default=None, help="board YAML (default: the bundled default board)")
-    parser.add_argument("--algorithm", choices=("seed", "fused"), default=None, help="default: both")
+    parser.add_argument("--algorithm", choices=("seed", "fused", "eskf"), default=None,
+                        help="default: seed and fused")
+    parser.add_argument("--scenario", default="car", help="eskf: the simulated vehicle drive (default car)")
+    parser.add_argument("--duration", type=float, default=120.0, help="eskf: its length, s")
+    parser.add_argument("--cov-dt", type=float, default=0.0, help="eskf: s between covariance propagations "
+                        "(default: the filter's)")
+    parser.add_argument("--nhc-dt", type=float, default=0.0, help="eskf: s between pseudo-measurements (default: "
+                        "the filter's)")
     parser.add_argument("--windows", type=int, default=4, help="natmod windows per run (the median is reported)")
     parser.add_argument("--fallback-windows", type=int, default=2, help="fallback windows per run")
     parser.add_argument("--before", default="", help="git revision whose fallback template (plain) to run beside "
@@ -236,6 +375,9 @@ def main(argv=None) -> int:
     from codegen.board.loader import load_board
 
     loaded = load_board(args.board)
+    if args.algorithm == "eskf":
+        eskf_table(loaded, args.scenario, 0, args.duration, args.cov_dt, args.nhc_dt)
+        return 0
     for algorithm in ([args.algorithm] if args.algorithm else ["seed", "fused"]):
         device_table(loaded, algorithm, args.windows, args.fallback_windows, args.before)
     return 0

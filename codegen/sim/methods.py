@@ -158,3 +158,13 @@ def eskf_method(run, starts, times):
         return eskf.estimate(run, starts, times)
     cfg = replace(fused.FusedConfig.from_board(run.board), platform=float(FUSED.param("platform").code("pedestrian")))
     return fused.estimate(run, starts, times, cfg)
+
+
+@register("eskf-c")
+def eskf_c_method(run, starts, times):
+    """The error-state filter's float32 C (native_ext/dr_eskf.c through cffi) where "eskf" runs the reference."""
+    if run.scenario in VEHICLE_SCENARIOS:
+        from codegen.kernel import hosteskf
+
+        return hosteskf.estimate(run, starts, times)
+    return eskf_method(run, starts, times)
