@@ -33,6 +33,7 @@ UNKNOWN_I32 = -(2**31)
 UNKNOWN_U16 = 0xFFFF
 UNKNOWN_U32 = 0xFFFFFFFF
 DOPPLER_SIGMA = 0.1  # m/s, NEO-6M velocity accuracy
+CLIMB_SIGMA = 0.5  # m/s: the climb rate is no Doppler, but GGA altitude differences 1 s apart (metres of noise)
 UERE = 2.5  # m, horizontal 1-sigma per unit HDOP
 CLIMB_UNKNOWN_SIGMA = 1.0  # m/s, vertical velocity when the log has no climb rate
 BLOCK_BYTES_RANGE = (256, 65536)  # logging.block_bytes' range in the board schema
@@ -314,7 +315,7 @@ def to_post_log(raw: RawDeviceLog) -> PostLog:
     vel = np.stack([sog_ms * np.sin(cog_rad), sog_ms * np.cos(cog_rad), v_up], axis=1)
     m = len(t_gps)
     sigma_vel = np.full((m, 3), DOPPLER_SIGMA)
-    sigma_vel[~climb_known, 2] = CLIMB_UNKNOWN_SIGMA
+    sigma_vel[:, 2] = np.where(climb_known, CLIMB_SIGMA, CLIMB_UNKNOWN_SIGMA)
     h_dop = np.where(hdop[valid] == UNKNOWN_U16, 200.0, hdop[valid]) / 100.0
     sigma_h = UERE * np.maximum(h_dop, 1.0)
     alt_m = np.where(alt[valid] == UNKNOWN_I32, np.nan, alt[valid] / 1000.0)
