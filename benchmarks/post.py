@@ -310,45 +310,29 @@ def synthetic_stops() -> None:
 
 
 def emulated_device_logs() -> None:
-    """`post` on the log the generated app writes on the emulated T-Beam (codegen/sim/onmicropython.py): the delay it
-    finds against the truth. The truth: each logged IMU row's six counts are found among the MPU-6050 model's
-    samples (index k: truth time k / rate after the run's start), and the fixes' UTC is the NEO-6M model's epoch plus
-    the run's time, so a row's true UTC is known and its lateness in post's input is the true delay."""
+    """`post` on the log the generated app writes on the emulated T-Beam (codegen/sim/onmicropython.py): the delay and
+    mounting it finds against the truth, per run (a run's part files read as one). The truth of the delay: each
+    logged IMU row is the box mean of log_every of the MPU-6050 model's samples, found among the box means of those
+    samples by its counts (truth time: their middle), and the fixes' UTC is the NEO-6M model's epoch plus the run's
+    time, so a row's true UTC is known and its lateness in post's input is the true delay. The mounting's truth is
+    tests/test_post_devicelog_e2e.py's."""
     import tempfile
 
-    from codegen.board.loader import load_board
-    from codegen.post.devicelog import parse_device_log, read_device_log
-    from codegen.sim.neo6m import DEFAULT_EPOCH
-    from codegen.sim.onmicropython import run_on_micropython
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_post_devicelog_e2e import Posted  # noqa: E402
 
-    loaded = load_board(ROOT / "board_configs" / "ttgo-tbeam-v1.1.yaml")
-    rate = loaded.board.imu.sample_rate_hz
-    print("## post on the emulated board's own device log (T-Beam v1.1 board file, seed 0, one 10 s outage)")
+    print("## post on the emulated board's own device log (T-Beam v1.1 board file, seed 0, no outage)")
     print()
-    print("| scenario | log file | IMU rows | fixes | true delay [ms] | true, first / last tenth [ms] | post delay [ms] | "
-          "post 1-sigma [ms] | at edge |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for scenario, t_loss in (("walk", None), ("car", 150.0)):
-        work = Path(tempfile.mkdtemp(prefix=f"post-bench-{scenario}-"))
-        with open(work / "table.txt", "w") as stream:
-            run_on_micropython(loaded, scenario, 10.0, [1.0, 5.0, 10.0], seed=0, work=work, stream=stream,
-                               t_loss=t_loss)
-        counts = np.fromfile(work / "imu.bin", dtype="<i2").reshape(-1, 6)
-        index = {tuple(row): k for k, row in enumerate(counts)}
-        for path in sorted((work / "fs").glob("dr*.bin")):
-            rows = np.array(parse_device_log(path).imu)
-            k = np.array([index.get(tuple(r[1:7].astype(int)), -1) for r in rows])
-            log = read_device_log(path)
-            found = k >= 0
-            late = log.imu.t[found] - (DEFAULT_EPOCH.timestamp() + k[found] / rate)
-            true_delay = float(np.median(late))
-            tenth = max(1, len(late) // 10)  # the true delay's drift within the file: the clock map's rate error
-            first, last = float(np.median(late[:tenth])), float(np.median(late[-tenth:]))
-            r = process(log, PostOptions(plots=False))
-            est = r.delay_estimate
-            print(f"| {scenario} | {path.name} | {len(log.imu)} | {len(log.gps)} | {true_delay * 1e3:+.1f} | "
-                  f"{first * 1e3:+.1f} / {last * 1e3:+.1f} | "
-                  f"{r.delay * 1e3:+.1f} | {est.sigma * 1e3:.1f} | {est.at_edge} |")
+    print("| scenario | s | parts | IMU rows | fixes | true delay [ms] | post delay [ms] | post 1-sigma [ms] | "
+          "mounting error [deg] | mounting chi2 | bias kept |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for scenario, duration, min_speed in (("walk", 300.0, 0.5), ("car", 420.0, 2.0)):
+        p = Posted(scenario, duration, Path(tempfile.mkdtemp(prefix=f"post-bench-{scenario}-")))
+        truth, _, _ = p.true_delay()
+        r, m = p.result, p.result.orientation.mounting
+        print(f"| {scenario} | {duration:.0f} | {len(p.parts)} | {len(p.log.imu)} | {len(p.log.gps)} | "
+              f"{truth * 1e3:+.1f} | {r.delay * 1e3:+.1f} | {r.delay_estimate.sigma * 1e3:.1f} | "
+              f"{p.mounting_error_deg(min_speed):.2f} | {m.chi2:.1f} | {not m.bias_rejected} |")
     print()
 
 

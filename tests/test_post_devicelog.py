@@ -217,3 +217,55 @@ def test_log_written_by_the_generated_app_on_micropython(tmp_path):
     yaw = np.degrees(o.euler[pushed, 2])
     assert pushed.sum() >= 4
     assert np.all(np.minimum(np.abs(yaw), 180.0 - np.abs(yaw)) < 5.0)
+
+
+def _v2_part(path, run, part, t0_us, n_rows=40, every=4, rate=200.0):
+    """A version 2 part file: its header, then IMU rows one log period apart from t0_us (the run's clock)."""
+    header = (f"deadreckon=2;board=synthetic;imu_rate_hz={rate:g};log_every={every};accel_lsb_per_g=16384;"
+              f"gyro_lsb_per_dps=131;axes=+0+1+2;kernel=python;block_bytes={BLOCK};run={run};part={part}")
+    b = Blocks()
+    b.add(struct.pack("<BBH", 0x48, 2, len(header)) + header.encode())
+    for k in range(n_rows):
+        b.add(struct.pack("<BI6h", 0x49, (t0_us + int(k * every / rate * 1e6)) & 0xFFFFFFFF, 0, 0, 16384, 0, 0, 0))
+    b.flush()
+    path.write_bytes(bytes(b.out))
+    return path
+
+
+def test_a_run_is_read_whole_from_its_parts_in_order(tmp_path):
+    from codegen.post.devicelog import parse_device_parts, run_parts
+
+    # the run's clock wraps inside part 2: read in order, the parts are one increasing time line
+    start = (1 << 32) - 30 * 20000
+    _v2_part(tmp_path / "dr00003.bin", 3, 1, start)
+    _v2_part(tmp_path / "dr00004.bin", 3, 2, start + 40 * 20000)
+    _v2_part(tmp_path / "dr00005.bin", 3, 3, start + 80 * 20000)
+    parts = run_parts(tmp_path / "dr00004.bin")
+    assert [p.name for p in parts] == ["dr00003.bin", "dr00004.bin", "dr00005.bin"]
+    t = np.array([r[0] for r in parse_device_parts(parts).imu])
+    assert len(t) == 120 and np.all(np.diff(t) == 20000)
+    assert run_parts(tmp_path) == parts  # a folder of one run
+
+
+def test_a_missing_middle_part_or_two_runs_in_a_folder_is_a_clear_error(tmp_path, capsys):
+    _v2_part(tmp_path / "dr00001.bin", 1, 1, 0)
+    _v2_part(tmp_path / "dr00003.bin", 1, 3, 2_000_000)
+    assert main(["post", str(tmp_path / "dr00001.bin"), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "lacks part(s) 2" in err and "Traceback" not in err
+    (tmp_path / "dr00003.bin").unlink()
+    _v2_part(tmp_path / "dr00002.bin", 2, 1, 0)
+    assert main(["post", str(tmp_path), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "of 2 runs in the folder" in err and "pass one file" in err
+
+
+def test_version_2_rows_stand_for_the_middle_of_their_box(tmp_path):
+    from codegen.post.devicelog import parse_device_log, to_post_log
+
+    _v2_part(tmp_path / "dr00001.bin", 1, 1, 1_000_000)
+    raw = parse_device_log(tmp_path / "dr00001.bin")
+    raw.gps = [(1_000_000 + k * 200_000, 0xFFFFFFFF, 0, 0, 0, 470000000, 80000000, 0, 1000 * k, 9000, 0, 3, 1, 8, 100)
+               for k in range(4)]
+    log = to_post_log(raw)
+    assert log.imu.t[0] == pytest.approx(1.0 - 1.5 / 200.0)  # (log_every - 1) / 2 samples before the row's time

@@ -2,7 +2,8 @@
 
 For a trial lag tau, the IMU's velocity change over each GPS interval is the integral of the ENU acceleration over
 [t_k + tau, t_k+1 + tau]; the GPS's is v_k+1 - v_k. The lag that makes the two sequences agree best (least squares
-after removing each sequence's mean, which absorbs a constant bias) is the delay: IMU timestamps are late by tau,
+after removing each sequence's mean, which absorbs a constant bias; each axis of each interval weighted by the
+inverse variance of its GPS velocity change, so a noisy climb rate does not outvote the Doppler) is the delay: IMU timestamps are late by tau,
 and t_imu - tau puts them on GPS time. A grid at the IMU sample period finds the peak, a bounded scalar search
 refines it (the zero-order-hold integral is continuous in tau).
 """
@@ -28,7 +29,8 @@ class DelayEstimate:
 
 
 def estimate_delay(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gps_vel: np.ndarray,
-                   max_lag: float = 1.0) -> DelayEstimate:
+                   max_lag: float = 1.0, gps_sigma_vel: np.ndarray | None = None) -> DelayEstimate:
+    """gps_sigma_vel: (M, 3) 1-sigma of the GPS velocities (m/s); None weighs every axis alike."""
     nodes, cum = cumulative_integral(imu_t, acc_enu)
     step = float(np.median(np.diff(imu_t)))
     t0, t1 = gps_t[:-1], gps_t[1:]
@@ -39,7 +41,13 @@ def estimate_delay(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gp
     t0, t1 = t0[inside], t1[inside]
     dv_gps = np.diff(gps_vel, axis=0)[inside]
     dv_gps = dv_gps - dv_gps.mean(axis=0)
-    norm = float(np.sum(dv_gps**2))
+    if gps_sigma_vel is None:
+        weight = np.ones_like(dv_gps)
+    else:
+        variance = gps_sigma_vel[:-1] ** 2 + gps_sigma_vel[1:] ** 2
+        weight = (1.0 / variance)[inside]
+        weight = weight / weight.mean()
+    norm = float(np.sum(weight * dv_gps**2))
 
     def dv_imu(tau):
         c0 = np.stack([np.interp(t0 + tau, nodes, cum[:, i]) for i in range(3)], axis=1)
@@ -48,10 +56,10 @@ def estimate_delay(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gp
         return d - d.mean(axis=0)
 
     def cost(tau):
-        return float(np.sum((dv_imu(tau) - dv_gps) ** 2)) / norm
+        return float(np.sum(weight * (dv_imu(tau) - dv_gps) ** 2)) / norm
 
     lags = np.arange(-max_lag, max_lag + 0.5 * step, step) if max_lag > 0 else np.array([0.0])
-    per_interval = np.array([np.sum((dv_imu(tau) - dv_gps) ** 2, axis=1) for tau in lags]) / norm
+    per_interval = np.array([np.sum(weight * (dv_imu(tau) - dv_gps) ** 2, axis=1) for tau in lags]) / norm
     costs = per_interval.sum(axis=1)
     best = int(np.argmin(costs))
     if 0 < best < len(lags) - 1:
@@ -61,7 +69,7 @@ def estimate_delay(imu_t: np.ndarray, acc_enu: np.ndarray, gps_t: np.ndarray, gp
     else:
         delay = float(lags[best])
     d = dv_imu(delay)
-    corr = float(np.sum(d * dv_gps) / np.sqrt(np.sum(d * d) * norm)) if norm > 0 else 0.0
+    corr = float(np.sum(weight * d * dv_gps) / np.sqrt(np.sum(weight * d * d) * norm)) if norm > 0 else 0.0
     # curvature of the misfit -> 1-sigma of the lag (misfit scaled so its minimum is a unit-variance chi-square)
     h = step
     c0, cp, cm = cost(delay), cost(delay + h), cost(delay - h)

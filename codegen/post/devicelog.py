@@ -1,7 +1,10 @@
-"""The device's own run log (docs/log-format.md, version 1: blocks of H/I/G/W/E records), read into a `PostLog`.
+"""The device's own run log (docs/log-format.md: blocks of H/I/G/W/E records), read into a `PostLog`.
 
-Kept apart from the other readers so a new log version only touches this module. A file's clock is the device's
-microseconds since the file was opened; GPS records also carry the fix's UTC time. When they do, both streams go
+Kept apart from the other readers so a new log version only touches this module. Version 2 (today's app): a run's
+clock is the device's microseconds since the run began, through all the part files the run rotated across (their
+headers name the run and the part), and each IMU record is the mean of `log_every` samples, stamped with the last
+one's time. Version 1 (older apps): each file has its own clock from its opening, and IMU records are single
+samples. GPS records also carry the fix's UTC time. When they do, both streams go
 onto UTC: GPS epochs at their fix times, IMU samples through the device clock at its own rate (unless the fixes
 prove it off), offset to the earliest fix receipts (the fixed part of the NMEA latency is left to the delay
 estimate). Without UTC the device clock is used.
@@ -30,12 +33,14 @@ UNKNOWN_I32 = -(2**31)
 UNKNOWN_U16 = 0xFFFF
 UNKNOWN_U32 = 0xFFFFFFFF
 DOPPLER_SIGMA = 0.1  # m/s, NEO-6M velocity accuracy
+CLIMB_SIGMA = 0.5  # m/s: the climb rate is no Doppler, but GGA altitude differences 1 s apart (metres of noise)
 UERE = 2.5  # m, horizontal 1-sigma per unit HDOP
 CLIMB_UNKNOWN_SIGMA = 1.0  # m/s, vertical velocity when the log has no climb rate
 BLOCK_BYTES_RANGE = (256, 65536)  # logging.block_bytes' range in the board schema
 LSB_RANGE = (1.0, 1.0e6)  # counts per g or per degree/s a header may give (the MPU-6050's: 2048..16384, 16.4..131)
 CLOCK_RATE_TOLERANCE = 0.002  # a clock this far off its nominal rate is believed from the fixes (MPU-6050's is +-1 %)
 CLOCK_RATE_SIGMAS = 4.0  # ... when the fixes also show it by this many of their 1-sigma
+VERSIONS = (1, 2)  # device log versions this reader knows
 YEARS = (1980, 2200)  # a GPS fix's year (the receiver's week rollover aside, nothing else is a date it gives)
 
 
@@ -60,18 +65,26 @@ class RawDeviceLog:
     gps: list[tuple] = field(default_factory=list)  # (t_us unwrapped, *fields of the G record after t_us)
     events: list[tuple[int, str]] = field(default_factory=list)
     truncated: bool = False
+    version: int = 1
+    parts: list[Path] = field(default_factory=list)  # the files read, in order (one, or a run's parts)
 
 
-def _block_size(data: bytes, path: Path) -> int:
+def _first_header(data: bytes, path: Path) -> tuple[int, dict[str, str]]:
+    """(version, keys) of the header record a device log begins with; UserError when it does not."""
     if len(data) < 4 or data[0] != REC_HEADER:
         raise UserError(f"{path}: not a deadreckon device log (no header record)", location=Location(str(path), 1, 1),
                         hint="device logs are the dr00001.bin files from the board's /logs folder")
     _, version, n = struct.unpack_from("<BBH", data, 0)
-    if version != 1:
-        raise UserError(f"{path}: device log version {version}; this reader knows version 1",
-                        location=Location(str(path), 1, 1))
+    if version not in VERSIONS:
+        raise UserError(f"{path}: device log version {version}; this reader knows versions "
+                        f"{', '.join(map(str, VERSIONS))}", location=Location(str(path), 1, 1),
+                        hint="a newer app wrote it: update deadreckon")
     text = data[4:4 + n].decode("ascii", "replace")
-    header = dict(kv.split("=", 1) for kv in text.split(";") if "=" in kv)
+    return version, dict(kv.split("=", 1) for kv in text.split(";") if "=" in kv)
+
+
+def _block_size(data: bytes, path: Path) -> int:
+    _, header = _first_header(data, path)
     written = header.get("block_bytes", str(DEFAULT_BLOCK))
     low, high = BLOCK_BYTES_RANGE
     if not (written.strip().isdigit() and low <= int(written) <= high):
@@ -82,15 +95,33 @@ def _block_size(data: bytes, path: Path) -> int:
 
 
 def parse_device_log(path: Path, block: int | None = None) -> RawDeviceLog:
-    data = read_bytes(path, "device log")
+    """One file on its own (a version 1 file, or one part of a version 2 run read alone)."""
+    return parse_device_parts([path], block)
+
+
+def parse_device_parts(paths: list[Path], block: int | None = None) -> RawDeviceLog:
+    """Files read in order as one log, the clock unwrapped across them (the parts of one version 2 run)."""
+    log = RawDeviceLog(paths[0], parts=list(paths))
+    state = [0, 0]  # the clock's wraps so far (in us), the last time read
+    for index, path in enumerate(paths):
+        data = read_bytes(path, "device log")
+        _not_empty(data, path)
+        if index == 0:
+            log.version = _first_header(data, path)[0]
+        _parse_blocks(data, path, block or _block_size(data, path), log, state, last_file=index == len(paths) - 1)
+    return log
+
+
+def _not_empty(data: bytes, path: Path) -> None:
     if not data:
         raise UserError(f"device log {path} is empty", location=Location(str(path), 1, 1),
                         hint="the device wrote no complete block: the run was shorter than one block or logging was off")
-    block = block or _block_size(data, path)
-    log = RawDeviceLog(path)
+
+
+def _parse_blocks(data: bytes, path: Path, block: int, log: RawDeviceLog, state: list[int], last_file: bool) -> None:
     if len(data) % block:
         log.truncated = True
-    t_hi, last = 0, 0
+    t_hi, last = state
     for start in range(0, len(data), block):
         blk = data[start:start + block]
         i = 0
@@ -133,7 +164,11 @@ def parse_device_log(path: Path, block: int | None = None) -> RawDeviceLog:
                 log.gps.append((stamp, *fields))
             elif kind == REC_EVENT:
                 log.events.append((stamp, fields[0]))
-    return log
+    state[:] = [t_hi, last]
+    if log.truncated and not last_file:
+        raise UserError(f"{path}: a part of the run that is cut short, with later parts after it",
+                        location=Location(str(path), 1, 1), hint="the file is damaged; pass a single part to read it "
+                        "alone")
 
 
 def _axes(spec: str) -> list[tuple[int, int]]:
@@ -153,6 +188,19 @@ def _sensitivity(header: dict[str, str], key: str, default: float) -> float:
     if not LSB_RANGE[0] <= value <= LSB_RANGE[1]:  # also false for nan
         raise ValueError(key)
     return value
+
+
+def _box_centre(header: dict[str, str], path: Path) -> float:
+    """Seconds from a version 2 IMU record's time back to the middle of the samples it averages."""
+    try:
+        every, rate = int(header.get("log_every", "1")), float(header.get("imu_rate_hz", "0"))
+    except ValueError:
+        every, rate = 0, 0.0
+    if not (1 <= every <= 1000 and 1.0 <= rate <= 10000.0):
+        raise UserError(f"{path}: the header's log_every={header.get('log_every', '(none)')[:20]};"
+                        f"imu_rate_hz={header.get('imu_rate_hz', '(none)')[:20]} is not a decimation (1..1000) and "
+                        "an IMU rate (1..10000 Hz)", location=Location(str(path), 1, 1), hint="the header is damaged")
+    return 0.5 * (every - 1) / rate
 
 
 def _check_fixes(path: Path, year, month, day, utc_ms, lat, lon, known) -> None:
@@ -195,7 +243,11 @@ def _clock_rate(g_dev: np.ndarray, utc: np.ndarray) -> tuple[float, float, float
 
 def to_post_log(raw: RawDeviceLog) -> PostLog:
     path = raw.path
-    notes = [f"{path.name}: device log, board {raw.header.get('board', '?')}, kernel {raw.header.get('kernel', '?')}"]
+    notes = [f"{path.name}: device log version {raw.version}, board {raw.header.get('board', '?')}, kernel "
+             f"{raw.header.get('kernel', '?')}"]
+    if len(raw.parts) > 1:
+        notes.append(f"{path.name}: run {raw.header.get('run', '?')} read from its {len(raw.parts)} parts "
+                     f"({', '.join(p.name for p in raw.parts)})")
     if raw.truncated:
         notes.append(f"{path.name}: the last block is incomplete (power cut?); its records were kept as far as whole")
     if len(raw.imu) < 2:
@@ -213,6 +265,8 @@ def to_post_log(raw: RawDeviceLog) -> PostLog:
                         location=Location(str(path), 1, 1), hint="the header is damaged") from None
     imu = np.array(raw.imu, dtype=float)
     t_dev = imu[:, 0] * 1e-6
+    if raw.version >= 2:  # a record is the mean of log_every samples up to its time: it stands for their middle
+        t_dev = t_dev - _box_centre(raw.header, path)
     counts = imu[:, 1:4]
     body = np.stack([sign * counts[:, index] for sign, index in axes], axis=1)
     acc = body / lsb * STANDARD_GRAVITY
@@ -261,7 +315,7 @@ def to_post_log(raw: RawDeviceLog) -> PostLog:
     vel = np.stack([sog_ms * np.sin(cog_rad), sog_ms * np.cos(cog_rad), v_up], axis=1)
     m = len(t_gps)
     sigma_vel = np.full((m, 3), DOPPLER_SIGMA)
-    sigma_vel[~climb_known, 2] = CLIMB_UNKNOWN_SIGMA
+    sigma_vel[:, 2] = np.where(climb_known, CLIMB_SIGMA, CLIMB_UNKNOWN_SIGMA)
     h_dop = np.where(hdop[valid] == UNKNOWN_U16, 200.0, hdop[valid]) / 100.0
     sigma_h = UERE * np.maximum(h_dop, 1.0)
     alt_m = np.where(alt[valid] == UNKNOWN_I32, np.nan, alt[valid] / 1000.0)
@@ -277,12 +331,58 @@ def to_post_log(raw: RawDeviceLog) -> PostLog:
     return PostLog(path.stem, ImuSeries(t_imu, acc, gyro), gps, notes=notes, time_scale=time_scale)
 
 
-def read_device_log(path: Path) -> PostLog:
-    """One dr*.bin file, or a folder of them (the newest file of the folder: each boot starts a new clock)."""
+def _run_of(path: Path) -> tuple[str, int] | None:
+    """(run, part) a version 2 file's header names, None for a version 1 file."""
+    check_input_file(path, "device log")
+    with path.open("rb") as f:
+        data = f.read(1024)
+    _not_empty(data, path)
+    version, header = _first_header(data, path)
+    if version < 2:
+        return None
+    part = header.get("part", "")
+    if "run" not in header or not part.isdigit():
+        raise UserError(f"{path}: a version {version} header without its run and part",
+                        location=Location(str(path), 1, 1), hint="the header is damaged")
+    return header["run"], int(part)
+
+
+def run_parts(path: Path) -> list[Path]:
+    """The files of the run `path` belongs to, in part order: a version 2 file with the other parts of its run
+    beside it (the oldest may have been deleted to make room), or a folder holding one run; a version 1 file alone."""
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix in DEVICE_LOG_SUFFIXES)
-        if len(files) > 1:
-            raise UserError(f"{path}: {len(files)} device logs in the folder; pass one file",
-                            hint="each dr*.bin is one boot (or one size-limited part) with its own clock")
+        runs = {p: _run_of(p) for p in files}
+        names = sorted({r[0] for r in runs.values() if r is not None})
+        if len(files) > 1 and (None in runs.values() or len(names) > 1):
+            raise UserError(f"{path}: {len(files)} device logs of {len(names) or len(files)} runs in the folder; "
+                            "pass one file (a file of a run brings the run's other parts)",
+                            hint="each boot starts a run with its own clock")
         path = files[0]
-    return to_post_log(parse_device_log(path))
+    own = _run_of(path)
+    if own is None:
+        return [path]
+    parts = {}
+    for p in sorted(path.parent.iterdir()):
+        if p.suffix in DEVICE_LOG_SUFFIXES and p.is_file():
+            try:
+                r = _run_of(p)
+            except (UserError, OSError):
+                continue  # another file: not a part of this run
+            if r is not None and r[0] == own[0]:
+                if r[1] in parts:
+                    raise UserError(f"{path.parent}: {parts[r[1]].name} and {p.name} both say they are part {r[1]} "
+                                    f"of run {own[0]}", hint="pass one file")
+                parts[r[1]] = p
+    numbers = sorted(parts)
+    missing = sorted(set(range(numbers[0], numbers[-1] + 1)) - set(numbers))
+    if missing:
+        raise UserError(f"{path.parent}: run {own[0]} lacks part(s) {', '.join(map(str, missing))} between its "
+                        f"parts {numbers[0]} and {numbers[-1]}", hint="copy every dr*.bin file of the run from the "
+                        "board's /logs folder")
+    return [parts[n] for n in numbers]
+
+
+def read_device_log(path: Path) -> PostLog:
+    """One run: a dr*.bin file with the other parts of its run beside it, or a folder of one run's files."""
+    return to_post_log(parse_device_parts(run_parts(path)))

@@ -25,6 +25,7 @@ from typing import Callable, Optional
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.ndimage import gaussian_filter1d
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation, Slerp
 
@@ -43,6 +44,9 @@ FLAG_GIMBAL = "gimbal"  # pitch within 5 deg of +-90: the rotation is fine, roll
 GIMBAL_MARGIN = np.radians(5.0)
 FLAG_GPS_GAP = "gps-gap"  # epochs missing: the interval is too long to stand for one orientation
 GPS_GAP_FACTOR = 3.0  # an interval longer than this many typical intervals is a gap
+CLIMB_UNKNOWN = 1.0  # m/s: the climb-rate sigma the readers give a log without a climb rate
+GRADE_MIN_SPEED = 3.0  # m/s: faster than a walker: a vehicle, whose body pitches with the road's grade
+GRADE_SMOOTHING_S = 5.0  # s, 1-sigma of the Gaussian the climb rate and speed are smoothed over before their ratio
 
 
 @dataclass
@@ -92,6 +96,7 @@ class Intervals:
     usable: np.ndarray  # (K,) bool, IMU covers the interval
     track: "Track" = None
     gap: np.ndarray = None  # (K,) bool, a GPS gap (not usable)
+    grade: np.ndarray = None  # (K,) rad, the track's climb angle where a vehicle follows it (track_grade), else 0
 
     @property
     def mid(self) -> np.ndarray:
@@ -151,6 +156,30 @@ class Track:
         return np.unwrap(held), moving
 
 
+def track_grade(gps_t: np.ndarray, gps_vel: np.ndarray, gps_sigma_vel: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The track's climb angle (rad) at the times `at`: atan2(climb rate, speed), both smoothed over
+    GRADE_SMOOTHING_S first (a road's grade changes over hundreds of metres; one epoch's GPS climb rate, from
+    altitude differences, is off by ~0.5 m/s). Only where faster than GRADE_MIN_SPEED: a vehicle's body pitches
+    with the road, a walker's hand does not follow the path's slope. 0 where the log has no climb rate (its sigma
+    is CLIMB_UNKNOWN or more)."""
+    known = (gps_sigma_vel[:, 2] < CLIMB_UNKNOWN).astype(float)
+    if len(gps_t) < 2 or not known.any():
+        return np.zeros(len(at))
+    width = GRADE_SMOOTHING_S / float(np.median(np.diff(gps_t)))  # epochs
+    weight = gaussian_filter1d(known, width, mode="nearest")
+    climb = gaussian_filter1d(known * gps_vel[:, 2], width, mode="nearest") / np.maximum(weight, 1e-12)
+    speed = gaussian_filter1d(np.hypot(gps_vel[:, 0], gps_vel[:, 1]), width, mode="nearest")
+    grade = np.where((speed >= GRADE_MIN_SPEED) & (weight > 1e-6), np.arctan2(climb, np.maximum(speed, 1e-9)), 0.0)
+    return np.interp(at, gps_t, grade)
+
+
+def rot_grade(grade: np.ndarray) -> np.ndarray:
+    """(K, 3, 3): the track frame (x along the horizontal track, z up) pitched nose up by `grade` rad."""
+    c, s = np.cos(grade), np.sin(grade)
+    z, o = np.zeros_like(grade), np.ones_like(grade)
+    return np.stack([np.stack([c, z, -s], -1), np.stack([z, o, z], -1), np.stack([s, z, c], -1)], -2)
+
+
 def build_intervals(imu_t, acc, gps_t, gps_vel, gps_sigma_vel, min_speed: float) -> Intervals:
     t0, t1 = gps_t[:-1], gps_t[1:]
     dt = t1 - t0
@@ -167,7 +196,8 @@ def build_intervals(imu_t, acc, gps_t, gps_vel, gps_sigma_vel, min_speed: float)
     acc_mean = interval_means(nodes, cum, t0, t1)
     track = Track(gps_t, gps_vel, min_speed)
     chi, moving = track.yaw(0.5 * (t0 + t1))
-    return Intervals(t0, t1, gps_accel, sigma, acc_mean, chi, moving, usable, track, gap)
+    grade = track_grade(gps_t, gps_vel, gps_sigma_vel, 0.5 * (t0 + t1))
+    return Intervals(t0, t1, gps_accel, sigma, acc_mean, chi, moving, usable, track, gap, grade)
 
 
 def turn_compensated_means(iv: Intervals, imu_t: np.ndarray, acc: np.ndarray, up_sensor: np.ndarray) -> np.ndarray:
@@ -269,7 +299,9 @@ class Mounting:
 
 def fit_mounting(iv: Intervals, estimate_bias: bool = True, bias_prior: float = 0.05 * STANDARD_GRAVITY,
                  bias_max_chi2: float = float("inf")) -> Optional[Mounting]:
-    """Mounting M relative to the track and bias b: Rz(chi_k) M (a_k - b) = A_k + g z over all moving intervals.
+    """Mounting M relative to the vehicle and bias b: Rz(chi_k) Ry(grade_k) M (a_k - b) = A_k + g z over all moving
+    intervals, the vehicle frame following the track's direction and, at a vehicle's speeds, its grade (a car
+    pitches with the road; a level track frame leaves the grade in the misfit).
 
     The bias has a zero-mean prior of `bias_prior` per component: where the motion cannot tell a bias from a tilt
     (no turns) it stays near zero instead of soaking up the misfit. The bias is only observable through the rigid
@@ -277,8 +309,11 @@ def fit_mounting(iv: Intervals, estimate_bias: bool = True, bias_prior: float = 
     sel = iv.usable & iv.moving
     if sel.sum() < 6:
         return None
-    a, target, w, chi = iv.acc_mean[sel], iv.gps_accel[sel] + STANDARD_GRAVITY * UP, 1.0 / iv.sigma[sel], iv.track_yaw[sel]
+    a, target, chi = iv.acc_mean[sel], iv.gps_accel[sel] + STANDARD_GRAVITY * UP, iv.track_yaw[sel]
+    w = 1.0 / iv.sigma[sel]
     rz = rot_z(chi)
+    if iv.grade is not None:
+        rz = rz @ rot_grade(iv.grade[sel])
 
     def residual(p):
         m = euler_matrix(*p[:3])

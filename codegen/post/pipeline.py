@@ -131,10 +131,12 @@ def smooth_segments(t, a_enu, gps, gps_enu, options: SmootherOptions) -> list[Sm
     return parts
 
 
-def _rotate_mounted(mounting, track: Track, t: np.ndarray, acc: np.ndarray) -> np.ndarray:
-    chi, _ = track.yaw(t)
+def _rotate_mounted(mounting, iv: Intervals, t: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    chi, _ = iv.track.yaw(t)
+    grade = np.interp(t, iv.mid, iv.grade) if iv.grade is not None else np.zeros(len(t))
     m = mounting.euler
-    rot = Rotation.from_euler("z", chi[:, None]) * Rotation.from_euler("ZYX", [m[2], m[1], m[0]])
+    rot = (Rotation.from_euler("z", chi[:, None]) * Rotation.from_euler("y", -grade[:, None])
+           * Rotation.from_euler("ZYX", [m[2], m[1], m[0]]))
     return rot.apply(acc - mounting.bias) - np.array([0.0, 0.0, STANDARD_GRAVITY])
 
 
@@ -255,13 +257,14 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
         # the delay search only needs rough ENU accelerations: the whole-run mounting turned with the track
         # (cheap), or the per-interval solution where there is too little motion to fit a mounting
         if mounting is not None:
-            a_rough = _rotate_mounted(mounting, iv.track, t, acc)
+            a_rough = _rotate_mounted(mounting, iv, t, acc)
         else:
             orientation = solve_orientations(iv, options.orientation, np.zeros(3), None)
             if not orientation.valid.any():
                 raise UserError(f"{log.name}: no GPS interval has IMU samples; cannot find the orientation")
             a_rough = _rotate(orientation, t, acc)
-        estimate = estimate_delay(t, a_rough, gps.t, gps.vel, options.max_lag if attempt == 0 else 4 * step)
+        estimate = estimate_delay(t, a_rough, gps.t, gps.vel, options.max_lag if attempt == 0 else 4 * step,
+                                  gps.sigma_vel)
         curve = estimate if attempt == 0 else curve  # the full-range search, for the report's plot
         delay += estimate.delay
         if progress:
@@ -281,7 +284,8 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
             raise UserError(f"{log.name}: no GPS interval has IMU samples; cannot find the orientation")
         if options.delay is not None:
             break
-        refined = estimate_delay(t, _rotate(orientation, t, acc), gps.t, gps.vel, min(options.max_lag, 0.25))
+        refined = estimate_delay(t, _rotate(orientation, t, acc), gps.t, gps.vel, min(options.max_lag, 0.25),
+                                 gps.sigma_vel)
         delay += refined.delay
         spread = max(refined.sigma, curve.sigma) if curve is not None else refined.sigma  # the full search's too
         estimate = replace(curve if curve is not None else refined, delay=delay, sigma=spread,

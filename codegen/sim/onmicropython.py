@@ -16,7 +16,7 @@ from __future__ import annotations
 import re
 import sys
 import tempfile
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +49,55 @@ def screen_positions(trace_run, origin):
     return np.array(times), np.array(points).reshape(-1, 2), modes
 
 
+@dataclass
+class Recording:
+    """What the generated app did on the emulated board, and the truth it was fed."""
+
+    result: object  # harness.run_app's result: console, trace, screens
+    traj: trajectory.Trajectory
+    t_us: np.ndarray  # (N,) truth time of each IMU sample the emulated chip serves, us
+    counts: np.ndarray  # (N, 6) the counts it serves, sample by sample
+    gps: neo6m.GpsTrack  # the fixes it streams (UTC = neo6m.DEFAULT_EPOCH + t)
+    errors: mpu6050.MpuErrors
+    logs: Path  # the board's log folder, dumped after the run
+
+
+def record_on_micropython(loaded, traj: trajectory.Trajectory, seed: int = 0, quality: str = "open-sky",
+                          duration: float | None = None, outages=(), work: Path | None = None,
+                          what: str = "") -> Recording:
+    """Run the generated app unmodified on the emulated board for `duration` s of virtual time (default the
+    trajectory's), fed by the MPU-6050 and NEO-6M models of `traj` with the GPS `outages` ((start s, end s)) cut in."""
+    board = loaded.board
+    duration = traj.duration if duration is None else duration
+    errors = replace(mpu6050.MpuErrors(), jitter_us=0.0)
+    t_us, counts = mpu6050.simulate_imu(traj, board, seed=seed, errors=errors)
+    gps = neo6m.simulate_gps(traj, seed=seed + 1000, quality=quality, rate_hz=board.gps.rate_hz, outages=list(outages))
+    sentences = neo6m.nmea_sentences(gps)
+    work = Path(work) if work is not None else Path(tempfile.mkdtemp(prefix="deadreckon-sim-"))
+    out = harness.generate_app(loaded.files[0], work / "out")
+    counts_path = harness.write_counts(work / "imu.bin", counts)
+    per_epoch = len(sentences) // len(gps.t)
+    chunks = [(float(gps.t[i]) + 0.1, b"".join(sentences[i * per_epoch : (i + 1) * per_epoch]).decode())
+              for i in range(len(gps.t)) if gps.t[i] < duration]
+    gps_path = harness.write_stream(work / "gps.txt", chunks)
+    rail = None if board.gps.power == "always_on" else board.gps.power
+    pmu = None if board.power.chip == "none" else board.power.chip
+    display = board.display.model if board.display else None
+    world = harness.tbeam_scenario(work, counts_path, gps_path, duration, rate_hz=board.imu.sample_rate_hz,
+                                   imu={"address": board.imu.address, "accel_range_g": board.imu.accel_range_g,
+                                        "gyro_range_dps": board.imu.gyro_range_dps},
+                                   display=display, pmu=pmu, rail=rail, uart_id=board.uart[board.gps.uart].id)
+    if board.display is not None:
+        world["i2c"]["0"][1]["address"] = board.display.address
+    print(f"running the generated app on MicroPython for {duration:.0f} s of virtual time"
+          f"{f' ({what})' if what else ''} in {work}", file=sys.stderr)
+    result = harness.run_app(find_tool("micropython"), out, world, work, timeout=max(600.0, 5 * duration))
+    if result.returncode != 0 or "Traceback" in result.stdout + result.stderr:
+        raise UserError(f"the app failed on MicroPython (exit {result.returncode})",
+                        hint=(result.stderr or result.stdout)[-800:])
+    return Recording(result, traj, t_us, counts, gps, errors, work / "fs")
+
+
 def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: int = 0, quality: str = "open-sky",
                        work: Path | None = None, stream=None, t_loss: float | None = None,
                        traj: trajectory.Trajectory | None = None):
@@ -70,34 +119,10 @@ def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: i
     if t_loss + outage_s > traj.duration:
         raise UserError(f"{scenario} lasts {traj.duration:.0f} s: too short for a {outage_s:g} s outage at "
                         f"{t_loss:.1f} s", hint="choose a shorter --outage")
-    errors = replace(mpu6050.MpuErrors(), jitter_us=0.0)
-    t_us, counts = mpu6050.simulate_imu(traj, board, seed=seed, errors=errors)
-    gps = neo6m.simulate_gps(traj, seed=seed + 1000, quality=quality, rate_hz=board.gps.rate_hz,
-                             outages=[(t_loss, t_loss + outage_s)])
-    sentences = neo6m.nmea_sentences(gps)
-
-    work = Path(work) if work is not None else Path(tempfile.mkdtemp(prefix="deadreckon-sim-"))
-    out = harness.generate_app(loaded.files[0], work / "out")
-    counts_path = harness.write_counts(work / "imu.bin", counts)
-    per_epoch = len(sentences) // len(gps.t)
-    chunks = [(float(gps.t[i]) + 0.1, b"".join(sentences[i * per_epoch : (i + 1) * per_epoch]).decode())
-              for i in range(len(gps.t)) if gps.t[i] < duration]
-    gps_path = harness.write_stream(work / "gps.txt", chunks)
-    rail = None if board.gps.power == "always_on" else board.gps.power
-    pmu = None if board.power.chip == "none" else board.power.chip
-    display = board.display.model if board.display else None
-    world = harness.tbeam_scenario(work, counts_path, gps_path, duration, rate_hz=board.imu.sample_rate_hz,
-                                   imu={"address": board.imu.address, "accel_range_g": board.imu.accel_range_g,
-                                        "gyro_range_dps": board.imu.gyro_range_dps},
-                                   display=display, pmu=pmu, rail=rail, uart_id=board.uart[board.gps.uart].id)
-    if board.display is not None:
-        world["i2c"]["0"][1]["address"] = board.display.address
-    print(f"running the generated app on MicroPython for {duration:.0f} s of virtual time (outage "
-          f"{t_loss:.1f}-{t_loss + outage_s:.1f} s) in {work}", file=sys.stderr)
-    result = harness.run_app(micropython, out, world, work, timeout=max(600.0, 5 * duration))
-    if result.returncode != 0 or "Traceback" in result.stdout + result.stderr:
-        raise UserError(f"the app failed on MicroPython (exit {result.returncode})",
-                        hint=(result.stderr or result.stdout)[-800:])
+    recording = record_on_micropython(loaded, traj, seed=seed, quality=quality, duration=duration,
+                                      outages=[(t_loss, t_loss + outage_s)], work=work, what=f"outage {t_loss:.1f}-"
+                                      f"{t_loss + outage_s:.1f} s")
+    result, gps, errors = recording.result, recording.gps, recording.errors
     shown_t, shown_p, modes = screen_positions(result, gps.origin)
     if len(shown_t) == 0:
         raise UserError("the app never showed a position", hint=result.stdout[-800:])

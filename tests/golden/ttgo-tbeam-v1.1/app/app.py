@@ -169,8 +169,6 @@ class App:
         self.imu_errors = 0
         self.imu_failing_ms = 0
         self.period_us = int(1000000 / cfg.IMU_SAMPLE_RATE_HZ)
-        self.log_every = max(1, int(cfg.IMU_SAMPLE_RATE_HZ / cfg.LOG_IMU_RATE_HZ + 0.5))
-        self.log_count = 0
         # dead-reckoning state
         self.mode = MODE_GPS
         self.test_mode = False
@@ -188,12 +186,14 @@ class App:
         self.diag_samples = 0
         self.diag_ms = time.ticks_ms()
         self.rate_hz = 0.0
+        log_every = max(1, int(cfg.IMU_SAMPLE_RATE_HZ / cfg.LOG_IMU_RATE_HZ + 0.5))
         self.log = Logger(
-            "deadreckon=1;board=%s;imu_rate_hz=%s;log_every=%d;accel_lsb_per_g=%s;gyro_lsb_per_dps=%s;axes=%s;"
+            "deadreckon=2;board=%s;imu_rate_hz=%s;log_every=%d;accel_lsb_per_g=%s;gyro_lsb_per_dps=%s;axes=%s;"
             "window=%d;block=%d;kernel=%s;block_bytes=%d;imu_clock=%s"
-            % (cfg.BOARD_NAME, cfg.IMU_SAMPLE_RATE_HZ, self.log_every, cfg.ACCEL_LSB_PER_G, cfg.GYRO_LSB_PER_DPS,
+            % (cfg.BOARD_NAME, cfg.IMU_SAMPLE_RATE_HZ, log_every, cfg.ACCEL_LSB_PER_G, cfg.GYRO_LSB_PER_DPS,
                "".join("%s%d" % ("-" if s < 0 else "+", a) for a, s in cfg.IMU_AXIS_MAP), dr.WINDOW, dr.BLOCK,
                KERNEL, cfg.LOG_BLOCK_BYTES, "fifo" if cfg.IMU_USE_FIFO else "read"),
+            log_every,
             _log_blocks,
         )
         self.log_error = self.log.error
@@ -339,10 +339,7 @@ class App:
         self.log.at(self.t_sample)
         self.samples_total += 1
         self.diag_samples += 1
-        self.log_count += 1
-        if self.log_count >= self.log_every:
-            self.log_count = 0
-            self.log.imu_at(buf, i)
+        self.log.imu_add(buf, i)
         if calibrating:
             self.k += 1
             if self.k == dr.CALIBRATION_SAMPLES:

@@ -10,18 +10,23 @@ LOG_MAX_FILES are kept; the free space is read once per file and counted down as
 
 Times: every record carries the app's sample clock (`at`): the time the IMU sample the app last read was taken, so
 IMU records are in the chip's time even when they are read from its FIFO in bursts, and the records stay in order.
-The 32-bit microsecond counter is kept as two 16-bit halves (no big integers on a 32-bit port).
+The 32-bit microsecond counter is kept as two 16-bit halves (no big integers on a 32-bit port); it runs from the
+run's start (the boot) through every part file, so the parts of a run read as one.
+
+IMU records are box-filtered: the app adds every sample (`imu_add`) and one record in `every` holds the mean of the
+`every` samples before it, so vibration above the log rate averages out instead of aliasing into it.
 """
 
 from micropython import const
 
 import os
 import struct
+from array import array
 import time
 
 import board_config as cfg
 
-VERSION = const(1)
+VERSION = const(2)
 REC_PAD = const(0x00)
 REC_HEADER = const(0x48)  # 'H'
 REC_IMU = const(0x49)  # 'I'
@@ -60,8 +65,9 @@ def _number(name):
 
 
 class Logger:
-    def __init__(self, header_text, blocks=None):
-        """blocks: the two LOG_BLOCK_BYTES buffers (the app takes them early, while its heap is in one piece)."""
+    def __init__(self, header_text, every, blocks=None):
+        """header_text: the run header's keys; every: IMU samples per record (their mean is logged); blocks: the
+        two LOG_BLOCK_BYTES buffers (the app takes them early, while its heap is in one piece)."""
         self.dir = cfg.LOG_DIR
         if blocks is None:
             blocks = (bytearray(cfg.LOG_BLOCK_BYTES), bytearray(cfg.LOG_BLOCK_BYTES))
@@ -76,10 +82,15 @@ class Logger:
         self.blocks_written = 0
         self.files_deleted = 0
         self.t_last = time.ticks_us()
-        self.t_lo = 0  # microseconds since this file began, modulo 2**32, as two 16-bit halves
+        self.t_lo = 0  # microseconds since the run began, modulo 2**32, as two 16-bit halves
         self.t_hi = 0
         self.sample_ticks = None  # the app's sample clock (ticks_us), None: real time
         self.header_text = header_text
+        self.every = every
+        self.sums = array("i", (0, 0, 0, 0, 0, 0))  # the IMU box: counts summed since the last IMU record
+        self.summed = 0
+        self.run = 0  # the number of the run's first file
+        self.part = 0  # of the open block's file within the run
         self.enabled = cfg.LOG_ENABLED
         self.error = None
         self.limit = 0
@@ -87,6 +98,7 @@ class Logger:
             try:
                 self._prepare()
                 self._open_file()
+                self.run = self.number
                 self._header()
             except OSError as e:
                 self._fail(e)
@@ -143,15 +155,15 @@ class Logger:
         number = current[-1] + 1 if current else 1
         if not self._make_room(cfg.LOG_MAX_FILES):
             raise OSError("filesystem full")
+        self.number = number
         self.path = self._path(number)
         self.file = open(self.path, "wb")
         self.file_bytes = 0
 
     def _header(self):
-        """Begin the open block with a file's header; the file's clock starts now."""
-        self.t_lo = self.t_hi = 0
-        self.t_last = self.sample_ticks if self.sample_ticks is not None else time.ticks_us()
-        text = self.header_text.encode()
+        """Begin the open block with the next part's header (the run's keys, its run and part numbers)."""
+        self.part += 1
+        text = ("%s;run=%d;part=%d" % (self.header_text, self.run, self.part)).encode()
         struct.pack_into("<BBH", self.block, 0, REC_HEADER, VERSION, len(text))
         self.block[4 : 4 + len(text)] = text
         self.used = 4 + len(text)
@@ -239,12 +251,32 @@ class Logger:
         self.free -= len(blk)
         self.blocks_written += 1
 
-    def imu_at(self, buf, i):
-        """IMU record from the six counts at buf[i:i+6] (no slice allocated)."""
+    def imu_add(self, buf, i):
+        """Add the six counts at buf[i:i+6] to the box; every `every`-th sample logs the box. Called per sample, so
+        kept small: a call's frame this size lives on the C stack, a larger one is allocated on the heap."""
+        s = self.sums
+        s[0] += buf[i]
+        s[1] += buf[i + 1]
+        s[2] += buf[i + 2]
+        s[3] += buf[i + 3]
+        s[4] += buf[i + 4]
+        s[5] += buf[i + 5]
+        self.summed += 1
+        if self.summed >= self.every:
+            self._imu_record()
+
+    def _imu_record(self):
+        """An IMU record of the box's means (rounded to the nearest count), stamped with the last sample's time;
+        the box starts again."""
+        s = self.sums
+        n = self.summed
+        h = n >> 1
         if self._room(_IMU_LEN):
-            struct.pack_into(IMU_FMT, self.block, self.used, REC_IMU, self.t_lo, self.t_hi, buf[i], buf[i + 1],
-                             buf[i + 2], buf[i + 3], buf[i + 4], buf[i + 5])
+            struct.pack_into(IMU_FMT, self.block, self.used, REC_IMU, self.t_lo, self.t_hi, (s[0] + h) // n,
+                             (s[1] + h) // n, (s[2] + h) // n, (s[3] + h) // n, (s[4] + h) // n, (s[5] + h) // n)
             self.used += _IMU_LEN
+        s[0] = s[1] = s[2] = s[3] = s[4] = s[5] = 0
+        self.summed = 0
 
     def gps(self, p):
         if not self._room(_GPS_LEN):
