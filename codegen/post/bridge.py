@@ -178,11 +178,11 @@ class GapModel:
         the run, so it counts only in spans whose orientation is interpolated the same way: a gyro span's orientation
         is the gyro's, aligned to several seconds of solved intervals, not the per-interval solution.
         `gyro_misfit(window)` (codegen.post.bridge.GyroTrack.relative_power): the same misfit measured with the
-        orientation a gyro span has, over windows of the gap's length where GPS covers the run. In a gyro span it
-        counts instead of the tilt and bias terms: those are the fits' marginal 1-sigmas, which cannot tell a
-        horizontal bias from a tilt (the solved tilt takes the bias up), while what the gap sees is their sum, the
-        body-fixed acceleration error the gyro carries round as the device turns, and that is what the misfit
-        measures."""
+        orientation a gyro span has, over windows of the gap's length where GPS covers the run. In a gyro span the
+        tilt and bias terms are an upper bound: they are the fits' marginal 1-sigmas, which cannot tell a horizontal
+        bias from a tilt (the solved tilt takes the bias up), while what the gap sees is their sum, the body-fixed
+        acceleration error the gyro carries round as the device turns, and that is what the misfit measures; so
+        where it is smaller, it counts in their place."""
         a = self.enu(t, acc, bias)
         density = np.zeros_like(a)
         inside = self.inside(t)
@@ -218,7 +218,7 @@ class GapModel:
                     if relative is None:
                         continue
                     sel = (span_t > span.a) & (span_t < span.b)
-                    q_slow[sel] = np.maximum(relative * power[sel] - floor**2, 0.0)
+                    q_slow[sel] = np.minimum(q_slow[sel], np.maximum(relative * power[sel] - floor**2, 0.0))
             q = var_fast * motion_time + q_slow
             density[inside, :2] = np.sqrt(np.maximum(q, 0.0))[:, None]
         return a, density
