@@ -6,6 +6,7 @@
     python3 benchmarks/post.py gaps       # GPS gaps of 1/5/20/60 s: bridge vs Hermite, 1-sigma coverage
     python3 benchmarks/post.py stands     # gaps cut at the walk's stands (ending at, starting at, inside one)
     python3 benchmarks/post.py stops      # synthetic runs with a stop, gaps placed at it, per gap kind
+    python3 benchmarks/post.py stops --seeds 0,1,2,3,4   # the same on other seeds
     python3 benchmarks/post.py device     # the emulated board's own device log: post's delay against the truth
 
 Synthetic: a vehicle with the device at a known mounting, 0.1 m/s Doppler noise per ENU component, a 50 mg
@@ -286,19 +287,19 @@ def stop_gaps(length: float) -> list[tuple[str, float]]:
             ("stationary", STOP_AT + 0.5 * (STOP_LENGTH - length))]
 
 
-def synthetic_stops() -> None:
+def synthetic_stops(seeds: tuple[int, ...] = STOP_SEEDS) -> None:
     """Synthetic runs that stand 100-140 s, gaps placed at the stop: per gap kind over seeds no constant was tuned
     on, the bridge and its 1-sigma against the truth and the Hermite bridge."""
     from codegen.post.gapcheck import cut_gap, gap_errors, truth_about
     from codegen.post.synthetic import ORIGIN
 
     print(f"## Synthetic stops: 200 s runs standing {STOP_AT:.0f}-{STOP_AT + STOP_LENGTH:.0f} s, seeds "
-          f"{', '.join(map(str, STOP_SEEDS))}, with the gyro")
+          f"{', '.join(map(str, seeds))}, with the gyro")
     print()
     print(GAP_HEADER.replace("| gap |", "| gap kind, length |"))
     for length in (10.0, 30.0):
         rows: dict[str, list] = {}
-        for seed in STOP_SEEDS:
+        for seed in seeds:
             log, truth = make_run(Scenario(duration=200.0, seed=seed, stops=((STOP_AT, STOP_AT + STOP_LENGTH),)))
             for kind, start in stop_gaps(length):
                 r = process(cut_gap(log, start, length), PostOptions(plots=False))
@@ -337,7 +338,13 @@ def emulated_device_logs() -> None:
 
 
 if __name__ == "__main__":
-    which = sys.argv[1:] or ["synthetic", "walk", "gaps", "stands", "stops"]
+    args = sys.argv[1:]
+    stop_seeds = STOP_SEEDS
+    if "--seeds" in args:
+        at = args.index("--seeds")
+        stop_seeds = tuple(int(s) for s in args[at + 1].split(","))
+        del args[at:at + 2]
+    which = args or ["synthetic", "walk", "gaps", "stands", "stops"]
     if "synthetic" in which:
         synthetic()
     if "walk" in which:
@@ -347,6 +354,6 @@ if __name__ == "__main__":
     if "stands" in which:
         stands()
     if "stops" in which:
-        synthetic_stops()
+        synthetic_stops(stop_seeds)
     if "device" in which:
         emulated_device_logs()

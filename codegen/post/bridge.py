@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from codegen.board.model import STANDARD_GRAVITY
+from codegen.post.orientation import cumulative_integral
 
 GAP_EPOCH_FACTOR = 1.5  # an interval this many typical epoch intervals long has at least one epoch missing
 GYRO_NOISE_DENSITY = np.radians(0.005)  # rad/s/sqrt(Hz), MPU-6050 datasheet rate noise spectral density
@@ -160,7 +161,8 @@ class GapModel:
         return self.rotation(t).apply(acc - bias) - np.array([0.0, 0.0, STANDARD_GRAVITY])
 
     def rotate(self, t: np.ndarray, acc: np.ndarray, bias: np.ndarray, misfit: Optional["ImuMisfit"] = None,
-               floor: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+               floor: float = 0.0, gyro_misfit: Optional[Callable[[float], Optional[float]]] = None
+               ) -> tuple[np.ndarray, np.ndarray]:
         """ENU accelerations without gravity (m/s^2), the horizontal part shrunk inside the spans by E[cos yaw error],
         and the acceleration noise (m/s^2/sqrt(Hz), (N,3)) the angle errors and the bias leave there.
 
@@ -174,7 +176,13 @@ class GapModel:
         measures the same slow errors whole (tilt, bias, lever arm, a hand's swing), so the larger of it and the
         tilt and bias terms counts, not their sum. It was measured with the per-interval orientation where GPS covers
         the run, so it counts only in spans whose orientation is interpolated the same way: a gyro span's orientation
-        is the gyro's, aligned to several seconds of solved intervals, not the per-interval solution."""
+        is the gyro's, aligned to several seconds of solved intervals, not the per-interval solution.
+        `gyro_misfit(window)` (codegen.post.bridge.GyroTrack.relative_power): the same misfit measured with the
+        orientation a gyro span has, over windows of the gap's length where GPS covers the run. In a gyro span the
+        tilt and bias terms are an upper bound: they are the fits' marginal 1-sigmas, which cannot tell a horizontal
+        bias from a tilt (the solved tilt takes the bias up), while what the gap sees is their sum, the body-fixed
+        acceleration error the gyro carries round as the device turns, and that is what the misfit measures; so
+        where it is smaller, it counts in their place."""
         a = self.enu(t, acc, bias)
         density = np.zeros_like(a)
         inside = self.inside(t)
@@ -195,15 +203,22 @@ class GapModel:
             var_fast = 0.5 * horizontal**2 * (1.0 - np.exp(-yaw**2))
             var_slow = 0.5 * STANDARD_GRAVITY**2 * ((aligned_tilt * turned) ** 2 + grown) + (self.bias_sigma * turned) ** 2
             q_slow = var_slow * self.correlation_time(t[inside])
+            span_t = t[inside]
             if misfit is not None:
                 q_misfit = np.zeros(int(inside.sum()))
-                span_t = t[inside]
                 for span in self.spans:
                     if span.gyro:
                         continue
                     sel = (span_t > span.a) & (span_t < span.b)
                     q_misfit[sel] = misfit.relative_power(span.gap.length) * power[sel]
                 q_slow = np.maximum(q_slow, q_misfit - floor**2)
+            if gyro_misfit is not None:
+                for span in self.spans:
+                    relative = gyro_misfit(span.gap.length) if span.gyro else None
+                    if relative is None:
+                        continue
+                    sel = (span_t > span.a) & (span_t < span.b)
+                    q_slow[sel] = np.minimum(q_slow[sel], np.maximum(relative * power[sel] - floor**2, 0.0))
             q = var_fast * motion_time + q_slow
             density[inside, :2] = np.sqrt(np.maximum(q, 0.0))[:, None]
         return a, density
@@ -493,4 +508,111 @@ class ImuMisfit:
                 weight += float(np.sum(w * s * (1 - s))) * (energy[j] - energy[i]) / w
         if weight <= 0:
             return 0.0
+        return max(excess / weight, 0.0)
+
+
+@dataclass
+class GyroTrack:
+    """The gyro's integral over the whole log (bias removed) and the intervals whose yaw was solved: what a gyro
+    span's orientation is built from, so the misfit a gyro span leaves can be measured where GPS covers the run.
+
+    `relative_power(window)` is `ImuMisfit.relative_power` with one difference: each window from an epoch to the
+    first one at least `window` s on is oriented as a gap there would be, the gyro's integral aligned to the solved
+    intervals within `ALIGN_WINDOW` before its start and after its end and Slerped between the two (`_gyro_span`), and
+    its velocity misfit against the GPS is taken with that orientation. The misfit left is what the gyro bridge's
+    own errors leave over a gap's length: the body-fixed acceleration error (the accelerometer bias left, and the
+    tilt the alignment took from the solved intervals) turned round with the device, the alignments' yaw, the
+    gyro's drift, and whatever the IMU misses of the motion (a hand's swing, a lever arm)."""
+
+    t: np.ndarray  # (N,) s, IMU sample times
+    acc: np.ndarray  # (N,3) m/s^2, sensor frame, bias removed
+    solved_t: np.ndarray  # s, midpoints of the intervals whose yaw was solved from motion
+    slerp: Callable[[np.ndarray], Rotation]
+    gps_t: np.ndarray
+    gps_vel: np.ndarray  # (M,3) m/s
+    gps_var: np.ndarray  # (M,2) (m/s)^2, horizontal Doppler variance
+    times: np.ndarray  # the integral's step times
+    rates: np.ndarray  # rad/s held over each step
+    integral: Rotation  # at `times`
+    _cache: dict = field(default_factory=dict)
+
+    @classmethod
+    def build(cls, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, solved_t: np.ndarray,
+              slerp: Callable[[np.ndarray], Rotation], gps_t: np.ndarray, gps_vel: np.ndarray,
+              gps_sigma_vel: np.ndarray) -> "GyroTrack":
+        """`gyro` with its bias already removed, `acc` with the accelerometer's."""
+        times, rates, integral = _integrate(t, gyro, float(t[0]) - 1e-6, float(t[-1]) + 1e-6)
+        return cls(t, acc, np.asarray(solved_t, dtype=float), slerp, gps_t, gps_vel, gps_sigma_vel[:, :2] ** 2,
+                   times, rates, integral)
+
+    def _gyro_at(self, tt: np.ndarray) -> Rotation:
+        k = np.clip(np.searchsorted(self.times, tt, side="right") - 1, 0, len(self.times) - 2)
+        return self.integral[k] * Rotation.from_rotvec(self.rates[k] * (tt - self.times[k])[:, None])
+
+    def _offset(self, at: np.ndarray) -> Rotation:
+        return _align(self.slerp(at) * self._gyro_at(at).inv())[0]
+
+    def _window(self, i: int, j: int) -> Optional[tuple[np.ndarray, np.ndarray]]:
+        """(velocity misfit at epochs i..j (j-i+1, 2), mean horizontal acceleration power) of the window from epoch
+        i to epoch j, oriented as a gap there; None where it cannot be aligned at both ends."""
+        a, b = self.gps_t[i], self.gps_t[j]
+        before = self.solved_t[(self.solved_t >= a - ALIGN_WINDOW) & (self.solved_t <= a + 1e-9)]
+        after = self.solved_t[(self.solved_t >= b - 1e-9) & (self.solved_t <= b + ALIGN_WINDOW)]
+        if not len(before) or not len(after):
+            return None
+        across = Slerp([a, b], Rotation.concatenate([self._offset(before), self._offset(after)]))
+        edges = np.searchsorted(self.t, [a, b])
+        sel = slice(max(edges[0] - 2, 0), min(edges[1] + 2, len(self.t)))
+        ts = self.t[sel]
+        if len(ts) < 4:
+            return None
+        enu = (across(np.clip(ts, a, b)) * self._gyro_at(ts)).apply(self.acc[sel])
+        enu[:, 2] -= STANDARD_GRAVITY
+        enu[:, 2] = enu[:, 0] ** 2 + enu[:, 1] ** 2  # the third column carries the horizontal power
+        nodes, cum = cumulative_integral(ts, enu)
+        epochs = self.gps_t[i:j + 1]
+        at = np.stack([np.interp(epochs, nodes, cum[:, c]) for c in range(3)], axis=1)
+        misfit = (self.gps_vel[i:j + 1, :2] - self.gps_vel[i, :2]) - (at[:, :2] - at[0, :2])
+        return misfit, (at[-1, 2] - at[0, 2]) / (b - a)
+
+    def relative_power(self, window: float) -> Optional[float]:
+        """1/s, per horizontal axis and unit of acceleration power, as ImuMisfit.relative_power; None where no window
+        GPS covers can be aligned at both ends."""
+        key = round(float(window), 6)
+        if key not in self._cache:
+            self._cache[key] = self._relative_power(window)
+        return self._cache[key]
+
+    def _relative_power(self, window: float) -> Optional[float]:
+        gps_t = self.gps_t
+        if len(gps_t) < 3:
+            return None
+        step = np.diff(gps_t)
+        typical = float(np.median(step))
+        breaks = np.flatnonzero(step > GAP_EPOCH_FACTOR * typical)
+        starts = np.concatenate([[0], breaks + 1])
+        stops = np.concatenate([breaks, [len(gps_t) - 1]])  # last epoch of each stretch
+        inside = (gps_t >= self.t[0]) & (gps_t <= self.t[-1])
+        longest = max(float(gps_t[e] - gps_t[s]) for s, e in zip(starts, stops))
+        window = min(max(window, 0.0), longest)
+        stride = max(1, int(round(0.25 * window / typical)))  # windows overlap by three quarters
+        excess, weight = 0.0, 0.0
+        for s0, s1 in zip(starts, stops):
+            for i in range(s0, s1 + 1, stride):
+                j = max(int(np.searchsorted(gps_t, gps_t[i] + window - 1e-9)), i + 2)
+                if j > s1 or not (inside[i] and inside[j]):
+                    continue
+                found = self._window(i, j)
+                if found is None:
+                    continue
+                misfit, power = found
+                w = gps_t[j] - gps_t[i]
+                s = ((gps_t[i + 1:j] - gps_t[i]) / w)[:, None]
+                e = misfit[1:-1] - s * misfit[-1]
+                dop = self.gps_var
+                noise = dop[i + 1:j] + (1 - s) ** 2 * dop[i] + s**2 * dop[j]
+                excess += 0.5 * float(np.sum(e**2 - noise))
+                weight += float(np.sum(w * s * (1 - s))) * power
+        if weight <= 0:
+            return None
         return max(excess / weight, 0.0)

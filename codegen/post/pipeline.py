@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from codegen.board.model import STANDARD_GRAVITY
 from codegen.errors import UserError
-from codegen.post.bridge import GapModel, ImuMisfit, gap_model
+from codegen.post.bridge import GapModel, GyroTrack, ImuMisfit, gap_model
 from codegen.post.delay import DelayEstimate, estimate_delay
 from codegen.post.geodesy import geodetic_to_enu
 from codegen.post.model import Calibration, PostLog
@@ -322,7 +322,14 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     # where GPS covers the run, how far the IMU's velocity change misses the GPS's at each gap's time scale: beyond
     # what the smoother assumes, that is noise the IMU carries into the gap too (a hand's swing, a lever arm)
     misfit = _imu_misfit(t, gaps.enu(t, acc, orientation.bias), iv, gps)
-    a_enu, a_noise = gaps.rotate(t, acc, orientation.bias, misfit, options.smoother.accel_noise)
+    # with a gyro, the same misfit with the orientation a gyro span has, over windows where GPS covers the run
+    gyro_misfit = None
+    if log.imu.gyro is not None and any(span.gyro for span in gaps.spans):
+        gyro = log.imu.gyro - (gaps.gyro_bias if gaps.gyro_bias is not None else 0.0)
+        moving_t = orientation.t[ok][~standing[ok]]
+        gyro_misfit = GyroTrack.build(t, acc - orientation.bias, gyro, moving_t, orientation.slerp(), gps.t, gps.vel,
+                                      gps.sigma_vel).relative_power
+    a_enu, a_noise = gaps.rotate(t, acc, orientation.bias, misfit, options.smoother.accel_noise, gyro_misfit)
 
     def gap_noise(nodes):
         return a_noise[np.clip(np.searchsorted(t, nodes), 0, len(t) - 1)]
