@@ -13,7 +13,9 @@ outage's first 60 s; a covariance observer (codegen.kernel.fused.observe_covaria
 - lateral filter (a vehicle in an outage): before each update, the speed error it carries, e = s - s_true (s_true the
   truth's horizontal speed), against its variance P_ss after the predict;
 - position filter (at every fix): the smoothed position's error against the truth, East and North, against its
-  variance pxx (the same for both axes).
+  variance pxx (the same for both axes);
+- speed/bias filter (a vehicle's speed and along-track bias, at every fix it updates at): after its predict, the
+  integrated speed's error s - s_true against its variance P_ss (the along-track bias's truth is not in the run).
 
 Each row: how many samples, the mean normalised error squared (NEES: e^2 / P per degree of freedom; 1 for a
 consistent filter, above 1 overconfident, below 1 too cautious), the share of samples within 1 sigma (68.3 % for a
@@ -182,6 +184,44 @@ def eskf_samples(run, implementation: str = "reference") -> list[Samples]:
     return out
 
 
+def speed_samples(run, fcfg=None) -> Samples:
+    """At every fix whose speed/bias filter predicts (a moving vehicle): the integrated speed's error against the
+    truth and its variance P_ss after the predict, before the fix corrects it. Each interval between two fixes is
+    run again from the state the first left, with the second's updates observed."""
+    t, dt_us, snaps, kcfg, fcfg = F._fused_pass(run, fcfg)
+    vel = run.gps.device_velocity()
+    fixes = sorted(snaps)
+    seen = []  # (time, speed, P_ss)
+    repairs = 0
+    for prev, j in zip(fixes, fixes[1:]):
+        k, snap = snaps[prev]
+        st = snap.copy()
+        stop = snaps[j][0]
+        if stop > k:
+            F.process(st, run.counts[k:stop], dt_us[k:stop], kcfg, fcfg)
+        t_fix = float(run.gps.t[j])
+
+        def observe(s, which, step, t_fix=t_fix):
+            if which == F.FILTER_SPEED and step == F.STEP_PREDICT:
+                seen.append((t_fix, s.speed, s.sb_pss))
+
+        d = run.gps.enu[j, :2] - run.gps.enu[prev, :2]
+        v = vel[j]
+        previous = F.observe_covariances(observe)
+        try:
+            F.position_update(st, float(v[0]), float(v[1]), float(d[0]), float(d[1]), fcfg)
+            F.gps_update(st, float(v[0]), float(v[1]), fcfg)
+        finally:
+            F.observe_covariances(previous)
+        repairs += int(st.cov_repairs - snap.cov_repairs)
+    if not seen:
+        return Samples("speed", np.zeros((0, 1)), np.zeros(0), repairs)
+    times, speed, var = (np.array(c) for c in zip(*seen))
+    ok = run.trusted(times) & (var > 0.0)
+    err = speed - _true_speed(run, times)
+    return Samples("speed", err[ok, None], var[ok], repairs)
+
+
 def summarise(samples: Samples) -> dict:
     """n, NEES per degree of freedom, the shares within 1 and 2 sigma (per error component)."""
     if len(samples.variances) == 0:
@@ -197,7 +237,7 @@ def consistency_rows(runs, fcfg=None, eskf: str = "") -> list[tuple[str, str, di
     "reference" or "c": the error-state filter's rows too."""
     merged = {}
     for run in runs:
-        found = [lateral_samples(run, fcfg), position_samples(run, fcfg)]
+        found = [lateral_samples(run, fcfg), position_samples(run, fcfg), speed_samples(run, fcfg)]
         if eskf:
             found += eskf_samples(run, eskf)
         for samples in found:

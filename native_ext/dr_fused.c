@@ -280,6 +280,30 @@ int dr_fused_kf_predict(const dr_fused_config *cfg, dr_fused_state *st) {
     return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_PREDICT, 1);
 }
 
+/* The tilt/offset filter's correction x fed back (codegen.fused's _kf_update): b into bax, bay, baz, d as a small
+ * rotation of q about the kernel frame's horizontal axes. */
+static inline void dr_fused_kf_feed_back(dr_fused_state *st, const float x[5]) {
+    float hx, hy;
+    st->bax += x[2];
+    st->bay += x[3];
+    st->baz += x[4];
+    /* remove the leak: q <- [1, (d_N / g, -d_E / g, 0) / 2] (x) q */
+    hx = 0.5f * x[1] * DR_INV_GRAVITY;
+    hy = -0.5f * x[0] * DR_INV_GRAVITY;
+    {
+        float qw = st->q[DR_FUSED_QW], qx = st->q[DR_FUSED_QX], qy = st->q[DR_FUSED_QY], qz = st->q[DR_FUSED_QZ];
+        float nw = qw - hx * qx - hy * qy;
+        float nx = qx + hx * qw + hy * qz;
+        float ny = qy + hy * qw - hx * qz;
+        float nz = qz + hx * qy - hy * qx;
+        float inv = dr_inv_sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
+        st->q[DR_FUSED_QW] = nw * inv;
+        st->q[DR_FUSED_QX] = nx * inv;
+        st->q[DR_FUSED_QY] = ny * inv;
+        st->q[DR_FUSED_QZ] = nz * inv;
+    }
+}
+
 /* The filter's update with z = d + h b + noise (variance r per axis), H = [I2 | h]: P <- P - K S K^T, fed back at
  * once (codegen.fused's _kf_update): b into bax, bay, baz, d as a small rotation of q about the kernel frame's
  * horizontal axes. x: the correction. Returns 0 if the covariance went wrong (reset to the prior, nothing fed back,
@@ -287,7 +311,7 @@ int dr_fused_kf_predict(const dr_fused_config *cfg, dr_fused_state *st) {
 int dr_fused_kf_update(const dr_fused_config *cfg, dr_fused_state *st, float z0, float z1, const float h[2][3],
                        float r, float x[5]) {
     float pm[5][5], pht[5][2], gain[5][2];
-    float s00, s01, s11, inv_det, i00, i01, i11, hx, hy;
+    float s00, s01, s11, inv_det, i00, i01, i11;
     int i, j, c;
     dr_fused_p_load(st, pm);
     for (i = 0; i < 5; i++) { /* P H^T, H = [I2 | h] */
@@ -333,24 +357,7 @@ int dr_fused_kf_update(const dr_fused_config *cfg, dr_fused_state *st, float z0,
     if (!dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_UPDATE, 1)) {
         return 0;
     }
-    st->bax += x[2];
-    st->bay += x[3];
-    st->baz += x[4];
-    /* remove the leak: q <- [1, (d_N / g, -d_E / g, 0) / 2] (x) q */
-    hx = 0.5f * x[1] * DR_INV_GRAVITY;
-    hy = -0.5f * x[0] * DR_INV_GRAVITY;
-    {
-        float qw = st->q[DR_FUSED_QW], qx = st->q[DR_FUSED_QX], qy = st->q[DR_FUSED_QY], qz = st->q[DR_FUSED_QZ];
-        float nw = qw - hx * qx - hy * qy;
-        float nx = qx + hx * qw + hy * qz;
-        float ny = qy + hy * qw - hx * qz;
-        float nz = qz + hx * qy - hy * qx;
-        float inv = dr_inv_sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
-        st->q[DR_FUSED_QW] = nw * inv;
-        st->q[DR_FUSED_QX] = nx * inv;
-        st->q[DR_FUSED_QY] = ny * inv;
-        st->q[DR_FUSED_QZ] = nz * inv;
-    }
+    dr_fused_kf_feed_back(st, x);
     return 1;
 }
 
@@ -1201,43 +1208,55 @@ static int dr_fused_speed_update(const dr_fused_config *cfg, dr_fused_state *st,
     return dr_fused_speed_correct(cfg, st, 0.5f * cfg->kf_vel_r, gain);
 }
 
-void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn) {
-    float s2 = ve * ve + vn * vn;
-    float inv_speed = dr_inv_sqrt(s2);
-    float speed = s2 * inv_speed;
-    float t = st->since_fix;
-    int moving = speed >= cfg->min_speed_ms;
-    int flags = (int)st->flags;
-    int i;
-    float ae = 0.0f, an = 0.0f, de, dn, e;
-    if (st->gps_ok > 0.0f && moving && t > 0.0f && t < cfg->gps_timeout_s) {
-        /* heading alignment from the velocity changes */
-        float gx = ve - st->gps_ve, gy = vn - st->gps_vn, inv_t, me, mn, norm;
-        st->align_c = cfg->align_forget * st->align_c + st->dvx * gx + st->dvy * gy;
-        st->align_s = cfg->align_forget * st->align_s + st->dvx * gy - st->dvy * gx;
-        norm = dr_inv_sqrt(st->align_c * st->align_c + st->align_s * st->align_s);
-        if (norm > 0.0f) { /* the frame turns; the travel direction keeps its true bearing: u <- A'^T A u */
-            float ue = st->cos_t * st->ux - st->sin_t * st->uy, un = st->sin_t * st->ux + st->cos_t * st->uy;
-            st->cos_t = st->align_c * norm;
-            st->sin_t = st->align_s * norm;
-            st->ux = st->cos_t * ue + st->sin_t * un;
-            st->uy = -st->sin_t * ue + st->cos_t * un;
-        }
-        /* the motion acceleration over the interval, into the kernel frame */
-        inv_t = dr_recip(t);
-        me = gx * inv_t;
-        mn = gy * inv_t;
-        ae = st->cos_t * me + st->sin_t * mn;
-        an = -st->sin_t * me + st->cos_t * mn;
+/* The heading alignment of the kernel frame to North from the velocity changes (codegen.fused's _fix_alignment), and
+ * the motion acceleration over the interval into the kernel frame (a[0], a[1]). */
+static inline void dr_fused_fix_alignment(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float t,
+                                          float a[2]) {
+    float gx = ve - st->gps_ve, gy = vn - st->gps_vn, inv_t, me, mn, norm;
+    st->align_c = cfg->align_forget * st->align_c + st->dvx * gx + st->dvy * gy;
+    st->align_s = cfg->align_forget * st->align_s + st->dvx * gy - st->dvy * gx;
+    norm = dr_inv_sqrt(st->align_c * st->align_c + st->align_s * st->align_s);
+    if (norm > 0.0f) { /* the frame turns; the travel direction keeps its true bearing: u <- A'^T A u */
+        float ue = st->cos_t * st->ux - st->sin_t * st->uy, un = st->sin_t * st->ux + st->cos_t * st->uy;
+        st->cos_t = st->align_c * norm;
+        st->sin_t = st->align_s * norm;
+        st->ux = st->cos_t * ue + st->sin_t * un;
+        st->uy = -st->sin_t * ue + st->cos_t * un;
     }
-    if (moving && (flags & DR_FUSED_WALKING)) { /* what people walk and run: a pedestrian's speed is bounded */
+    inv_t = dr_recip(t);
+    me = gx * inv_t;
+    mn = gy * inv_t;
+    a[0] = st->cos_t * me + st->sin_t * mn;
+    a[1] = -st->sin_t * me + st->cos_t * mn;
+}
+
+/* A fix with a course (codegen.fused's _fix_course): the travel direction pulled towards it, and a walker's speed
+ * towards the fix's, bounded by what people walk and run. */
+static inline void dr_fused_fix_course(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn,
+                                       float speed, float inv_speed) {
+    float gx = (st->cos_t * ve + st->sin_t * vn) * inv_speed;
+    float gy = (-st->sin_t * ve + st->cos_t * vn) * inv_speed;
+    /* before the frame's first alignment u means nothing yet: it takes the course at once */
+    float pull = st->align_c != 0.0f || st->align_s != 0.0f ? cfg->heading_gain : 1.0f;
+    float ux = st->ux + pull * (gx - st->ux);
+    float uy = st->uy + pull * (gy - st->uy);
+    float norm = dr_inv_sqrt(ux * ux + uy * uy);
+    if (norm > 0.0f) {
+        st->ux = ux * norm;
+        st->uy = uy * norm;
+    }
+    if ((int)st->flags & DR_FUSED_WALKING) {
         float bounded = speed < cfg->pedestrian_max_ms ? speed : cfg->pedestrian_max_ms;
         st->walk_speed += cfg->walk_speed_gain * (bounded - st->walk_speed);
     }
-    /* the speed (before the tilt/offset filter's predict restarts st->turn, which the bias's noise reads) */
-    e = speed - st->speed;
-    if (flags & (DR_FUSED_AT_REST | DR_FUSED_WALKING | DR_FUSED_WALKED)) {
-        /* a pedestrian's speed or a rest's: not integrated, so the interval says nothing of the bias */
+}
+
+/* The speed at a fix, t s after the previous one (codegen.fused's _fix_speed): a pedestrian's or a rest's pulled
+ * (not integrated, so the interval says nothing of the bias), a vehicle's by the speed/bias filter; then the speed
+ * kept is the fix's. Before the tilt/offset filter's predict restarts st->turn, which the bias's noise reads. */
+static inline void dr_fused_fix_speed(const dr_fused_config *cfg, dr_fused_state *st, float speed, float t) {
+    float e = speed - st->speed;
+    if ((int)st->flags & (DR_FUSED_AT_REST | DR_FUSED_WALKING | DR_FUSED_WALKED)) {
         const float left = (1.0f - cfg->speed_gain) * e;
         st->speed += cfg->speed_gain * e;
         st->sb_p[DR_FUSED_SB_PSS] = left * left + 0.5f * cfg->kf_vel_r;
@@ -1255,28 +1274,18 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     }
     st->keep_v = speed;
     st->sk_t = 0.0f;
-    if (cfg->kf_bias_var > 0.0f) {
-        dr_fused_filter(cfg, st, ve, vn, moving, t);
-    }
-    de = ae - st->acc_e;
-    dn = an - st->acc_n;
+}
+
+/* What the next interval starts from (codegen.fused's _fix_restart): whether the motion acceleration (ae, an) is
+ * steady, the fix's velocity and speed, the FAST flag, the integrals since the fix, the lateral filter restarted. */
+static inline void dr_fused_fix_restart(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn,
+                                        float speed, float ae, float an) {
+    float de = ae - st->acc_e, dn = an - st->acc_n;
+    int i;
     /* flags kept as margins (> 0 means yes): LLVM's Xtensa backend cannot select a constant pair (x ? 1.0f : 0.0f) */
     st->steady = cfg->steady_ms2 * cfg->steady_ms2 - (de * de + dn * dn);
     st->acc_e = ae;
     st->acc_n = an;
-    if (moving) {
-        float gx = (st->cos_t * ve + st->sin_t * vn) * inv_speed;
-        float gy = (-st->sin_t * ve + st->cos_t * vn) * inv_speed;
-        /* before the frame's first alignment u means nothing yet: it takes the course at once */
-        float pull = st->align_c != 0.0f || st->align_s != 0.0f ? cfg->heading_gain : 1.0f;
-        float ux = st->ux + pull * (gx - st->ux);
-        float uy = st->uy + pull * (gy - st->uy);
-        float norm = dr_inv_sqrt(ux * ux + uy * uy);
-        if (norm > 0.0f) {
-            st->ux = ux * norm;
-            st->uy = uy * norm;
-        }
-    }
     st->gps_ve = ve;
     st->gps_vn = vn;
     st->gps_speed = speed;
@@ -1302,4 +1311,25 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     st->zr_v = st->speed;
     st->since_fix = 0.0f;
     dr_fused_nhc_restart(st);
+}
+
+/* One fix's Doppler velocity (codegen.fused's gps_update), in its steps. */
+void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn) {
+    float s2 = ve * ve + vn * vn;
+    float inv_speed = dr_inv_sqrt(s2);
+    float speed = s2 * inv_speed;
+    float t = st->since_fix;
+    int moving = speed >= cfg->min_speed_ms;
+    float a[2] = {0.0f, 0.0f};
+    if (st->gps_ok > 0.0f && moving && t > 0.0f && t < cfg->gps_timeout_s) {
+        dr_fused_fix_alignment(cfg, st, ve, vn, t, a);
+    }
+    if (moving) {
+        dr_fused_fix_course(cfg, st, ve, vn, speed, inv_speed);
+    }
+    dr_fused_fix_speed(cfg, st, speed, t);
+    if (cfg->kf_bias_var > 0.0f) {
+        dr_fused_filter(cfg, st, ve, vn, moving, t);
+    }
+    dr_fused_fix_restart(cfg, st, ve, vn, speed, a[0], a[1]);
 }

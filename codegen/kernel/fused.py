@@ -841,59 +841,20 @@ def _position_correct(st: FusedState, fcfg: FusedConfig):
 
 
 def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
-    """One GPS fix's Doppler velocity (true ENU East, North, m/s; 0, 0 when the course is undefined)."""
+    """One GPS fix's Doppler velocity (true ENU East, North, m/s; 0, 0 when the course is undefined), in steps: the
+    heading alignment (_fix_alignment), the travel direction and a walker's speed (_fix_course), the speed and the
+    along-track bias (_fix_speed), the tilt and the offsets (tilt_and_offset_update, with the fix's motion
+    acceleration), then what the next interval starts from (_fix_restart)."""
     speed = math.sqrt(ve * ve + vn * vn)
     moving = speed >= fcfg.min_speed_ms
     t = st.since_fix
-    # heading alignment from velocity changes (previous fix within 2 s and both fixes with a course)
-    if st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s:
-        gx = ve - st.gps_ve
-        gy = vn - st.gps_vn
-        lam = fcfg.align_forget
-        st.align_c = lam * st.align_c + st.dvx * gx + st.dvy * gy
-        st.align_s = lam * st.align_s + st.dvx * gy - st.dvy * gx
-        norm = math.sqrt(st.align_c * st.align_c + st.align_s * st.align_s)
-        if norm > 0.0:
-            # the new alignment turns the kernel frame; the travel direction keeps its true bearing: u <- A'^T A u
-            ue = st.cos_t * st.ux - st.sin_t * st.uy
-            un = st.sin_t * st.ux + st.cos_t * st.uy
-            st.cos_t = st.align_c / norm
-            st.sin_t = st.align_s / norm
-            st.ux = st.cos_t * ue + st.sin_t * un
-            st.uy = -st.sin_t * ue + st.cos_t * un
+    follows = st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s  # a previous fix with a course, in time
+    if follows:
+        _fix_alignment(st, ve, vn, fcfg)
     if moving:
-        # GPS course in the kernel frame: A^T g / |g|
-        gx = (st.cos_t * ve + st.sin_t * vn) / speed
-        gy = (-st.sin_t * ve + st.cos_t * vn) / speed
-        # before the frame's first alignment u means nothing yet: it takes the course at once
-        pull = fcfg.heading_gain if st.align_c != 0.0 or st.align_s != 0.0 else 1.0
-        ux = st.ux + pull * (gx - st.ux)
-        uy = st.uy + pull * (gy - st.uy)
-        norm = math.sqrt(ux * ux + uy * uy)
-        if norm > 0.0:
-            st.ux, st.uy = ux / norm, uy / norm
-        if int(st.flags) & WALKING:  # what people walk and run: a pedestrian's speed is bounded
-            st.walk_speed += fcfg.walk_speed_gain * (min(speed, fcfg.pedestrian_max_ms) - st.walk_speed)
-    e = speed - st.speed
-    if int(st.flags) & (AT_REST | WALKING | WALKED):
-        # a pedestrian's speed or a rest's: not integrated, so the interval says nothing of the along-track bias
-        # (a car in slow traffic taken for a walker once learned -12 m/s^2 here, and ran to 700 m/s when it drove on)
-        st.speed += fcfg.speed_gain * e
-        st.sb_pss = (1.0 - fcfg.speed_gain) ** 2 * e * e + fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms
-        st.sb_psb = 0.0
-    else:
-        if not 0.0 < t < fcfg.gps_timeout_s:
-            # after an outage (its speed corrected by lateral and zero-velocity updates) or before any fix: the speed
-            # starts from the fix, the interval teaches the bias nothing
-            st.sb_pss = SPEED_UNKNOWN_VAR
-            st.sb_psb = 0.0
-        gain = _speed_update(st, e, fcfg)
-        if gain is not None:
-            st.speed += gain[0] * e
-            st.bias += gain[1] * e
-    st.keep_v = speed
-    st.sk_t = 0.0
-    if st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s:
+        _fix_course(st, ve, vn, speed, fcfg)
+    _fix_speed(st, speed, t, fcfg)
+    if follows:
         # the motion acceleration over the last interval, into the kernel frame (A^T)
         me = (ve - st.gps_ve) / t
         mn = (vn - st.gps_vn) / t
@@ -903,6 +864,73 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
         ae = an = 0.0
     if fcfg.kf_bias_init_g > 0.0:
         tilt_and_offset_update(st, ve, vn, moving, t, fcfg)
+    _fix_restart(st, ve, vn, speed, ae, an, fcfg)
+
+
+def _fix_alignment(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
+    """The heading alignment of the kernel frame to North from the velocity changes (the previous fix within
+    gps_timeout_s, both with a course): the IMU's change dv against the fix's, forgotten at align_forget per fix.
+    The new alignment turns the kernel frame; the travel direction keeps its true bearing: u <- A'^T A u."""
+    gx = ve - st.gps_ve
+    gy = vn - st.gps_vn
+    lam = fcfg.align_forget
+    st.align_c = lam * st.align_c + st.dvx * gx + st.dvy * gy
+    st.align_s = lam * st.align_s + st.dvx * gy - st.dvy * gx
+    norm = math.sqrt(st.align_c * st.align_c + st.align_s * st.align_s)
+    if norm > 0.0:
+        ue = st.cos_t * st.ux - st.sin_t * st.uy
+        un = st.sin_t * st.ux + st.cos_t * st.uy
+        st.cos_t = st.align_c / norm
+        st.sin_t = st.align_s / norm
+        st.ux = st.cos_t * ue + st.sin_t * un
+        st.uy = -st.sin_t * ue + st.cos_t * un
+
+
+def _fix_course(st: FusedState, ve: float, vn: float, speed: float, fcfg: FusedConfig) -> None:
+    """A fix with a course: the travel direction pulled towards it by heading_gain (before the frame's first
+    alignment u means nothing yet: it takes the course at once), and a walker's speed towards the fix's, bounded by
+    what people walk and run (pedestrian_max_ms)."""
+    gx = (st.cos_t * ve + st.sin_t * vn) / speed  # the GPS course in the kernel frame: A^T g / |g|
+    gy = (-st.sin_t * ve + st.cos_t * vn) / speed
+    pull = fcfg.heading_gain if st.align_c != 0.0 or st.align_s != 0.0 else 1.0
+    ux = st.ux + pull * (gx - st.ux)
+    uy = st.uy + pull * (gy - st.uy)
+    norm = math.sqrt(ux * ux + uy * uy)
+    if norm > 0.0:
+        st.ux, st.uy = ux / norm, uy / norm
+    if int(st.flags) & WALKING:
+        st.walk_speed += fcfg.walk_speed_gain * (min(speed, fcfg.pedestrian_max_ms) - st.walk_speed)
+
+
+def _fix_speed(st: FusedState, speed: float, t: float, fcfg: FusedConfig) -> None:
+    """The speed at a fix, t s after the previous one. A pedestrian's or a rest's speed is not integrated, so the
+    interval says nothing of the along-track bias (a car in slow traffic taken for a walker once learned -12 m/s^2
+    here, and ran to 700 m/s when it drove on): pulled by speed_gain, its variance what is left. A vehicle's: the
+    speed/bias filter (_speed_update), after an outage or before any fix started from the fix (its speed corrected
+    by lateral and zero-velocity updates, the interval teaches the bias nothing). Then the speed kept is the fix's."""
+    e = speed - st.speed
+    if int(st.flags) & (AT_REST | WALKING | WALKED):
+        st.speed += fcfg.speed_gain * e
+        st.sb_pss = (1.0 - fcfg.speed_gain) ** 2 * e * e + fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms
+        st.sb_psb = 0.0
+    else:
+        if not 0.0 < t < fcfg.gps_timeout_s:
+            st.sb_pss = SPEED_UNKNOWN_VAR
+            st.sb_psb = 0.0
+        gain = _speed_update(st, e, fcfg)
+        if gain is not None:
+            st.speed += gain[0] * e
+            st.bias += gain[1] * e
+    st.keep_v = speed
+    st.sk_t = 0.0
+
+
+def _fix_restart(st: FusedState, ve: float, vn: float, speed: float, ae: float, an: float,
+                 fcfg: FusedConfig) -> None:
+    """What the next interval starts from: whether the motion acceleration (ae, an, kernel frame) is steady enough
+    for the tilt correction (steady_accel_ms2 of the last), the fix's velocity and speed, the FAST flag (faster
+    than people run: a vehicle until it rests, process), and the integrals since the fix, the zero-velocity
+    update's and the lateral filter's restarted."""
     de = ae - st.acc_e
     dn = an - st.acc_n
     st.steady = fcfg.steady_accel_ms2 * fcfg.steady_accel_ms2 - (de * de + dn * dn)
@@ -910,7 +938,7 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
     st.gps_ve, st.gps_vn = ve, vn
     st.gps_speed = speed
     st.gps_ok = speed - fcfg.min_speed_ms
-    if speed > fcfg.pedestrian_max_ms:  # faster than people run: a vehicle until it rests (process)
+    if speed > fcfg.pedestrian_max_ms:
         st.flags = float(int(st.flags) | FAST)
     st.dvx = st.dvy = st.dpx = st.dpy = 0.0
     st.m00 = st.m01 = st.m10 = st.m11 = st.m02 = st.m12 = st.turn = 0.0
