@@ -23,7 +23,7 @@ got = []
 p = Nmea(on_fix=got.append)
 for line in sys.argv[1:]:
     p.feed(line.encode() + b"\r\n")
-log = logger.Logger("test")  # the unix port cannot make the board's log folder: logging off
+log = logger.Logger("test", 1)  # one sample per record; the unix port cannot make the log folder: logging off
 log.enabled = True  # ... and on again, for the record's encoding alone
 log.used = 0
 log.gps(got[-1])
