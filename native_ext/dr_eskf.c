@@ -141,7 +141,7 @@ static float exp_neg(float x) {
 int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_state *st, const int16_t *samples,
                       int32_t count) {
     float total[6], mean[6], var[3], inv_n, norm, w;
-    int32_t k, i, chunk;
+    int32_t k, i;
     int moved = 0;
     (void)cfg;
     if (count < 1) {
@@ -150,21 +150,7 @@ int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_
     for (i = 0; i < 6; i++) { /* explicit zeroing: an aggregate initialiser may become a memset call */
         total[i] = 0.0f;
     }
-    for (k = 0; k < count; k += chunk) { /* exact integer sums in chunks a 32-bit sum of int16 cannot overflow */
-        int32_t sum[6], j;
-        for (i = 0; i < 6; i++) {
-            sum[i] = 0;
-        }
-        chunk = count - k < CAL_SUM_CHUNK ? count - k : CAL_SUM_CHUNK;
-        for (j = k; j < k + chunk; j++) {
-            for (i = 0; i < 6; i++) {
-                sum[i] += samples[6 * j + i];
-            }
-        }
-        for (i = 0; i < 6; i++) {
-            total[i] += (float)sum[i];
-        }
-    }
+    dr_sum_counts(samples, count, 6, CAL_SUM_CHUNK, total);
     inv_n = dr_recip((float)count);
     for (i = 0; i < 3; i++) { /* the remap only permutes and negates: applied to the sums */
         mean[i] = kcfg->axis_sign[i] * total[kcfg->axis_source[i]] * inv_n;

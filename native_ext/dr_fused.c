@@ -44,7 +44,6 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
     dr_state seed;
     float total[3];
     float inv_count, m2;
-    int32_t k, chunk;
     int i, code;
     dr_state_init(&seed);
     code = dr_calibrate(kcfg, &seed, samples, count);
@@ -54,22 +53,7 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
     for (i = 0; i < 3; i++) {
         total[i] = 0.0f;
     }
-    for (k = 0; k < count; k += chunk) {
-        int32_t sum[3];
-        int32_t j;
-        for (i = 0; i < 3; i++) {
-            sum[i] = 0;
-        }
-        chunk = count - k < DR_FUSED_SUM_CHUNK ? count - k : DR_FUSED_SUM_CHUNK;
-        for (j = k; j < k + chunk; j++) {
-            for (i = 0; i < 3; i++) {
-                sum[i] += samples[6 * j + i];
-            }
-        }
-        for (i = 0; i < 3; i++) {
-            total[i] += (float)sum[i];
-        }
-    }
+    dr_sum_counts(samples, count, 3, DR_FUSED_SUM_CHUNK, total);
     inv_count = dr_recip((float)count);
     m2 = 0.0f;
     for (i = 0; i < 3; i++) {

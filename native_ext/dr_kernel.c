@@ -65,7 +65,7 @@ int dr_calibrate(const dr_config *cfg, dr_state *st, const int16_t *samples, int
     float mean[6];
     float var[3];
     float inv_count, norm, w;
-    int32_t k, chunk;
+    int32_t k;
     int i, moved = 0;
     if (!dr_config_usable(cfg)) {
         return DR_ERR_RANGE;
@@ -77,22 +77,7 @@ int dr_calibrate(const dr_config *cfg, dr_state *st, const int16_t *samples, int
     for (i = 0; i < 6; i++) {
         total[i] = 0.0f;
     }
-    for (k = 0; k < count; k += chunk) {
-        int32_t sum[6];
-        int32_t j;
-        for (i = 0; i < 6; i++) {
-            sum[i] = 0;
-        }
-        chunk = count - k < DR_SUM_CHUNK ? count - k : DR_SUM_CHUNK;
-        for (j = k; j < k + chunk; j++) {
-            for (i = 0; i < 6; i++) {
-                sum[i] += samples[6 * j + i];
-            }
-        }
-        for (i = 0; i < 6; i++) {
-            total[i] += (float)sum[i];
-        }
-    }
+    dr_sum_counts(samples, count, 6, DR_SUM_CHUNK, total);
     inv_count = dr_recip((float)count);
     /* the remap only permutes and negates, so it may be applied to the sums */
     for (i = 0; i < 3; i++) {

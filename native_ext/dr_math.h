@@ -120,4 +120,26 @@ static inline void dr_quat_rotate(float r[3], const float q[4], const float v[3]
     r[2] = rz;
 }
 
+/* Adds to total[0..axes-1] the sums of the first `axes` values of `count` rows of 6 int16 counts (a window's
+ * ax ay az gx gy gz), summed exactly in int32 over `chunk` rows at a time (|int16| * chunk must fit an int32) and
+ * moved to float per chunk: each kernel keeps the chunk its fallback mirrors, so their sums round alike. */
+static inline void dr_sum_counts(const int16_t *samples, int32_t count, int32_t axes, int32_t chunk, float *total) {
+    int32_t k, j, i, n;
+    for (k = 0; k < count; k += n) {
+        int32_t sum[6];
+        for (i = 0; i < axes; i++) {
+            sum[i] = 0;
+        }
+        n = count - k < chunk ? count - k : chunk;
+        for (j = k; j < k + n; j++) {
+            for (i = 0; i < axes; i++) {
+                sum[i] += samples[6 * j + i];
+            }
+        }
+        for (i = 0; i < axes; i++) {
+            total[i] += (float)sum[i];
+        }
+    }
+}
+
 #endif /* DR_MATH_H */
