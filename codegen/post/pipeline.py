@@ -13,10 +13,12 @@ from codegen.errors import UserError
 from codegen.post.bridge import GapModel, GyroTrack, ImuMisfit, gap_model
 from codegen.post.delay import DelayEstimate, estimate_delay
 from codegen.post.geodesy import geodetic_to_enu
+from codegen.post.gyroframe import GyroFrame, fit_gyro_frame
 from codegen.post.model import Calibration, PostLog
 from codegen.post.orientation import (
     GPS_GAP_FACTOR,
     Intervals,
+    Mounting,
     OrientationOptions,
     OrientationResult,
     Track,
@@ -64,6 +66,7 @@ class PostResult:
     gaps: GapModel  # GPS gaps, the orientation across them and its uncertainty
     notes: list[str] = field(default_factory=list)
     options: PostOptions = field(default_factory=PostOptions)
+    gyro_frame: Optional[GyroFrame] = None  # where the mounting and bias came from the gyro (codegen.post.gyroframe)
 
     @property
     def velocity_residual_rms(self) -> float:
@@ -145,6 +148,24 @@ def _rotate(orientation: OrientationResult, t: np.ndarray, acc: np.ndarray) -> n
     return rot.apply(acc - orientation.bias) - np.array([0.0, 0.0, STANDARD_GRAVITY])
 
 
+def _whole_run_mounting(t: np.ndarray, acc: np.ndarray, log: PostLog, iv: Intervals, options: OrientationOptions,
+                        strict: bool = True) -> tuple[Optional[Mounting], Optional[GyroFrame]]:
+    """The rigid mounting fit; where it fails its chi2 test (the device does not sit rigidly: a hand) and the log
+    has a gyro, the gyro frame's mean mounting and bias instead, if that model passes the same test (`strict`), or
+    (not strict: while the delay is still being searched, and a wrong delay spoils every fit) fits better than the
+    rigid one."""
+    mounting = fit_mounting(iv, options.estimate_bias, options.bias_prior, options.bias_max_chi2)
+    gyro = log.imu.gyro
+    if gyro is None or not options.estimate_bias or (mounting is not None and mounting.chi2 <= options.bias_max_chi2):
+        return mounting, None
+    frame = fit_gyro_frame(t, acc, gyro, iv, log.gps.t, log.gps.vel, log.gps.sigma_vel)
+    limit = options.bias_max_chi2 if strict else (mounting.chi2 if mounting is not None else np.inf)
+    if frame is None or not frame.chi2 <= limit:
+        return mounting, None
+    carried = frame.mounting(iv, options.min_speed)
+    return (carried, frame) if carried is not None else (mounting, None)
+
+
 def _orient(t, acc, log: PostLog, options: OrientationOptions, track: Optional[Track], progress: Progress):
     """Mounting + bias over the run, per-interval LM, then again on turn-compensated interval means."""
     gps = log.gps
@@ -152,20 +173,27 @@ def _orient(t, acc, log: PostLog, options: OrientationOptions, track: Optional[T
     if track is not None:
         iv.track = track
         iv.track_yaw, iv.moving = track.yaw(iv.mid)
-    mounting = fit_mounting(iv, options.estimate_bias, options.bias_prior, options.bias_max_chi2)
+    mounting, frame = _whole_run_mounting(t, acc, log, iv, options)
     bias1 = mounting.bias if mounting is not None else np.zeros(3)
     first = solve_orientations(iv, options, bias1, mounting)
     if not first.valid.any():
         raise UserError(f"{log.name}: no GPS interval has IMU samples; cannot find the orientation")
     up = np.array([euler_matrix(*e).T[:, 2] if np.isfinite(e).all() else [0.0, 0.0, 1.0] for e in first.euler])
     iv.acc_mean = turn_compensated_means(iv, t, acc - bias1, up)
-    mounting2 = fit_mounting(iv, options.estimate_bias, options.bias_prior, options.bias_max_chi2)
+    if frame is None:
+        mounting2 = fit_mounting(iv, options.estimate_bias, options.bias_prior, options.bias_max_chi2)
+    else:  # the gyro frame's bias is already removed, its mounting does not depend on the interval means
+        mounting2 = replace(mounting, bias=np.zeros(3))
     bias2 = mounting2.bias if mounting2 is not None else np.zeros(3)
     result = solve_orientations(iv, options, bias2, mounting2, progress=progress)
+    if frame is not None:  # the gyro follows the device between the GPS epochs; windows of solved intervals do not
+        ok = result.valid
+        zyx = frame.rotation_at(result.t[ok]).as_euler("ZYX")
+        result.euler[ok] = zyx[:, ::-1]
     result.bias = bias1 + bias2
     if mounting2 is not None:
         mounting2.bias = result.bias
-    return result, iv
+    return result, iv, frame
 
 
 def _imu_misfit(t: np.ndarray, a_enu: np.ndarray, iv: Intervals, gps) -> ImuMisfit:
@@ -250,13 +278,15 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     for attempt in range(4):
         t = log.imu.t - delay
         iv = build_intervals(t, acc, gps.t, gps.vel, gps.sigma_vel, options.orientation.min_speed)
-        mounting = fit_mounting(iv, options.orientation.estimate_bias, options.orientation.bias_prior,
-                                options.orientation.bias_max_chi2)
+        mounting, frame = _whole_run_mounting(t, acc, log, iv, options.orientation, strict=options.delay is not None)
         if options.delay is not None:
             break
-        # the delay search only needs rough ENU accelerations: the whole-run mounting turned with the track
-        # (cheap), or the per-interval solution where there is too little motion to fit a mounting
-        if mounting is not None:
+        # the delay search only needs rough ENU accelerations: the gyro frame where the device does not sit
+        # rigidly, else the whole-run mounting turned with the track (cheap), or the per-interval solution where
+        # there is too little motion to fit a mounting
+        if frame is not None:
+            a_rough = frame.enu(acc)
+        elif mounting is not None:
             a_rough = _rotate_mounted(mounting, iv, t, acc)
         else:
             orientation = solve_orientations(iv, options.orientation, np.zeros(3), None)
@@ -277,15 +307,15 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     for attempt in range(3):
         t = log.imu.t - delay
         iv = build_intervals(t, acc, gps.t, gps.vel, gps.sigma_vel, options.orientation.min_speed)
-        mounting = fit_mounting(iv, options.orientation.estimate_bias, options.orientation.bias_prior,
-                                options.orientation.bias_max_chi2)
+        mounting, frame = _whole_run_mounting(t, acc, log, iv, options.orientation, strict=options.delay is not None)
         orientation = solve_orientations(iv, options.orientation, mounting.bias if mounting else np.zeros(3), mounting)
         if not orientation.valid.any():
             raise UserError(f"{log.name}: no GPS interval has IMU samples; cannot find the orientation")
         if options.delay is not None:
             break
-        refined = estimate_delay(t, _rotate(orientation, t, acc), gps.t, gps.vel, min(options.max_lag, 0.25),
-                                 gps.sigma_vel)
+        # the gyro frame follows a hand's wander, the per-interval solution (windows of seconds) does not
+        enu = frame.enu(acc) if frame is not None else _rotate(orientation, t, acc)
+        refined = estimate_delay(t, enu, gps.t, gps.vel, min(options.max_lag, 0.25), gps.sigma_vel)
         delay += refined.delay
         spread = max(refined.sigma, curve.sigma) if curve is not None else refined.sigma  # the full search's too
         estimate = replace(curve if curve is not None else refined, delay=delay, sigma=spread,
@@ -310,7 +340,15 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     parts = smooth_segments(t, _rotate(orientation, t, acc), gps, gps_enu, options.smoother)
     track = Track(np.concatenate([p.t for p in parts]), np.concatenate([p.vel for p in parts]),
                   options.orientation.min_speed)
-    orientation, iv = _orient(t, acc, log, options.orientation, track, progress)
+    orientation, iv, frame = _orient(t, acc, log, options.orientation, track, progress)
+    if frame is not None:
+        rigid = fit_mounting(iv, False)
+        fitted = f"the rigid mounting fit's chi2 {rigid.chi2:.1f}" if rigid is not None else "no rigid mounting fit"
+        notes.append(f"the device does not sit rigidly ({fitted}): its mounting "
+                     f"is its mean orientation along the track and the accelerometer bias is solved with the gyro's "
+                     f"integral (chi2 {frame.chi2:.2f}; the gyro's bias "
+                     f"{np.round(np.degrees(frame.gyro_bias), 2).tolist()} deg/s from {frame.quiet_epochs} quiet "
+                     f"stand epochs)")
     # 3. across GPS gaps: the orientation from the gyro (where logged) or Slerp, and how uncertain it is there
     ok = orientation.valid
     # a stand: the track had no direction, so the yaw was held, or solved against a track direction held from the
@@ -355,4 +393,4 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     imu_residual = np.diff(gps.vel, axis=0) - dv_imu
     imu_residual[~iv.usable] = np.nan
     return PostResult(log, delay, estimate, orientation, iv, t, a_enu, result, origin, gps_enu, residual,
-                      imu_residual, gaps, notes, options)
+                      imu_residual, gaps, notes, options, frame)
