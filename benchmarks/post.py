@@ -8,6 +8,7 @@
     python3 benchmarks/post.py stops      # synthetic runs with a stop, gaps placed at it, per gap kind
     python3 benchmarks/post.py stops --seeds 0,1,2,3,4   # the same on other seeds
     python3 benchmarks/post.py device     # the emulated board's own device log: post's delay against the truth
+    python3 benchmarks/post.py device --seeds 0,1,2,3,4   # the same on other seeds (the app's run, then post)
 
 Synthetic: a vehicle with the device at a known mounting, 0.1 m/s Doppler noise per ENU component, a 50 mg
 accelerometer bias, MPU-6050 noise and int16 quantisation, and an injected IMU delay. Walk: rtklibexplorer's handheld
@@ -310,7 +311,7 @@ def synthetic_stops(seeds: tuple[int, ...] = STOP_SEEDS) -> None:
     print()
 
 
-def emulated_device_logs() -> None:
+def emulated_device_logs(seeds: tuple[int, ...] = (0,)) -> None:
     """`post` on the log the generated app writes on the emulated T-Beam (codegen/sim/onmicropython.py): the delay and
     mounting it finds against the truth, per run (a run's part files read as one). The truth of the delay: each
     logged IMU row is the box mean of log_every of the MPU-6050 model's samples, found among the box means of those
@@ -322,27 +323,35 @@ def emulated_device_logs() -> None:
     sys.path.insert(0, str(ROOT / "tests"))
     from test_post_devicelog_e2e import Posted  # noqa: E402
 
-    print("## post on the emulated board's own device log (T-Beam v1.1 board file, seed 0, no outage)")
+    print(f"## post on the emulated board's own device log (T-Beam v1.1 board file, seeds "
+          f"{','.join(map(str, seeds))}, no outage)")
     print()
-    print("| scenario | s | parts | IMU rows | fixes | true delay [ms] | post delay [ms] | post 1-sigma [ms] | "
-          "mounting error [deg] | mounting chi2 | bias kept |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for scenario, duration, min_speed in (("walk", 300.0, 0.5), ("car", 420.0, 2.0)):
-        p = Posted(scenario, duration, Path(tempfile.mkdtemp(prefix=f"post-bench-{scenario}-")))
-        truth, _, _ = p.true_delay()
-        r, m = p.result, p.result.orientation.mounting
-        print(f"| {scenario} | {duration:.0f} | {len(p.parts)} | {len(p.log.imu)} | {len(p.log.gps)} | "
-              f"{truth * 1e3:+.1f} | {r.delay * 1e3:+.1f} | {r.delay_estimate.sigma * 1e3:.1f} | "
-              f"{p.mounting_error_deg(min_speed):.2f} | {m.chi2:.1f} | {not m.bias_rejected} |")
+    print("| scenario | seed | s | parts | IMU rows | fixes | true delay [ms] | post delay [ms] | post 1-sigma [ms] | "
+          "orientation | mounting error [deg] | its yaw 1-sigma [deg] | mounting chi2 | bias kept | attitude error "
+          "median / 95 % [deg] | horizontal velocity residual [m/s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for seed in seeds:
+        for scenario, duration, min_speed in (("walk", 300.0, 0.5), ("car", 420.0, 2.0)):
+            p = Posted(scenario, duration, Path(tempfile.mkdtemp(prefix=f"post-bench-{scenario}-")), seed=seed)
+            truth, _, _ = p.true_delay()
+            r, m = p.result, p.result.orientation.mounting
+            model = "gyro frame" if r.gyro_frame is not None else "rigid"
+            residual = np.sqrt(np.nanmean(r.velocity_residual[:, :2] ** 2))
+            attitude = np.percentile(p.attitude_error_deg(min_speed), [50, 95])
+            print(f"| {scenario} | {seed} | {duration:.0f} | {len(p.parts)} | {len(p.log.imu)} | {len(p.log.gps)} | "
+                  f"{truth * 1e3:+.1f} | {r.delay * 1e3:+.1f} | {r.delay_estimate.sigma * 1e3:.1f} | {model} | "
+                  f"{p.mounting_error_deg(min_speed):.2f} | {np.degrees(m.sigma_euler[2]):.2f} | {m.chi2:.1f} | "
+                  f"{not m.bias_rejected} | {attitude[0]:.2f} / {attitude[1]:.2f} | {residual:.3f} |",
+                  flush=True)
     print()
 
 
 if __name__ == "__main__":
     args = sys.argv[1:]
-    stop_seeds = STOP_SEEDS
+    stop_seeds, device_seeds = STOP_SEEDS, (0,)
     if "--seeds" in args:
         at = args.index("--seeds")
-        stop_seeds = tuple(int(s) for s in args[at + 1].split(","))
+        stop_seeds = device_seeds = tuple(int(s) for s in args[at + 1].split(","))
         del args[at:at + 2]
     which = args or ["synthetic", "walk", "gaps", "stands", "stops"]
     if "synthetic" in which:
@@ -356,4 +365,4 @@ if __name__ == "__main__":
     if "stops" in which:
         synthetic_stops(stop_seeds)
     if "device" in which:
-        emulated_device_logs()
+        emulated_device_logs(device_seeds)

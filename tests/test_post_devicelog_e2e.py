@@ -43,11 +43,12 @@ EPOCH = neo6m.DEFAULT_EPOCH.timestamp()  # UTC of the trajectory's t = 0
 
 
 class Posted:
-    def __init__(self, scenario: str, duration: float, work):
+    def __init__(self, scenario: str, duration: float, work, seed: int = 0):
         require_tool("micropython")  # what record_on_micropython runs: skips locally, fails under CI, without it
+        self.seed = seed
         self.loaded = load_board(BOARD)
-        self.traj = trajectory.make_scenario(scenario, seed=0, duration=duration)
-        self.rec = record_on_micropython(self.loaded, self.traj, seed=0, work=work)
+        self.traj = trajectory.make_scenario(scenario, seed=seed, duration=duration)
+        self.rec = record_on_micropython(self.loaded, self.traj, seed=seed, work=work)
         files = sorted(self.rec.logs.glob("dr*.bin"))
         self.parts = run_parts(files[-1])
         self.raw = parse_device_parts(self.parts)
@@ -77,12 +78,26 @@ class Posted:
         speed = np.hypot(v[:, 0], v[:, 1])
         idx = np.flatnonzero(speed > min_speed)[::50]
         frame = rot_z(np.arctan2(v[idx, 1], v[idx, 0])) @ rot_grade(np.arctan2(v[idx, 2], speed[idx]))
-        device = mpu6050.draw_device(self.rec.errors, np.random.default_rng(0))  # as simulate_imu drew it
+        return Rotation.from_matrix(np.transpose(frame, (0, 2, 1)) @ self.traj.rotation(idx) @ self.cross_axis()).mean()
+
+    def cross_axis(self) -> np.ndarray:
+        """The rotation of the accelerometer's cross-axis matrix, in the board frame post's log is in."""
+        device = mpu6050.draw_device(self.rec.errors, np.random.default_rng(self.seed))  # as simulate_imu drew it
         remap = np.zeros((3, 3))
         for i, (src, sign) in enumerate(self.loaded.board.imu.axis_map):
             remap[src, i] = sign  # sensor = remap @ board
-        cross_axis = polar(np.linalg.inv(remap.T @ device.accel_matrix @ remap))[0]
-        return Rotation.from_matrix(np.transpose(frame, (0, 2, 1)) @ self.traj.rotation(idx) @ cross_axis).mean()
+        return polar(np.linalg.inv(remap.T @ device.accel_matrix @ remap))[0]
+
+    def attitude_error_deg(self, min_speed: float) -> np.ndarray:
+        """Per logged IMU record where faster than min_speed: the angle (deg) between the orientation post rotated
+        it with and the truth's at the record's true time."""
+        truth, _, _ = self.true_delay()
+        at = np.clip(np.searchsorted(self.traj.t, self.log.imu.t - truth - EPOCH), 0, len(self.traj.t) - 1)
+        v = self.traj.vel[at]
+        fast = np.hypot(v[:, 0], v[:, 1]) > min_speed
+        true = Rotation.from_matrix(self.traj.rotation(at[fast]) @ self.cross_axis())
+        post = self.result.gaps.rotation(self.result.imu_t[fast])  # what turned the smoother's accelerations
+        return np.degrees((post * true.inv()).magnitude())
 
     def mounting_error_deg(self, min_speed: float) -> float:
         m = self.result.orientation.mounting

@@ -25,7 +25,7 @@ was a hand's, the gyro frame fails the chi2 test the rigid fit failed, and is no
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
@@ -99,11 +99,14 @@ class GyroFrame:
     chi2: float  # reduced chi-square of the per-axis weighted fit
     used: int  # intervals fitted
     quiet_epochs: int  # stand epochs the gyro's bias came from
+    yaw_sigma: float  # rad: 1-sigma of one offset's yaw from all the GPS intervals, 1 / sqrt(sum |A_h|^2 / sigma_h^2)
+    _offset: Optional[Slerp] = field(default=None, repr=False)  # built on first use
+    _integral: Optional[Slerp] = field(default=None, repr=False)
 
     def offset(self, at: np.ndarray) -> Rotation:
-        if len(self.centres) == 1:
-            return Rotation.concatenate([self.offsets[0]] * len(at))
-        return Slerp(self.centres, self.offsets)(np.clip(at, self.centres[0], self.centres[-1]))
+        if self._offset is None:
+            self._offset = Slerp(self.centres, self.offsets)
+        return self._offset(np.clip(at, self.centres[0], self.centres[-1]))
 
     def rotation(self) -> Rotation:
         """Sensor -> ENU at each of `t`."""
@@ -111,8 +114,10 @@ class GyroFrame:
 
     def rotation_at(self, at: np.ndarray) -> Rotation:
         """Sensor -> ENU at times `at` within `t` (the integral Slerped between its samples)."""
-        at = np.clip(at, self.t[0], self.t[-1])
-        return self.offset(at) * Slerp(self.t, self.integral)(at)
+        at = np.clip(np.asarray(at, dtype=float), self.t[0], self.t[-1])
+        if self._integral is None:
+            self._integral = Slerp(self.t, self.integral)
+        return self.offset(at) * self._integral(at)
 
     def enu(self, acc: np.ndarray) -> np.ndarray:
         """(N,3) m/s^2: the accelerations at `t`, bias removed, in ENU, gravity removed."""
@@ -120,9 +125,10 @@ class GyroFrame:
 
     def mounting(self, iv: Intervals, min_speed: float) -> Optional[Mounting]:
         """The device's mean orientation in the vehicle frame (Rz(track) Ry(grade), as fit_mounting's) over the
-        samples where the track is faster than `min_speed`, as a Mounting with this frame's bias; its 1-sigma is the
-        device's wander about that mean over the root of the number of intervals (their errors taken as independent).
-        None where nothing moves."""
+        samples where the track is faster than `min_speed`, as a Mounting with this frame's bias. Its 1-sigma: the
+        device's wander about that mean over the root of the number of intervals (their errors taken as independent)
+        and, for the yaw, also `yaw_sigma` (how well the GPS turns the frame about the vertical at all). None where
+        nothing moves."""
         speed = np.hypot(*iv.track.velocity(self.t).T)
         fast = speed > min_speed
         if fast.sum() < 2:
@@ -135,6 +141,7 @@ class GyroFrame:
         spread = (carried * mean.inv()).as_rotvec()
         n = max(int(np.sum(iv.usable & iv.moving)), 1)
         sigma = np.sqrt(np.mean(spread**2, axis=0) / n)
+        sigma[2] = np.hypot(sigma[2], self.yaw_sigma)
         zyx = mean.as_euler("ZYX")
         return Mounting(np.array([zyx[2], zyx[1], zyx[0]]), self.bias.copy(), sigma, self.sigma_bias.copy(),
                         self.chi2, self.used)
@@ -179,7 +186,8 @@ def fit_gyro_frame(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, iv: Interva
 
             solved.append(Rotation.from_rotvec(least_squares(residual, start.as_rotvec(), method="lm").x))
         offsets = Rotation.concatenate(solved)
-        frame = GyroFrame(t, integral, centres, offsets, gyro_bias, bias, np.zeros(3), np.nan, int(use.sum()), quiet)
+        frame = GyroFrame(t, integral, centres, offsets, gyro_bias, bias, np.zeros(3), np.nan, int(use.sum()), quiet,
+                          np.nan)
         o = frame.offset(iv.mid[use]).as_matrix()
         design = (np.einsum("kij,kjl->kil", o, mean_g[use]) / sigma[use][:, :, None]).reshape(-1, 3)
         rhs = ((np.einsum("kij,kj->ki", o, mean_ga[use]) - target[use]) / sigma[use]).ravel()
@@ -198,4 +206,10 @@ def fit_gyro_frame(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, iv: Interva
         sigma_bias = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     except np.linalg.LinAlgError:
         sigma_bias = np.full(3, np.inf)
-    return GyroFrame(t, integral, centres, offsets, gyro_bias, bias, sigma_bias, chi2, int(use.sum()), quiet)
+    # a yaw error d of the offset leaves |A_h| d in each interval's horizontal residual (the lower bound of one
+    # offset over the whole run: the windows' own offsets are each worse, their mean about this)
+    information = np.sum((iv.gps_accel[use, 0] ** 2 + iv.gps_accel[use, 1] ** 2)
+                         / (0.5 * (sigma[use, 0] ** 2 + sigma[use, 1] ** 2)))
+    yaw_sigma = float(1.0 / np.sqrt(information)) if information > 0 else float("inf")
+    return GyroFrame(t, integral, centres, offsets, gyro_bias, bias, sigma_bias, chi2, int(use.sum()), quiet,
+                     yaw_sigma)

@@ -354,7 +354,10 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     # a stand: the track had no direction, so the yaw was held, or solved against a track direction held from the
     # motion before (wrong by however far the device turned in a gap since): neither is a solved yaw
     standing = ~iv.moving
-    gaps = gap_model(orientation.slerp(), orientation.t[ok], orientation.euler[ok], orientation.sigma[ok], gps.t, t,
+    # where the gyro frame oriented the run it turns every sample (a hand moves within a GPS interval), else Slerp
+    # between the solved intervals
+    orient_at = frame.rotation_at if frame is not None else orientation.slerp()
+    gaps = gap_model(orient_at, orientation.t[ok], orientation.euler[ok], orientation.sigma[ok], gps.t, t,
                      log.imu.gyro, _bias_sigma(orientation, options.orientation, parts), standing=standing[ok])
     notes += gaps.notes
     # where GPS covers the run, how far the IMU's velocity change misses the GPS's at each gap's time scale: beyond
@@ -365,7 +368,7 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     if log.imu.gyro is not None and any(span.gyro for span in gaps.spans):
         gyro = log.imu.gyro - (gaps.gyro_bias if gaps.gyro_bias is not None else 0.0)
         moving_t = orientation.t[ok][~standing[ok]]
-        gyro_misfit = GyroTrack.build(t, acc - orientation.bias, gyro, moving_t, orientation.slerp(), gps.t, gps.vel,
+        gyro_misfit = GyroTrack.build(t, acc - orientation.bias, gyro, moving_t, orient_at, gps.t, gps.vel,
                                       gps.sigma_vel).relative_power
     a_enu, a_noise = gaps.rotate(t, acc, orientation.bias, misfit, options.smoother.accel_noise, gyro_misfit)
 
