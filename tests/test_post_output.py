@@ -72,10 +72,13 @@ def emulated_walk_log(tmp_path_factory):
 
 @pytest.mark.filterwarnings("error")
 def test_device_log_of_the_emulated_walk_gives_clean_output(emulated_walk_log, tmp_path, capsys):
+    """A delay search that ends at its edge is reported as unknown (null, with the reason). This log's own search
+    once ended there (+488 ms, correlation 0.004); since the gyro frame orients a hand-held device it finds -211 ms
+    +- 438 ms within +-1 s, so the edge is reached here by a range (+-50 ms) narrower than the true delay (~-95 ms)."""
     out = tmp_path / "out"
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # any numpy/scipy warning fails the run here instead of reaching the terminal
-        assert main(["post", str(emulated_walk_log), "-o", str(out)]) == 0
+        assert main(["post", str(emulated_walk_log), "-o", str(out), "--max-lag", "0.05"]) == 0
     printed = capsys.readouterr()
     assert "Warning" not in printed.err + printed.out
     assert not re.search(r"\b(nan|inf)\b", printed.out, re.I)

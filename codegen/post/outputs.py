@@ -257,7 +257,8 @@ def summary(result: PostResult) -> dict:
         "time_zero_utc": None if zero.utc is None else zero.utc.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z",
         "time_scale": result.log.time_scale,
         "delay_s": result.delay,
-        "delay_sigma_s": None if est is None else est.sigma,
+        # at the search's edge the delay may lie beyond it: the misfit's curvature there bounds nothing
+        "delay_sigma_s": None if est is None else float("nan") if est.at_edge else est.sigma,  # NaN: null + reason
         "delay_correlation": None if est is None else est.correlation,
         "delay_estimated": est is not None,
         "delay_search_at_edge": None if est is None else bool(est.at_edge),
