@@ -14,7 +14,7 @@ weighed as Doppler meet a tilt that a level-road fit cannot tell from a horizont
 tilts the device by ~6 deg RMS within seconds): post orients both with the gyro's integral turned onto ENU by the GPS
 (codegen/post/gyroframe.py, chi2 ~1.1), and its mounting is the device's mean orientation along the track.
 What is not reached yet is marked xfail (strict: the mark fails once it passes): the walk's mean mounting (~1.4 deg
-off here, 1.3-3.9 deg on tuning seeds 100-103: the GPS fixes the gyro frame's yaw through a walker's small
+off here, 1.4-3.9 deg on tuning seeds 100-103: the GPS fixes the gyro frame's yaw through a walker's small
 accelerations, 0.14 m/s^2 of Doppler noise per interval against a few tenths of turns and steps).
 Runtime: about 25 s for the drive and 15 s for the walk (the app's run, then post), x86-64.
 """
