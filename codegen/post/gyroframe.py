@@ -19,8 +19,8 @@ fixed in the vehicle.
 The gyro's bias comes first, from the log's quietest stands under GPS (GPS speed below STILL_GPS_SPEED; the epochs
 whose gyro varies over STILL_WINDOW at most `QUIET_FACTOR` times as much as at the quietest one: a hand at a crossing
 still turns the device by tenths of a degree per second, a table does not, and one such epoch among a few quiet ones
-moves a median by as much). Without a stand under GPS there is no gyro frame: the rigid fit stands (and where the quietest stand
-was a hand's, the gyro frame fails the chi2 test the rigid fit failed, and is not used).
+moves a median by as much). Without a stand under GPS there is no gyro frame: the rigid fit stands (and where the
+quietest stand was a hand's, the gyro frame fails the chi2 test the rigid fit failed, and is not used).
 """
 
 from __future__ import annotations

@@ -367,7 +367,8 @@ def process(log: PostLog, options: PostOptions = PostOptions(), progress: Progre
     # between the solved intervals
     orient_at = frame.rotation_at if frame is not None else orientation.slerp()
     gaps = gap_model(orient_at, orientation.t[ok], orientation.euler[ok], orientation.sigma[ok], gps.t, t,
-                     log.imu.gyro, _bias_sigma(orientation, options.orientation, parts, rigid=frame is None), standing=standing[ok])
+                     log.imu.gyro, _bias_sigma(orientation, options.orientation, parts, rigid=frame is None),
+                     standing=standing[ok])
     notes += gaps.notes
     # where GPS covers the run, how far the IMU's velocity change misses the GPS's at each gap's time scale: beyond
     # what the smoother assumes, that is noise the IMU carries into the gap too (a hand's swing, a lever arm)
