@@ -1,0 +1,148 @@
+"""The app with `algorithm.mode: eskf`: the error-state filter in the native module, on the emulated board.
+
+The generated app runs unmodified on the 32-bit board-precision unix MicroPython with the board's dr_native.mpy
+built for x86 (tests/appkit.x86_natmod, as tests/test_app_outages.py runs the fused natmod) through the simulated
+car with three GPS outages. The tap (tests/appkit.TAP) records every window the app fed the filter and every fix
+it gave it (time, position in the run's frame, velocity); the same filter's C, compiled on the host by cffi
+(codegen/kernel/hosteskf.py, the benchmark's "eskf-c"), then runs on exactly that record, and each position the
+app's filter reached is compared with the host's.
+
+The tolerance: both are the same float32 C, but compiled twice (gcc -Os for the i386 natmod, the host's x86-64
+build for cffi), so the compilers' choices (contracting a * b + c, the order of a sum they may not reorder but
+inline differently, x87 against SSE registers) round differently, by an ulp here and there. The filter corrects
+such differences at every fix; through an outage they integrate. The bound is measured, not derived: OUTAGE_TOL_M
+is about twenty times the largest difference seen (2.2 mm over 53 outage windows; the test prints it), far below what a wrong input would give
+(one window of 512 samples missed or fed twice at 15 m/s moves the position by ~38 m; a fix fed at the wrong place
+by its metres).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from appkit import TAP, outage_world, read_record, x86_natmod
+
+from codegen.board.loader import load_board
+from codegen.kernel import reference as ref
+from codegen.kernel.eskf import EskfConfig
+from codegen.kernel.hosteskf import load_eskf
+from codegen.kernel.layout import ESKF
+from codegen.kernel.reference import KernelConfig
+from codegen.sim.harness import generate_app, run_app
+from conftest import board_micropython
+
+DURATION = 75.0
+OUTAGES = [(26.5, 36.5), (44.5, 54.5), (62.5, 72.5)]
+MODE_GPS, MODE_IMU = 0, 1
+OUTAGE_TOL_M = 0.05  # m, horizontal: see the module's docstring
+
+
+@pytest.fixture(scope="module")
+def eskf_app(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("eskf")
+    yaml = folder / "tbeam-eskf.yaml"
+    yaml.write_text("extends: ttgo-tbeam-v1.1\nname: tbeam-eskf\nalgorithm:\n  mode: eskf\n")
+    loaded = load_board(yaml)
+    out = generate_app(yaml, folder / "out")
+    return {"loaded": loaded, "board": loaded.board, "out": out, "natmod": x86_natmod(out, folder / "natmod")}
+
+
+def run_car(entry, work: Path, extra):
+    board = entry["board"]
+    world, traj, track = outage_world(board, "car", 42, DURATION, OUTAGES, work)
+    script = work / "tap.py"
+    script.write_text(f"DUMP = {str(work / 'record.bin')!r}\n" + TAP)
+    run = run_app(board_micropython(), entry["out"], world, work / "w", script=str(script), extra_path=extra)
+    assert run.returncode == 0, run.stderr + run.stdout[-2000:]
+    return run
+
+
+def board_config(board) -> EskfConfig:
+    """The filter's parameters as the board gives them (its eskf_* keys; the cadences at their defaults)."""
+    return EskfConfig(**{p.name: getattr(board.algorithm, ESKF.board_key(p)) for p in ESKF.params if p.board})
+
+
+def test_eskf_app_outages_match_the_host_filter_on_the_same_input(eskf_app, tmp_path):
+    board = eskf_app["board"]
+    run = run_car(eskf_app, tmp_path, [eskf_app["natmod"]])
+    lines = run.stdout.splitlines()
+    assert "KERNEL native" in run.stdout and "Traceback" not in run.stdout, run.stdout[-2000:]
+    assert "WARN" not in run.stdout, [line for line in lines if line.startswith("WARN")]
+    assert any(line.startswith("ESKF started") for line in lines), run.stdout[-3000:]
+    rec = read_record(tmp_path / "record.bin")
+    assert rec.moved == 0 and rec.eskf_fixes
+
+    session = load_eskf(eskf_app["loaded"]).session(board_config(board))
+    session.use_kernel_config(KernelConfig.from_board(board))
+    assert session.calibrate(rec.calib) is False
+    fixes = list(rec.eskf_fixes)
+    worst = 0.0
+    compared = 0
+    outage_calls = 0
+    for i, call in enumerate(rec.calls):
+        while fixes and fixes[0][0] == i:
+            _, args, started = fixes.pop(0)
+            assert session.gps(args[0], args[1:4], args[4:6]) == started
+        gps_speed, aligned = call.before[0], call.before[1]
+        # what the app's filter held going in: its own, or 0 when an outage began (the app's one write, API.md)
+        assert aligned == session.st.aligned
+        if gps_speed == 0.0:
+            session.st.gps_speed = 0.0
+        else:  # the same sqrt, rounded by two compilers
+            assert gps_speed == pytest.approx(session.st.gps_speed, rel=1e-6), (i, gps_speed, session.st.gps_speed)
+        out = session.process(call.samples, call.dt)
+        if not aligned:
+            continue
+        d = float(np.hypot(*(call.out[:2] - out[:2])))
+        compared += 1
+        if call.mode == MODE_IMU:
+            outage_calls += 1
+            worst = max(worst, d)
+            assert d <= OUTAGE_TOL_M, f"call {i}: the app's filter at {call.out[:2]}, the host's at {out[:2]}"
+        else:  # between fixes the filter is pulled to each: the two stay as close
+            assert d <= OUTAGE_TOL_M, (i, call.out[:2], out[:2])
+    print(f"eskf app vs host cffi: {compared} windows after the start, {outage_calls} in outages, worst "
+          f"{worst * 1000:.2f} mm")
+    assert outage_calls >= 10  # every outage reached the comparison
+    # each outage's first window starts with the last fix's speed cleared (rest may be seen in an outage)
+    for prev, call in zip(rec.calls, rec.calls[1:]):
+        if prev.mode == MODE_GPS and call.mode == MODE_IMU:
+            assert call.before[0] == 0.0
+    assert {c.mode for c in rec.calls} >= {MODE_GPS, MODE_IMU}
+
+
+def test_eskf_app_shows_the_filters_position_in_an_outage(eskf_app, tmp_path):
+    """In IMU mode the shown position is the filter's, in the run's frame (from the first fix it got), back in
+    degrees by the kernel's geodesy; the app's offset from the last fix is the filter's position less that fix's."""
+    run_car(eskf_app, tmp_path, [eskf_app["natmod"]])
+    rec = read_record(tmp_path / "record.bin")
+    first = next(f for f in rec.fixes if f.running and not f.test_mode)
+    origin = (first.lat_e7, first.lon_e7)
+    anchors = {}  # calls before a fix -> its position in the run's frame
+    for before, args, _ in rec.eskf_fixes:
+        anchors[before] = np.array(args[1:3])
+    anchor = None
+    checked = 0
+    for i, call in enumerate(rec.calls):
+        if i in anchors:
+            anchor = anchors[i]
+        if call.mode != MODE_IMU or not call.before[1] or anchor is None:
+            continue
+        assert np.allclose(call.enu[:2], call.out[:2] - anchor, atol=1e-3), (i, call.enu, call.out, anchor)
+        lat, lon = ref.offset_latlon_e7(*origin, float(anchor[0] + call.enu[0]), float(anchor[1] + call.enu[1]))
+        assert abs(call.pos[0] - lat) <= 1 and abs(call.pos[1] - lon) <= 1, (i, call.pos, (lat, lon))
+        checked += 1
+    assert checked >= 10
+
+
+def test_eskf_without_its_native_module_runs_fused_and_says_so(eskf_app, tmp_path):
+    """No dr_native.mpy (or one the firmware refuses): there is no pure-Python eskf, so the fused fallback runs,
+    and the status line and the console say it."""
+    run = run_car(eskf_app, tmp_path, [])
+    assert "KERNEL python" in run.stdout and "Traceback" not in run.stdout, run.stdout[-2000:]
+    assert "WARN no eskf: fused" in run.stdout
+    assert "ESKF the native module is not loaded (kernel python): the fused method runs instead" in run.stdout
+    assert any(line.startswith("MODE GPS -> IMU") for line in run.stdout.splitlines())
+    assert "no eskf: fused" in run.screen_at(5.0)  # on the status line from boot (as "native refused")
