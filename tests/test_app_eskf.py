@@ -146,3 +146,66 @@ def test_eskf_without_its_native_module_runs_fused_and_says_so(eskf_app, tmp_pat
     assert "ESKF the native module is not loaded (kernel python): the fused method runs instead" in run.stdout
     assert any(line.startswith("MODE GPS -> IMU") for line in run.stdout.splitlines())
     assert "no eskf: fused" in run.screen_at(5.0)  # on the status line from boot (as "native refused")
+
+
+BINDING_SCRIPT = r"""
+from array import array
+import dr_native as dr
+
+
+def said(f, *args):
+    try:
+        f(*args)
+    except (TypeError, ValueError) as e:
+        return "%s: %s" % (type(e).__name__, e)
+    return "ok"
+
+
+st = array("f", bytes(4 * dr.ESKF_STATE_LEN))
+samples = array("h", [0, 0, 16384, 0, 0, 0] * 4)
+dt = array("i", [5000] * 4)
+out = array("f", bytes(4 * dr.OUT_LEN))
+print("init", said(dr.eskf_init, st))
+print("short", said(dr.eskf_init, array("f", bytes(4 * (dr.ESKF_STATE_LEN - 1)))))
+print("state_i", said(dr.eskf_init, array("i", bytes(4 * dr.ESKF_STATE_LEN))))
+print("cal", dr.eskf_calibrate(st, samples))
+print("cal_f", said(dr.eskf_calibrate, st, array("f", [0.0] * 6)))
+print("cal_none", said(dr.eskf_calibrate, st, array("h")))
+print("cal_partial", said(dr.eskf_calibrate, st, array("h", [0] * 7)))
+print("process", said(dr.eskf_process, st, samples, dt, out))
+print("dt_h", said(dr.eskf_process, st, samples, array("h", [5] * 4), out))
+print("dt_short", said(dr.eskf_process, st, samples, array("i", [5000] * 3), out))
+print("out_short", said(dr.eskf_process, st, samples, dt, array("f", [0.0] * 5)))
+print("out_d", said(dr.eskf_process, st, samples, dt, array("d", [0.0] * 6)))
+print("gps", dr.eskf_gps(st, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+print("offsets", dr.ESKF_POS, dr.ESKF_VEL, dr.ESKF_Q, dr.ESKF_ALIGNED, dr.ESKF_GPS_SPEED, dr.ESKF_COV_REPAIRS)
+print("q", st[dr.ESKF_Q])
+"""
+
+
+def test_eskf_binding_checks_its_buffers(eskf_app, tmp_path):
+    """dr_native's eskf functions as API.md has them: caller-owned buffers of the right typecode and size, a
+    TypeError or ValueError naming what is wrong, and the offsets of the declaration (codegen/kernel/layout.py)."""
+    from codegen.kernel.layout import LAYOUT
+    from codegen.sim.harness import run_script
+
+    script = tmp_path / "binding.py"
+    script.write_text(BINDING_SCRIPT)
+    done = run_script(board_micropython(), eskf_app["natmod"], str(script))
+    assert done.returncode == 0, done.stdout + done.stderr
+    said = dict(line.split(" ", 1) for line in done.stdout.splitlines())
+    assert said["init"] == "ok" and said["process"] == "ok" and said["cal"] == "0" and said["gps"] == "0"
+    assert said["short"] == "ValueError: eskf state buffer shorter than ESKF_STATE_LEN"
+    assert said["state_i"] == "TypeError: expected array('f')"
+    assert said["cal_f"] == "TypeError: expected array('h')"
+    assert said["cal_none"] == "ValueError: calibration needs at least 1 sample with gravity in it"
+    assert said["cal_partial"] == "ValueError: samples must hold 6 values per sample"
+    assert said["dt_h"] == "TypeError: expected array('i')"
+    assert said["dt_short"] == "ValueError: samples must hold 6 values and dt_us 1 value per sample"
+    assert said["out_short"] == "ValueError: out must hold OUT_LEN floats"
+    assert said["out_d"] == "TypeError: expected array('f')"
+    offsets = ESKF.state_offsets
+    assert said["offsets"] == " ".join(str(offsets[name]) for name in ("pos", "vel", "q", "aligned", "gps_speed",
+                                                                         "cov_repairs"))
+    assert float(said["q"]) == 1.0  # level at rest: the identity attitude, at the declared offset
+    assert LAYOUT.eskf_buffer_floats == ESKF.state_floats + ESKF.config_floats + LAYOUT.seed.config_floats
