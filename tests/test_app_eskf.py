@@ -11,9 +11,9 @@ The tolerance: both are the same float32 C, but compiled twice (gcc -Os for the 
 build for cffi), so the compilers' choices (contracting a * b + c, the order of a sum they may not reorder but
 inline differently, x87 against SSE registers) round differently, by an ulp here and there. The filter corrects
 such differences at every fix; through an outage they integrate. The bound is measured, not derived: OUTAGE_TOL_M
-is about twenty times the largest difference seen (2.2 mm over 53 outage windows; the test prints it), far below what a wrong input would give
-(one window of 512 samples missed or fed twice at 15 m/s moves the position by ~38 m; a fix fed at the wrong place
-by its metres).
+is about twenty times the largest difference seen (2.2 mm over 53 outage windows; the test prints it), far below
+what a wrong input would give (one window of 512 samples missed or fed twice at 15 m/s moves the position by ~38 m;
+a fix fed at the wrong place, by its metres).
 """
 
 from __future__ import annotations
