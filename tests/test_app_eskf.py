@@ -209,3 +209,20 @@ def test_eskf_binding_checks_its_buffers(eskf_app, tmp_path):
                                                                          "cov_repairs"))
     assert float(said["q"]) == 1.0  # level at rest: the identity attitude, at the declared offset
     assert LAYOUT.eskf_buffer_floats == ESKF.state_floats + ESKF.config_floats + LAYOUT.seed.config_floats
+
+
+def test_simulate_on_micropython_runs_the_eskf_board_natively(eskf_app, tmp_path):
+    """`deadreckon simulate --on-micropython` on an eskf board builds its dr_native for the host's x64 `micropython`
+    (codegen.natmod.build, as `deadreckon build` builds the board's) and the app runs the filter with it."""
+    from codegen.sim import trajectory
+    from codegen.sim.onmicropython import record_on_micropython
+    from conftest import require_tool
+
+    require_tool("micropython")
+    traj = trajectory.make_scenario("car", seed=0)
+    recording = record_on_micropython(eskf_app["loaded"], traj, duration=44.0, outages=[(32.5, 42.5)],
+                                      work=tmp_path)
+    stdout = recording.result.stdout
+    assert "kernel=native" in stdout and "WARN" not in stdout, stdout[-1500:]
+    assert any(line.startswith("ESKF started") for line in stdout.splitlines())
+    assert any(line.startswith("MODE GPS -> IMU") for line in stdout.splitlines())
