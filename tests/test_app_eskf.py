@@ -113,6 +113,31 @@ def test_eskf_app_outages_match_the_host_filter_on_the_same_input(eskf_app, tmp_
     assert {c.mode for c in rec.calls} >= {MODE_GPS, MODE_IMU}
 
 
+def test_eskf_app_feeds_each_fix_in_the_runs_frame(eskf_app, tmp_path):
+    """Every fix the app took while running goes into the filter once, in order: its position in the ENU frame of
+    the first one (the kernel's geodesy against the WGS-84 formula: 1e-7 degree rounding, ~1 cm, plus 1e-4 of the
+    distance for the app's 1 km secant), its Doppler velocity as the app computed it, at the sample clock's time."""
+    from codegen.sim import neo6m
+
+    run_car(eskf_app, tmp_path, [eskf_app["natmod"]])
+    rec = read_record(tmp_path / "record.bin")
+    taken = [f for f in rec.fixes if f.running and not f.test_mode]
+    assert len(taken) == len(rec.eskf_fixes) >= 30
+    origin = (taken[0].lat_e7 * 1e-7, taken[0].lon_e7 * 1e-7, 0.0)
+    times = []
+    for fix, (_, args, _) in zip(taken, rec.eskf_fixes):
+        t, e, n, u, ve, vn = args
+        want = neo6m.geodetic_to_enu(fix.lat_e7 * 1e-7, fix.lon_e7 * 1e-7, 0.0, origin)
+        assert np.hypot(e - want[0], n - want[1]) <= 0.02 + 1e-4 * np.hypot(*want[:2]), (fix, args, want)
+        assert (ve, vn) == pytest.approx(tuple(fix.vel[:2]), abs=1e-5)
+        times.append(t)
+    # the time is the sample clock's when the app takes the fix (the epoch's sentences end a variable ~0.1 s after
+    # it): within 0.15 s of the receiver's whole seconds, which weighs nothing against gps_tau_s (60 s), the one
+    # thing the filter times with it
+    steps = np.diff(times)
+    assert times[0] == 0.0 and np.all(np.abs(steps - np.round(steps)) < 0.15) and np.all(steps >= 0.8), steps
+
+
 def test_eskf_app_shows_the_filters_position_in_an_outage(eskf_app, tmp_path):
     """In IMU mode the shown position is the filter's, in the run's frame (from the first fix it got), back in
     degrees by the kernel's geodesy; the app's offset from the last fix is the filter's position less that fix's."""
