@@ -251,3 +251,28 @@ def test_simulate_on_micropython_runs_the_eskf_board_natively(eskf_app, tmp_path
     assert "kernel=native" in stdout and "WARN" not in stdout, stdout[-1500:]
     assert any(line.startswith("ESKF started") for line in stdout.splitlines())
     assert any(line.startswith("MODE GPS -> IMU") for line in stdout.splitlines())
+
+
+def test_eskf_app_test_mode_dead_reckons_with_the_filter(eskf_app, tmp_path):
+    """The test-mode button, as in fused mode: pressed with GPS, the app leaves GPS mode for TEST, ignores the fixes
+    (none goes into the filter) and shows the filter's position; pressed again, it takes the next fix."""
+    from codegen.sim.harness import press
+
+    board = eskf_app["board"]
+    world, _, _ = outage_world(board, "car", 42, 50.0, [], tmp_path)
+    world["pins"][str(board.buttons.test_mode.pin.pin)] = press(30.2) + press(40.2)
+    script = tmp_path / "tap.py"
+    script.write_text(f"DUMP = {str(tmp_path / 'record.bin')!r}\n" + TAP)
+    run = run_app(board_micropython(), eskf_app["out"], world, tmp_path / "w", script=str(script),
+                  extra_path=[eskf_app["natmod"]])
+    assert run.returncode == 0, run.stderr + run.stdout[-2000:]
+    lines = run.stdout.splitlines()
+    assert "TEST on" in lines and "TEST off" in lines and "MODE GPS -> TEST" in lines
+    assert any(line.startswith("ESKF started") for line in lines)
+    rec = read_record(tmp_path / "record.bin")
+    ignored = [f for f in rec.fixes if f.test_mode]
+    assert len(ignored) >= 8 and len(rec.eskf_fixes) == len([f for f in rec.fixes if f.running and not f.test_mode])
+    test_calls = [c for c in rec.calls if c.mode == 2]
+    assert len(test_calls) >= 3 and test_calls[0].before[0] == 0.0  # the outage's start cleared the fix's speed
+    assert all(c.before[1] for c in test_calls)  # the filter ran through it
+    assert "TEST MODE" in run.screen_at(35.0)
