@@ -10,9 +10,9 @@ instruction per virtual ns) and the driver reads a hardware timer of the emulate
 Xtensa: the ESP32 code of the same dr_native.mpy (LLVM route) on qemu-system-xtensa de233_fpu, the kernel called
 by a bare-metal harness, counted by the core's ICOUNT register (codegen.natmod.qemu_xtensa).
 
-eskf: the error-state filter's C (native_ext/dr_eskf.c), not in dr_native.mpy yet, compiled for the ESP32 by the
-same LLVM route with the natmod's flags and run by its own bare-metal harness (codegen.natmod.xtensa_eskf) on a
-simulated vehicle drive (--scenario, default car; seed 0), a GPS fix every second; a window counts its 512 samples
+eskf: the error-state filter's C (native_ext/dr_eskf.c; in dr_native.mpy for eskf boards), measured alone:
+compiled for the ESP32 by the same LLVM route with the natmod's flags and run by its own bare-metal harness
+(codegen.natmod.xtensa_eskf) on a simulated vehicle drive (--scenario, default car; seed 0), a GPS fix every second; a window counts its 512 samples
 and the fixes that fall in it. Its positions are checked against the same C built for the host (cffi).
 
 ESP32 time per window is estimated from the Xtensa count: the LX6 is a single-issue 5-stage pipeline, the natmod's

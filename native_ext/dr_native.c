@@ -6,8 +6,10 @@
  * and out, array('h') samples, array('i') intervals), calls the kernel and returns; nothing is allocated per sample.
  *
  * state buffer layout (floats): dr_state, dr_config, scratch 3 * block; the fused buffer: dr_fused_state,
- * dr_fused_config, dr_config. Their lengths and the offsets the module exports (DR_HEADER_FLOATS, DR_STATE_Q, ...)
- * come from dr_layout.h, rendered from the declaration in codegen/kernel/layout.py.
+ * dr_fused_config, dr_config; the eskf buffer (a board with algorithm.mode: eskf, DR_WITH_ESKF): dr_eskf_state,
+ * dr_eskf_config, dr_config. Their lengths and the offsets the module exports (DR_HEADER_FLOATS, DR_STATE_Q, ...)
+ * come from dr_layout.h, rendered from the declaration in codegen/kernel/layout.py (dr_eskf.h's hand-written
+ * structs are checked against it here, at compile time).
  */
 #if MICROPY_ENABLE_DYNRUNTIME
 #include "py/dynruntime.h"
@@ -19,6 +21,7 @@
 #include <stddef.h>
 
 #include "dr_board.h"
+#include "dr_eskf.h"
 #include "dr_fused.h"
 #include "dr_geo.h"
 #include "dr_kernel.h"
@@ -27,6 +30,9 @@
 typedef char dr_header_is_state_and_config[DR_HEADER_FLOATS == DR_STATE_FLOATS + DR_CONFIG_FLOATS ? 1 : -1];
 typedef char dr_fused_buffer_is_three_structs[
     DR_FUSED_BUFFER_FLOATS == DR_FUSED_STATE_FLOATS + DR_FUSED_CONFIG_FLOATS + DR_CONFIG_FLOATS ? 1 : -1];
+typedef char dr_eskf_buffer_is_three_structs[
+    DR_ESKF_BUFFER_FLOATS == DR_ESKF_STATE_FLOATS + DR_ESKF_CONFIG_FLOATS + DR_CONFIG_FLOATS ? 1 : -1];
+DR_ESKF_LAYOUT_CHECKS
 
 /* The buffer of obj with the given array typecode, or a TypeError. */
 static void dr_get_array(mp_obj_t obj, mp_buffer_info_t *info, mp_uint_t flags, char typecode) {
@@ -312,6 +318,101 @@ static mp_obj_t dr_fused_position_fn(size_t n_args, const mp_obj_t *args) {
 }
 static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_fused_position_obj, 5, 5, dr_fused_position_fn);
 
+#if DR_WITH_ESKF
+/* ---- algorithm: eskf (dr_eskf.h). Its own state buffer: dr_eskf_state | dr_eskf_config | dr_config. ---- */
+
+static void dr_eskf_unpack(mp_obj_t obj, dr_eskf_state **st, dr_eskf_config **cfg, dr_config **kcfg) {
+    mp_buffer_info_t info;
+    float *base;
+    dr_get_array(obj, &info, MP_BUFFER_RW, 'f');
+    if ((mp_int_t)(info.len / sizeof(float)) < (mp_int_t)DR_ESKF_BUFFER_FLOATS) {
+        mp_raise_ValueError(MP_ERROR_TEXT("eskf state buffer shorter than ESKF_STATE_LEN"));
+    }
+    base = (float *)info.buf;
+    *st = (dr_eskf_state *)base;
+    *cfg = (dr_eskf_config *)(base + DR_ESKF_CONFIG_AT);
+    *kcfg = (dr_config *)(base + DR_ESKF_KERNEL_CONFIG_AT);
+}
+
+/* The interleaved samples' count (6 int16 each), or a ValueError when the buffer holds a partial sample. */
+static int32_t dr_sample_count(const mp_buffer_info_t *samples) {
+    mp_int_t count = (mp_int_t)(samples->len / (6 * sizeof(int16_t)));
+    if (samples->len != (size_t)count * 6 * sizeof(int16_t)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("samples must hold 6 values per sample"));
+    }
+    return (int32_t)count;
+}
+
+/* eskf_init(estate): the board's axis map and scales, the board's filter parameters, a fresh state */
+static mp_obj_t dr_eskf_init_fn(mp_obj_t state_obj) {
+    dr_eskf_state *st;
+    dr_eskf_config *cfg;
+    dr_config *kcfg;
+    dr_eskf_unpack(state_obj, &st, &cfg, &kcfg);
+    dr_config_init(kcfg);
+    dr_eskf_config_init(cfg);
+    DR_ESKF_CONFIG_BOARD(cfg);
+    dr_eskf_state_init(st);
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_1(dr_eskf_init_obj, dr_eskf_init_fn);
+
+/* eskf_calibrate(estate, samples) -> 1 if the device moved during it, else 0 */
+static mp_obj_t dr_eskf_calibrate_fn(mp_obj_t state_obj, mp_obj_t samples_obj) {
+    dr_eskf_state *st;
+    dr_eskf_config *cfg;
+    dr_config *kcfg;
+    mp_buffer_info_t samples;
+    int code;
+    dr_eskf_unpack(state_obj, &st, &cfg, &kcfg);
+    dr_get_array(samples_obj, &samples, MP_BUFFER_READ, 'h');
+    code = dr_eskf_calibrate(kcfg, cfg, st, (const int16_t *)samples.buf, dr_sample_count(&samples));
+    if (code < 0) {
+        mp_raise_ValueError(MP_ERROR_TEXT("calibration needs at least 1 sample with gravity in it"));
+    }
+    return mp_obj_new_int(code);
+}
+static MP_DEFINE_CONST_FUN_OBJ_2(dr_eskf_calibrate_obj, dr_eskf_calibrate_fn);
+
+/* eskf_process(estate, samples, dt_us, out): out <- position E N U (m, the run's ENU), velocity E N U (m/s) */
+static mp_obj_t dr_eskf_process_fn(size_t n_args, const mp_obj_t *args) {
+    dr_eskf_state *st;
+    dr_eskf_config *cfg;
+    dr_config *kcfg;
+    mp_buffer_info_t samples, dt, out;
+    int32_t count;
+    (void)n_args;
+    dr_eskf_unpack(args[0], &st, &cfg, &kcfg);
+    dr_get_array(args[1], &samples, MP_BUFFER_READ, 'h');
+    dr_get_array(args[2], &dt, MP_BUFFER_READ, 'i');
+    dr_get_array(args[3], &out, MP_BUFFER_RW, 'f');
+    count = dr_sample_count(&samples);
+    if (count < 1 || dt.len != (size_t)count * sizeof(int32_t)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("samples must hold 6 values and dt_us 1 value per sample"));
+    }
+    if (out.len < DR_OUT_FLOATS * sizeof(float)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("out must hold OUT_LEN floats"));
+    }
+    (void)dr_eskf_process(kcfg, cfg, st, (const int16_t *)samples.buf, (const int32_t *)dt.buf, count,
+                          (float *)out.buf);
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_eskf_process_obj, 4, 4, dr_eskf_process_fn);
+
+/* eskf_gps(estate, t_s, e, n, u, ve, vn) -> 1 if the filter started at this fix, else 0 */
+static mp_obj_t dr_eskf_gps_fn(size_t n_args, const mp_obj_t *args) {
+    dr_eskf_state *st;
+    dr_eskf_config *cfg;
+    dr_config *kcfg;
+    (void)n_args;
+    dr_eskf_unpack(args[0], &st, &cfg, &kcfg);
+    return mp_obj_new_int(dr_eskf_gps(cfg, st, (float)mp_obj_get_float(args[1]), (float)mp_obj_get_float(args[2]),
+                                      (float)mp_obj_get_float(args[3]), (float)mp_obj_get_float(args[4]),
+                                      (float)mp_obj_get_float(args[5]), (float)mp_obj_get_float(args[6])));
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_eskf_gps_obj, 7, 7, dr_eskf_gps_fn);
+#endif /* DR_WITH_ESKF */
+
 #if MICROPY_ENABLE_DYNRUNTIME
 
 mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *args) {
@@ -340,6 +441,19 @@ mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *a
     mp_store_global(MP_QSTR_FIX_AE, MP_OBJ_NEW_SMALL_INT(DR_FUSED_STATE_FIX_AE));
     mp_store_global(MP_QSTR_COV_REPAIRS, MP_OBJ_NEW_SMALL_INT(DR_FUSED_STATE_COV_REPAIRS));
     mp_store_global(MP_QSTR_FUSED_STATE_LEN, MP_OBJ_NEW_SMALL_INT(DR_FUSED_BUFFER_FLOATS));
+#if DR_WITH_ESKF
+    mp_store_global(MP_QSTR_eskf_init, MP_OBJ_FROM_PTR(&dr_eskf_init_obj));
+    mp_store_global(MP_QSTR_eskf_calibrate, MP_OBJ_FROM_PTR(&dr_eskf_calibrate_obj));
+    mp_store_global(MP_QSTR_eskf_process, MP_OBJ_FROM_PTR(&dr_eskf_process_obj));
+    mp_store_global(MP_QSTR_eskf_gps, MP_OBJ_FROM_PTR(&dr_eskf_gps_obj));
+    mp_store_global(MP_QSTR_ESKF_STATE_LEN, MP_OBJ_NEW_SMALL_INT(DR_ESKF_BUFFER_FLOATS));
+    mp_store_global(MP_QSTR_ESKF_POS, MP_OBJ_NEW_SMALL_INT(DR_ESKF_STATE_POS));
+    mp_store_global(MP_QSTR_ESKF_VEL, MP_OBJ_NEW_SMALL_INT(DR_ESKF_STATE_VEL));
+    mp_store_global(MP_QSTR_ESKF_Q, MP_OBJ_NEW_SMALL_INT(DR_ESKF_STATE_Q));
+    mp_store_global(MP_QSTR_ESKF_ALIGNED, MP_OBJ_NEW_SMALL_INT(DR_ESKF_STATE_ALIGNED));
+    mp_store_global(MP_QSTR_ESKF_GPS_SPEED, MP_OBJ_NEW_SMALL_INT(DR_ESKF_STATE_GPS_SPEED));
+    mp_store_global(MP_QSTR_ESKF_COV_REPAIRS, MP_OBJ_NEW_SMALL_INT(DR_ESKF_STATE_COV_REPAIRS));
+#endif
     MP_DYNRUNTIME_INIT_EXIT
 }
 
@@ -371,6 +485,19 @@ static const mp_rom_map_elem_t dr_native_globals_table[] = {
     { MP_ROM_QSTR(MP_QSTR_FIX_AE), MP_ROM_INT(DR_FUSED_STATE_FIX_AE) },
     { MP_ROM_QSTR(MP_QSTR_COV_REPAIRS), MP_ROM_INT(DR_FUSED_STATE_COV_REPAIRS) },
     { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(DR_FUSED_BUFFER_FLOATS) },
+#if DR_WITH_ESKF
+    { MP_ROM_QSTR(MP_QSTR_eskf_init), MP_ROM_PTR(&dr_eskf_init_obj) },
+    { MP_ROM_QSTR(MP_QSTR_eskf_calibrate), MP_ROM_PTR(&dr_eskf_calibrate_obj) },
+    { MP_ROM_QSTR(MP_QSTR_eskf_process), MP_ROM_PTR(&dr_eskf_process_obj) },
+    { MP_ROM_QSTR(MP_QSTR_eskf_gps), MP_ROM_PTR(&dr_eskf_gps_obj) },
+    { MP_ROM_QSTR(MP_QSTR_ESKF_STATE_LEN), MP_ROM_INT(DR_ESKF_BUFFER_FLOATS) },
+    { MP_ROM_QSTR(MP_QSTR_ESKF_POS), MP_ROM_INT(DR_ESKF_STATE_POS) },
+    { MP_ROM_QSTR(MP_QSTR_ESKF_VEL), MP_ROM_INT(DR_ESKF_STATE_VEL) },
+    { MP_ROM_QSTR(MP_QSTR_ESKF_Q), MP_ROM_INT(DR_ESKF_STATE_Q) },
+    { MP_ROM_QSTR(MP_QSTR_ESKF_ALIGNED), MP_ROM_INT(DR_ESKF_STATE_ALIGNED) },
+    { MP_ROM_QSTR(MP_QSTR_ESKF_GPS_SPEED), MP_ROM_INT(DR_ESKF_STATE_GPS_SPEED) },
+    { MP_ROM_QSTR(MP_QSTR_ESKF_COV_REPAIRS), MP_ROM_INT(DR_ESKF_STATE_COV_REPAIRS) },
+#endif
 };
 static MP_DEFINE_CONST_DICT(dr_native_globals, dr_native_globals_table);
 

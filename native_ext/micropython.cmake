@@ -7,6 +7,9 @@ target_sources(usermod_dr_native INTERFACE
     ${CMAKE_CURRENT_LIST_DIR}/dr_median.c
     ${CMAKE_CURRENT_LIST_DIR}/dr_geo.c
     ${CMAKE_CURRENT_LIST_DIR}/dr_fused.c
+    # the error-state filter: compiled always (dr_native.c calls it only where dr_board.h's DR_WITH_ESKF is 1; the
+    # firmware's link drops what nothing calls)
+    ${CMAKE_CURRENT_LIST_DIR}/dr_eskf.c
 )
 
 target_include_directories(usermod_dr_native INTERFACE

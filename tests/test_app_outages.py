@@ -21,13 +21,11 @@ Neither bound knows where the outage started: an app that loses samples, time or
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from appkit import TAP, outage_world, read_record
+from appkit import TAP, outage_world, read_record, x86_natmod
 
 from codegen.board.loader import load_board
 from codegen.kernel import fused as F
@@ -35,8 +33,7 @@ from codegen.kernel import reference as ref
 from codegen.kernel.reference import KernelConfig
 from codegen.sim import methods, neo6m
 from codegen.sim.harness import generate_app, run_app
-from codegen.tools import tool_env
-from conftest import board_micropython, mpy_dir, require_tool
+from conftest import board_micropython
 from kernelkit import U, window_bound
 
 EPS32 = 2.0**-24
@@ -61,18 +58,7 @@ def boards(tmp_path_factory):
 
 def natmod(entry) -> Path:
     if "natmod" not in entry:
-        out = entry["out"]
-        mpy_cross = require_tool("mpy-cross")
-        require_tool("make")
-        # x86: the natmod for the 32-bit board-precision interpreter the app runs on
-        done = subprocess.run(["make", f"MPY_DIR={mpy_dir()}", "ARCH=x86", f"MPY_CROSS={mpy_cross}",
-                               f"PYTHON={sys.executable}"], cwd=out / "native", capture_output=True, text=True,
-                              env=tool_env())
-        assert done.returncode == 0, done.stdout + done.stderr
-        target = entry["folder"] / "natmod"
-        target.mkdir()
-        (target / "dr_native.mpy").write_bytes((out / "native" / "dr_native.mpy").read_bytes())
-        entry["natmod"] = target
+        entry["natmod"] = x86_natmod(entry["out"], entry["folder"] / "natmod")
     return entry["natmod"]
 
 

@@ -102,6 +102,17 @@ CASES = [
         "b.yaml": BASE + "micropython:\n  partitions: {table: t.csv}\n"
                          "  filesystem: {offset: 0x3C0000, size: 0x40000}\n"},
      "b.yaml", ["its log needs 260 KiB"]),
+    ("eskf-on-circuitpython", {"b.yaml": "extends: pico-gy521-circuitpython\nalgorithm:\n  mode: eskf\n"}, "b.yaml",
+     ["b.yaml:3:9: error: algorithm.mode: eskf runs in the native module only, and CircuitPython loads no native "
+      "module", "hint: use `mode: fused`"]),
+    ("eskf-sigma-zero", {"b.yaml": BASE + "algorithm: {mode: eskf, eskf_gps_pos_sigma: 0}\n"}, "b.yaml",
+     ["algorithm.eskf_gps_pos_sigma: should be greater than 0 (got 0)"]),
+    ("eskf-key-misspelt", {"b.yaml": BASE + "algorithm: {mode: eskf, eskf_nhc_sigm: 0.5}\n"}, "b.yaml",
+     ["unknown key 'eskf_nhc_sigm' in algorithm", "did you mean `eskf_nhc_sigma`?"]),
+    ("eskf-heap-too-small", {"b.yaml": "extends: esp32-devkitc-gy521\nmicropython: {heap_kb: 90}\n"
+                                       "algorithm: {mode: eskf}\n"}, "b.yaml",
+     ["b.yaml:2:24: error: algorithm.mode: eskf does not fit in this board's 90 KiB heap (micropython.heap_kb)",
+      "hint: use `mode: fused`"]),
     ("extends-cycle", {"a.yaml": "extends: ./b.yaml\nname: a\n", "b.yaml": "extends: ./a.yaml\nname: b\n"},
      "a.yaml", ["`extends:` forms a cycle"]),
     ("extends-dev-zero", {"b.yaml": "extends: /dev/zero.yaml\nname: x\n"}, "b.yaml", ["no such board file"]),

@@ -270,3 +270,52 @@ def test_adding_a_field_and_a_parameter_is_one_edit(tmp_path, monkeypatch):
     assert done.stdout.splitlines() == [f"{L.LAYOUT.fused_buffer_floats + 3} 50 0.5", "ran",
                                         "lateral_tau_s must be >= 0",
                                         "receiver must be one of 0 (neo6m), 1 (neo8m), 2 (other)"]
+
+
+def _eskf_layout_compiles(tmp_path, layout, monkeypatch) -> subprocess.CompletedProcess:
+    """Compile dr_eskf.h against the dr_layout.h `layout` renders, with its checks (DR_ESKF_LAYOUT_CHECKS)."""
+    import codegen.generate
+
+    cc = require_tool("cc")
+    monkeypatch.setattr(codegen.generate, "LAYOUT", layout)
+    native = tmp_path / "native"
+    native.mkdir(parents=True)
+    for path, f in render_tree(load_board()).items():
+        if path.startswith("native/"):
+            (native / path[7:]).write_bytes(f.content)
+    (native / "check.c").write_text('#include "dr_eskf.h"\nDR_ESKF_LAYOUT_CHECKS\n')
+    return subprocess.run([cc, "-std=c99", "-Wall", "-Werror", "-pedantic", "-fsyntax-only", "check.c"], cwd=native,
+                          capture_output=True, text=True)
+
+
+def test_eskf_header_is_held_to_the_declaration(tmp_path, monkeypatch):
+    """dr_eskf.h writes the filter's structs by hand; the declaration (layout.ESKF) is what dr_native's buffer,
+    its exported offsets and hosteskf's cffi structs use. The header compiles against the declaration; a
+    declaration that drifts from it (two fields swapped, a field's length, a parameter more) does not, and the
+    compiler names the field."""
+    assert (done := _eskf_layout_compiles(tmp_path / "same", L.LAYOUT, monkeypatch)).returncode == 0, done.stderr
+    eskf = L.ESKF
+    state = list(eskf.state)
+    at = [f.name for f in state].index("aligned")
+    state[at], state[at + 1] = state[at + 1], state[at]
+    swapped = dataclasses.replace(L.LAYOUT, eskf=dataclasses.replace(eskf, state=tuple(state)))
+    done = _eskf_layout_compiles(tmp_path / "swapped", swapped, monkeypatch)
+    assert done.returncode != 0 and "dr_eskf_state_aligned_at" in done.stderr, done.stderr
+    longer = dataclasses.replace(eskf, state=tuple(dataclasses.replace(f, length=3) if f.name == "ah" else f
+                                                   for f in eskf.state))
+    done = _eskf_layout_compiles(tmp_path / "longer", dataclasses.replace(L.LAYOUT, eskf=longer), monkeypatch)
+    assert done.returncode != 0 and "dr_eskf_state_ah_at" in done.stderr, done.stderr
+    extra = L.Param("extra_sigma", "m", "a parameter the header lacks", L.Store("extra_sigma", "m"), 1.0, gt=0,
+                    board=False)
+    grown = dataclasses.replace(eskf, params=eskf.params + (extra,))
+    done = _eskf_layout_compiles(tmp_path / "grown", dataclasses.replace(L.LAYOUT, eskf=grown), monkeypatch)
+    assert done.returncode != 0 and "extra_sigma" in done.stderr, done.stderr
+
+
+def test_hosteskf_structs_come_from_the_declaration():
+    """hosteskf's cffi declarations are rendered from layout.ESKF (not spelled by hand), shaped as the header's."""
+    from codegen.kernel import hosteskf
+
+    assert "float mount[3][3];" in hosteskf.CDEF and "float p[23][23];" in hosteskf.CDEF
+    assert hosteskf.CONFIG_FIELDS == tuple(f.name for f in L.ESKF.config)
+    assert "DR_ESKF_LAYOUT_CHECKS" in hosteskf.C_SOURCE

@@ -29,6 +29,7 @@ def check_circuitpython(board: Board, chip: ChipPins, source: SourceMap) -> list
     found: list[Diagnostic] = []
     found += _check_board_matches(board, source)
     found += _check_not_micropython(source)
+    found += _check_algorithm_runs(board, source)
     found += _check_peripherals(board, chip, source)
     found += _check_version(board, source)
     found += _check_watchdog(board, source)
@@ -50,6 +51,17 @@ def _check_board_matches(board: Board, source: SourceMap) -> Iterator[Diagnostic
             f"psram: the {cp.title} {'has' if cp.psram else 'has no'} PSRAM (psram: {str(board.psram).lower()})",
             source.value(("psram",)) if ("psram",) in source.values else where,
             f"write `psram: {str(cp.psram).lower()}`, or name the board variant you have",
+        )
+
+
+def _check_algorithm_runs(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    if board.algorithm.mode == "eskf":
+        # the filter exists as float32 C only (native_ext/dr_eskf.c); the app's pure-Python kernels are the seed's
+        # and the fused method's (dr_fallback), and CircuitPython loads no native module
+        yield error(
+            "algorithm.mode: eskf runs in the native module only, and CircuitPython loads no native module",
+            source.value(("algorithm", "mode")),
+            "use `mode: fused` (the pure-Python kernel runs it), or `target: micropython` to run the eskf",
         )
 
 

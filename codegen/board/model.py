@@ -22,7 +22,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from codegen.board.circuitpython import DEFAULT_CIRCUITPYTHON, CircuitPythonBoard, strip_board_prefix
-from codegen.kernel.layout import FUSED, FUSED_MEDIAN_MAX  # noqa: F401  (FUSED_MEDIAN_MAX: for the rules)
+from codegen.kernel.layout import ESKF, FUSED, FUSED_MEDIAN_MAX  # noqa: F401  (FUSED_MEDIAN_MAX: for the rules)
 
 STANDARD_GRAVITY = 9.80665  # m/s^2
 
@@ -353,11 +353,12 @@ class Led(Part):
 class _AlgorithmKeys(Part):
     """The algorithm's keys the seed mode reads; Algorithm adds one key per fused parameter."""
 
-    mode: Literal["seed", "fused"] = Field(
+    mode: Literal["seed", "fused", "eskf"] = Field(
         "fused",
         description="seed: the seed's windows (block median, deadband, double integration); fused: tilt kept by "
         "gravity, rest detection, heading and speed from GPS (it beats the seed and both baselines on the "
-        "walk, car and real-walk benchmarks)",
+        "walk, car and real-walk benchmarks); eskf: an error-state Kalman filter for a vehicle (position, velocity, "
+        "attitude, biases, mounting; docs/eskf.md), in the native module only (MicroPython)",
     )
     block: int = Field(16, ge=1, le=4096, description="b: samples per block median")
     window: int = Field(512, ge=1, le=4096, description="n: samples per processing window")
@@ -368,12 +369,13 @@ class _AlgorithmKeys(Part):
     )
 
 
-def algorithm_model(kernel=FUSED) -> type:
+def algorithm_model(kernel=FUSED, eskf=ESKF) -> type:
     """The `algorithm` section: the seed's keys, and for mode "fused" (codegen/kernel/fused.py, native_ext/dr_fused.c)
-    one key `fused_<name>` per parameter of the kernel's declaration (codegen/kernel/layout.py), with its default,
+    and mode "eskf" (codegen/kernel/eskf.py, native_ext/dr_eskf.c) one key `fused_<name>` / `eskf_<name>` per
+    parameter of the kernel's declaration (codegen/kernel/layout.py; not the eskf's cadences), with its default,
     unit and limits from there; a limit the kernel does not declare is the board's (NUMBER_MAX, INT32_MAX)."""
     keys = {}
-    for p in kernel.params:
+    for kernel, p in ((k, p) for k in (kernel, eskf) for p in k.params if p.board):
         kind = Literal[p.choices] if p.kind == "choice" else {"float": float, "int": int, "bool": bool}[p.kind]
         description = f"{p.unit}: {p.doc}" if p.unit else p.doc
         limits = {}

@@ -25,6 +25,14 @@ RESERVED_I2C_ADDRESSES = set(range(0x00, 0x08)) | set(range(0x78, 0x80))
 # .mpy 6.3; a release before 1.23 (6.2 and older) refuses native code of another sub-version with ValueError
 # ("incompatible .mpy file"), not the ImportError the app's fallback catches, so the app would stop at boot.
 MIN_MICROPYTHON = (1, 23)
+# algorithm.mode eskf (the native filter) on the emulated board (tests/test_app_boards.py -k eskf: 32-bit unix
+# MicroPython with the board's heap, esp32-devkitc-gy521 with mode eskf, its x86 dr_native, a simulated drive with
+# an outage) ran in a 104 KiB heap and failed (MemoryError) in 96 KiB, with that board's 24,000-byte calibration
+# buffer (10 s at 200 Hz) and two 4 KiB log blocks (98-102 KiB: either, with the heap's fragmentation). The heap
+# at or below which it cannot run: what failed, less the buffers it had, plus the board's (its keys size them).
+ESKF_FAILED_HEAP_BYTES = 96 * 1024
+ESKF_MEASURED_BUFFERS_BYTES = 12 * 2000 + 2 * 4096
+ESKF_MEASURED_OK_HEAP_BYTES = 104 * 1024
 
 
 @dataclass(frozen=True)
@@ -330,6 +338,8 @@ def _check_algorithm(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
                 f"keep {2 * algorithm.fused_vibration_hz:g} Hz and more (imu.dlpf <= 4 at >= "
                 f"{4 * algorithm.fused_vibration_hz:g} Hz sampling), or set fused_platform: pedestrian or vehicle",
             )
+    if algorithm.mode == "eskf" and board.target == "micropython":
+        yield from _check_eskf_heap(board, source)
     if algorithm.deadband_g >= imu.accel_range_g:
         yield error(
             f"algorithm.deadband_g: l = {algorithm.deadband_g} g is not below the accelerometer range "
@@ -362,6 +372,26 @@ def _check_algorithm(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
             f"({imu.sample_rate_hz:g} Hz)",
             source.value(("logging", "imu_rate_hz")),
         )
+
+
+def _check_eskf_heap(board: Board, source: SourceMap) -> Iterator[Diagnostic]:
+    """An eskf board whose heap is no larger than the one the eskf app failed in (its calibration and log buffers
+    counted as this board sizes them) cannot run it."""
+    buffers = 12 * board.calibration_samples + (2 * board.logging.block_bytes if board.logging.enabled else 0)
+    floor = ESKF_FAILED_HEAP_BYTES - ESKF_MEASURED_BUFFERS_BYTES + buffers
+    if board.heap_bytes > floor:
+        return
+    written = ("micropython", "heap_kb") in source.values
+    yield error(
+        f"algorithm.mode: eskf does not fit in this board's {board.heap_bytes // 1024} KiB heap "
+        f"({'micropython.heap_kb' if written else 'the ' + board.chip + ' firmware default'}): the eskf app with "
+        f"{buffers} bytes of calibration and log buffers needs more than {floor / 1024:g} KiB (measured on the "
+        f"emulated board: it failed in {ESKF_FAILED_HEAP_BYTES // 1024} KiB and ran in "
+        f"{ESKF_MEASURED_OK_HEAP_BYTES // 1024} KiB with {ESKF_MEASURED_BUFFERS_BYTES} bytes of them)",
+        source.value(("micropython", "heap_kb") if written else ("algorithm", "mode")),
+        "use `mode: fused`, a shorter algorithm.calibration_s, smaller logging.block_bytes, or a board with more "
+        "heap (PSRAM)",
+    )
 
 
 def _check_micropython_version(board: Board, source: SourceMap) -> Iterator[Diagnostic]:

@@ -1,5 +1,5 @@
-"""An error-state Kalman filter for a vehicle carrying the board's IMU: the float64 reference (`algorithm` not yet
-selectable on the device; docs/eskf.md says what a C and fallback port still need).
+"""An error-state Kalman filter for a vehicle carrying the board's IMU: the float64 reference (on the device with
+`algorithm.mode: eskf`, in the native module's float32 C; docs/eskf.md).
 
 Nominal state (EskfState): position p and velocity v in the run's local ENU frame (m, m/s), the attitude quaternion
 q = [w, x, y, z] turning body vectors into ENU, the gyro bias bg (rad/s) and the accelerometer bias ba (m/s^2),

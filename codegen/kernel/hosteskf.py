@@ -10,26 +10,32 @@ as codegen.kernel.eskf's reference is driven (calibrate, process samples, a GPS 
 
 from __future__ import annotations
 
-from dataclasses import fields
-
 import numpy as np
 
 from codegen.kernel import hostkernel
 from codegen.kernel.eskf import N_ERR, EskfConfig
+from codegen.kernel.layout import ESKF
 
 SOURCES = ("dr_kernel.c", "dr_median.c", "dr_geo.c", "dr_eskf.c")
 HEADERS = ("dr_eskf.h",)
-CONFIG_FIELDS = tuple(f.name for f in fields(EskfConfig))
+CONFIG_FIELDS = tuple(f.name for f in ESKF.config)  # EskfConfig's names, in dr_eskf_config's order
 
-CDEF = hostkernel.CONFIG_CDEF + """
-typedef struct { %s ...; } dr_eskf_config;
-typedef struct {
-    float pos[3]; float vel[3]; float q[4]; float bg[3]; float ba[3]; float sg[3]; float ge[3];
-    float mount[3][3]; float acc_a[3][3]; float acc_b[3][3]; float acc_dv[3]; float acc_t; float sat_dv;
-    float since_nhc; float mean_f; float var_f; float ws[3]; float ah[2]; float rest_s; float rate2; float gps_speed;
-    float t_fix; float al_du[2]; float al_dot; float al_cross; float al_norm; float al_prev[2]; float al_have_prev;
-    float aligned; float gyro_moving; float cov_repairs; float p[23][23]; ...;
-} dr_eskf_state;
+
+def _members(fields_) -> str:
+    """The struct members of a codegen.kernel.layout declaration, as C (float m[3][3] for a shaped field)."""
+    out = []
+    for f in fields_:
+        dims = "".join(f"[{d}]" for d in (f.shape or ((f.length,) if f.length > 1 else ())))
+        out.append(f"{f.ctype} {f.name}{dims};")
+    return " ".join(out)
+
+
+# The structs as codegen/kernel/layout.py declares them (dr_eskf.h writes them by hand; DR_ESKF_LAYOUT_CHECKS,
+# compiled into this module, holds the header to the same declaration, field by field).
+CDEF = hostkernel.CONFIG_CDEF + f"""
+typedef struct {{ {_members(ESKF.config)} ...; }} dr_eskf_config;
+typedef struct {{ {_members(ESKF.state)} ...; }} dr_eskf_state;
+""" + """
 void dr_eskf_config_init(dr_eskf_config *cfg);
 void dr_eskf_state_init(dr_eskf_state *st);
 int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_state *st, const int16_t *samples,
@@ -45,9 +51,9 @@ void dr_eskf_nhc_rows(const dr_eskf_state *st, float h[2][23], float predicted[2
 int dr_eskf_covariance_usable(const float p[23][23]);
 void dr_eskf_prior(const dr_eskf_config *cfg, dr_eskf_state *st);
 extern "Python+C" void dr_eskf_observed(const dr_eskf_state *st, int step);
-""" % " ".join(f"float {name};" for name in CONFIG_FIELDS)
+"""
 DEFINES = ("DR_ESKF_OBSERVED",)  # the host build hands every covariance step to Python (nothing on the device)
-C_SOURCE = '#include "dr_eskf.h"\n'
+C_SOURCE = '#include "dr_eskf.h"\nDR_ESKF_LAYOUT_CHECKS\n'
 STEPS = ("prior", "predict", "update")  # DR_ESKF_STEP_*
 
 

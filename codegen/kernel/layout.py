@@ -20,6 +20,7 @@ counted in floats. The order here is the order in memory; the fields the app rea
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Optional, Union
 
@@ -46,6 +47,7 @@ class Field:
     # before it: "read" (the loop does not change it), "carry" (and stored back after it); "" = in the buffer
     local: str = ""
     group: str = ""  # the concern this field opens in memory order (a heading in the C struct)
+    shape: tuple[int, ...] = ()  # the C array's dimensions when it has more than one ((3, 3): float m[3][3])
 
     def element_names(self) -> tuple[str, ...]:
         if self.length == 1:
@@ -90,6 +92,7 @@ class Param:
     multiple_of: Optional[str] = None
     error: str = "ERR_RANGE"
     choices: tuple[str, ...] = ()
+    board: bool = True  # False: no board key; the kernel keeps `default` (a cadence its tests were run at)
 
     def limits_text(self) -> str:
         """The limits in words, for error messages: '> 0', '>= 0 and <= 1', 'a positive multiple of block'."""
@@ -543,6 +546,128 @@ FUSED = Kernel(
 
 
 
+# The error-state filter (native_ext/dr_eskf.h, codegen/kernel/eskf.py). Its structs are written by hand in dr_eskf.h
+# (the filter's C is not rendered); this is what the rest agrees with: dr_layout.h renders the lengths, the offsets
+# and, from them, a compile-time check of every field of dr_eskf.h's structs (DR_ESKF_*_FIELDS), so a header that
+# drifts from here does not compile; codegen/kernel/hosteskf.py declares its cffi structs from here; dr_native's
+# eskf buffer is dr_eskf_state | dr_eskf_config | dr_config. Every parameter is a float copied as it is given
+# (EskfConfig's names, units and defaults); the two cadences keep the defaults the filter was tested at.
+ESKF = Kernel(
+    title="the error-state filter (dr_eskf.c, codegen/kernel/eskf.py)",
+    c_prefix="dr_eskf",
+    py_prefix="_E",
+    board_prefix="eskf_",
+    state=(
+        Field("pos", "m", "position E N U, the run's ENU frame", 3, public="ESKF_POS", group="the nominal state"),
+        Field("vel", "m/s", "velocity E N U", 3, public="ESKF_VEL"),
+        Field("q", "", "attitude w x y z, body -> ENU", 4, initial=(1.0,), public="ESKF_Q"),
+        Field("bg", "rad/s", "gyro bias, body", 3),
+        Field("ba", "m/s^2", "accelerometer bias, body", 3),
+        Field("sg", "1", "the gyro's turn-rate error per rad/s about Up, body", 3),
+        Field("ge", "m", "the receiver's position error E N U", 3),
+        Field("mount", "", "body -> vehicle (x forward, y left, z up)", 9, shape=(3, 3), initial=(1.0, 0, 0, 0, 1.0,
+              0, 0, 0, 1.0)),
+        Field("acc_a", "s", "sum of R dt since the last propagation", 9, shape=(3, 3),
+              group="the sums since the last covariance propagation"),
+        Field("acc_b", "rad", "sum of R turn dt", 9, shape=(3, 3)),
+        Field("acc_dv", "m/s", "sum of R f dt", 3),
+        Field("acc_t", "s", "the interval"),
+        Field("sat_dv", "m/s", "what clipped samples may have lost in it"),
+        Field("since_nhc", "s", "since the last pseudo-measurement", group="rest and motion"),
+        Field("mean_f", "m/s^2", "|f| smoothed"),
+        Field("var_f", "(m/s^2)^2", "its variance"),
+        Field("ws", "rad/s", "the rate smoothed", 3),
+        Field("ah", "m/s^2", "the horizontal specific force smoothed", 2),
+        Field("rest_s", "s", "at rest so far"),
+        Field("rate2", "(rad/s)^2", "the last sample's rate squared"),
+        Field("gps_speed", "m/s", "the last fix's speed (0 in an outage: rest may be detected)",
+              public="ESKF_GPS_SPEED", group="the fixes and the yaw alignment"),
+        Field("t_fix", "s", "the last fix's time"),
+        Field("al_du", "m/s", "the wander frame's velocity change since the last fix", 2),
+        Field("al_dot", "(m/s)^2", "the alignment's correlation sums"),
+        Field("al_cross", "(m/s)^2", ""),
+        Field("al_norm", "(m/s)^2", ""),
+        Field("al_prev", "m/s", "the previous fix's velocity", 2),
+        Field("al_have_prev", "1", "1 once a fix was seen"),
+        Field("aligned", "1", "1 once the filter runs", public="ESKF_ALIGNED"),
+        Field("gyro_moving", "1", "1 if calibration saw motion"),
+        Field("cov_repairs", "", "covariances that went wrong and were reset", public="ESKF_COV_REPAIRS"),
+        Field("p", "", "the error state's covariance, symmetric", 23 * 23, shape=(23, 23), group="the covariance"),
+    ),
+    params=(
+        Param("cov_dt_s", "s", "between covariance propagations", Store("cov_dt_s", "s"), 0.2, gt=0, board=False),
+        Param("nhc_dt_s", "s", "between pseudo-measurements", Store("nhc_dt_s", "s"), 0.4, gt=0, board=False),
+        Param("accel_noise", "m/s^2/sqrt(Hz)", "white specific-force noise, the vehicle's shaking included",
+              Store("accel_noise", "m/s^2/sqrt(Hz)"), 0.05, gt=0),
+        Param("gyro_noise", "rad/s/sqrt(Hz)", "white gyro noise", Store("gyro_noise", "rad/s/sqrt(Hz)"), 0.002, gt=0),
+        Param("accel_bias_walk", "m/s^2/sqrt(s)", "accelerometer bias random walk",
+              Store("accel_bias_walk", "m/s^2/sqrt(s)"), 2e-4, ge=0),
+        Param("gyro_bias_walk", "rad/s/sqrt(s)", "gyro bias random walk", Store("gyro_bias_walk", "rad/s/sqrt(s)"),
+              2e-5, ge=0),
+        Param("mount_walk", "rad/sqrt(s)", "the mounting's random walk", Store("mount_walk", "rad/sqrt(s)"), 2e-4,
+              ge=0),
+        Param("turn_scale_walk", "1/sqrt(s)", "the turn-rate error's random walk", Store("turn_scale_walk",
+              "1/sqrt(s)"), 1e-5, ge=0),
+        Param("gps_pos_sigma", "m", "the receiver's position error per horizontal axis (Gauss-Markov)",
+              Store("gps_pos_sigma", "m"), 2.12, gt=0),
+        Param("gps_up_sigma", "m", "and up", Store("gps_up_sigma", "m"), 3.2, gt=0),
+        Param("gps_tau_s", "s", "its correlation time", Store("gps_tau_s", "s"), 60.0, gt=0),
+        Param("gps_white_sigma", "m", "the position error that is not correlated, per axis",
+              Store("gps_white_sigma", "m"), 0.3, gt=0),
+        Param("gps_vel_sigma", "m/s", "the Doppler velocity's error per horizontal axis", Store("gps_vel_sigma",
+              "m/s"), 0.15, gt=0),
+        Param("gps_slow_sigma", "m/s", "the velocity's error when the receiver reports 0 (below its course's speed)",
+              Store("gps_slow_sigma", "m/s"), 0.4, gt=0),
+        Param("nhc_sigma", "m/s", "the vehicle's lateral and vertical velocity (lever arm, slip, roll)",
+              Store("nhc_sigma", "m/s"), 0.6, gt=0),
+        Param("saturation_excess_ms2", "m/s^2", "what a clipped sample (the range's end) may have lost",
+              Store("saturation_excess_ms2", "m/s^2"), 20.0, ge=0),
+        Param("nhc_lever_m", "m", "the device's distance from the vehicle's axles", Store("nhc_lever_m", "m"), 1.0,
+              ge=0),
+        Param("nhc_gate", "sigmas", "a lateral or vertical velocity beyond this is no sliding", Store("nhc_gate",
+              "sigmas"), 3.0, gt=0),
+        Param("nhc_min_speed", "m/s", "the constraint's mounting terms need this speed", Store("nhc_min_speed",
+              "m/s"), 1.0, ge=0),
+        Param("zupt_sigma", "m/s", "zero velocity's error", Store("zupt_sigma", "m/s"), 0.02, gt=0),
+        Param("zupt_gate", "1", "the velocity's normalised square below which it may be 0 (chi-square, 3 dof)",
+              Store("zupt_gate", "1"), 16.3, gt=0),
+        Param("zaru_sigma", "rad/s", "the smoothed rate at rest against the bias", Store("zaru_sigma", "rad/s"),
+              0.002, gt=0),
+        Param("rest_accel_g", "g", "|f| standard deviation below which the vehicle may be at rest (an idling engine)",
+              Store("rest_accel_g", "g"), 0.02, ge=0),
+        Param("rest_gyro_dps", "degree/s", "smoothed rate below which it may be at rest", Store("rest_gyro_dps",
+              "degree/s"), 1.0, ge=0),
+        Param("rest_time_s", "s", "both this long", Store("rest_time_s", "s"), 0.5, ge=0),
+        Param("rest_speed_ms", "m/s", "and the last fix's speed below this (while fixes arrive)",
+              Store("rest_speed_ms", "m/s"), 1.5, ge=0),
+        Param("rest_horizontal_ms2", "m/s^2", "and the smoothed horizontal specific force below this",
+              Store("rest_horizontal_ms2", "m/s^2"), 0.3, ge=0),
+        Param("stat_tau_s", "s", "the shaking's and the rate's smoothing", Store("stat_tau_s", "s"), 0.5, gt=0),
+        Param("align_min", "(m/s)^2", "sum of |dv_gps| |dv_imu| over fix intervals before the yaw is taken",
+              Store("align_min", "(m/s)^2"), 3.0, ge=0),
+        Param("align_coherence", "1", "the correlation's resultant over that sum", Store("align_coherence", "1"),
+              0.8, ge=0, le=1),
+        Param("align_speed_ms", "m/s", "the filter starts while moving at least this fast", Store("align_speed_ms",
+              "m/s"), 2.0, ge=0),
+        Param("init_yaw_sigma_deg", "degree", "the yaw's sigma at the start", Store("init_yaw_sigma_deg", "deg"),
+              10.0, gt=0),
+        Param("init_tilt_sigma_deg", "degree", "the tilt's, after a calibration at rest",
+              Store("init_tilt_sigma_deg", "deg"), 0.3, gt=0),
+        Param("init_tilt_moving_deg", "degree", "after a calibration in motion", Store("init_tilt_moving_deg", "deg"),
+              2.0, gt=0),
+        Param("init_gyro_bias_dps", "degree/s", "the gyro bias's, after a calibration at rest",
+              Store("init_gyro_bias_dps", "deg/s"), 0.1, gt=0),
+        Param("init_gyro_bias_moving_dps", "degree/s", "after a calibration in motion",
+              Store("init_gyro_bias_moving_dps", "deg/s"), 0.5, gt=0),
+        Param("init_accel_bias_ms2", "m/s^2", "the accelerometer bias's", Store("init_accel_bias_ms2", "m/s^2"), 0.3,
+              gt=0),
+        Param("init_mount_sigma_deg", "degree", "the mounting's", Store("init_mount_sigma_deg", "deg"), 5.0, gt=0),
+        Param("init_turn_scale", "1", "the turn-rate error's (the MPU-6050's sensitivity and cross-axis errors)",
+              Store("init_turn_scale", "1"), 0.03, gt=0),
+    ),
+)
+
+
 @dataclass(frozen=True)
 class Layout:
     """What the templates render from: both kernels, and the buffers dr_native and dr_fallback hand the app
@@ -550,6 +675,7 @@ class Layout:
 
     seed: Kernel
     fused: Kernel
+    eskf: Kernel
     codes: tuple[Code, ...] = RETURN_CODES
     out_floats: int = OUT_FLOATS
     median_max: int = FUSED_MEDIAN_MAX
@@ -578,6 +704,19 @@ class Layout:
     def fused_buffer_floats(self) -> int:
         return self.fused_kernel_config_at + self.seed.config_floats
 
+    @property
+    def eskf_config_at(self) -> int:
+        return self.eskf.state_floats
+
+    @property
+    def eskf_kernel_config_at(self) -> int:
+        return self.eskf.state_floats + self.eskf.config_floats
+
+    @property
+    def eskf_buffer_floats(self) -> int:
+        """The eskf buffer dr_native hands the app: dr_eskf_state | dr_eskf_config | dr_config."""
+        return self.eskf_kernel_config_at + self.seed.config_floats
+
     def fused_config_in_buffer(self) -> dict[str, int]:
         """dr_fused_config field -> its offset in the fused buffer."""
         return {name: self.fused_config_at + at for name, at in self.fused.config_offsets.items()}
@@ -597,6 +736,8 @@ def check(kernel: Kernel) -> None:
     for f in kernel.state + kernel.config:
         if f.ctype not in ("float", "int32_t") or f.length < 1 or len(f.initial) > f.length:
             raise ValueError(f"{kernel.c_prefix}: field {f.name}: ctype, length or initial values wrong")
+        if f.shape and math.prod(f.shape) != f.length:
+            raise ValueError(f"{kernel.c_prefix}: field {f.name}: shape {f.shape} is not {f.length} values")
         if f.elements and len(f.elements) != f.length:
             raise ValueError(f"{kernel.c_prefix}: field {f.name} names {len(f.elements)} of {f.length} elements")
     for p in kernel.params:
@@ -621,7 +762,7 @@ def check(kernel: Kernel) -> None:
             raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: a choice needs choices and one as default")
         if p.error not in {c.name for c in RETURN_CODES}:
             raise ValueError(f"{kernel.c_prefix}: parameter {p.name}: unknown return code {p.error!r}")
-        if kernel.board_prefix and p.default is None:
+        if (kernel.board_prefix or not p.board) and p.default is None:
             raise ValueError(f"{kernel.c_prefix}: parameter {p.name} has a board key but no default")
     taken = {n.upper() for n in names + list(params) + [fl.name for fl in kernel.flags]}
     clash = sorted(name for _, _, name in kernel.named_elements() if name.upper() in taken)
@@ -636,6 +777,6 @@ def check(kernel: Kernel) -> None:
         raise ValueError(f"{kernel.c_prefix}: state fields are floats (the reference's flat view)")
 
 
-LAYOUT = Layout(SEED, FUSED)
-for _kernel in LAYOUT.kernels:
+LAYOUT = Layout(SEED, FUSED, ESKF)
+for _kernel in LAYOUT.kernels + (ESKF,):
     check(_kernel)

@@ -1,6 +1,6 @@
 """The error-state filter's C (native_ext/dr_eskf.c) as ESP32 code on qemu-system-xtensa, instructions counted.
 
-The filter is not part of dr_native.mpy yet, so it is not measured inside the module: dr_eskf.c, dr_kernel.c (for
+The filter is measured alone, not inside dr_native.mpy (which carries it for eskf boards): dr_eskf.c, dr_kernel.c (for
 dr_config_init), dr_median.c and xtensa_sim/eskf_harness.c are each compiled by the LLVM route
 (codegen.natmod.xtensa_llvm) with the flags MicroPython's dynruntime.mk gives a natmod (-std=c99 -Os), linked into
 one image by mpy_ld, relocated as MicroPython's loader would and run after codegen.natmod.qemu_xtensa's start-up

@@ -91,11 +91,36 @@ def record_on_micropython(loaded, traj: trajectory.Trajectory, seed: int = 0, qu
         world["i2c"]["0"][1]["address"] = board.display.address
     print(f"running the generated app on MicroPython for {duration:.0f} s of virtual time"
           f"{f' ({what})' if what else ''} in {work}", file=sys.stderr)
-    result = harness.run_app(find_tool("micropython"), out, world, work, timeout=max(600.0, 5 * duration))
+    extra = _host_native_module(board, out, work)
+    result = harness.run_app(find_tool("micropython"), out, world, work, timeout=max(600.0, 5 * duration),
+                             extra_path=extra)
     if result.returncode != 0 or "Traceback" in result.stdout + result.stderr:
         raise UserError(f"the app failed on MicroPython (exit {result.returncode})",
                         hint=(result.stderr or result.stdout)[-800:])
     return Recording(result, traj, t_us, counts, gps, errors, work / "fs")
+
+
+def _host_native_module(board, out: Path, work: Path) -> list:
+    """algorithm.mode eskf runs in the native module only: its dr_native.mpy built for the host's x64 unix
+    MicroPython (the `micropython` command) from the generated native/ folder, as `deadreckon build` builds the
+    board's; [] for the other modes (the app's fallback kernels are what the simulation shows) or when it cannot be
+    built (said on stderr; the app then runs the fused fallback and says so)."""
+    if board.algorithm.mode != "eskf":
+        return []
+    from codegen.natmod.build import NoRoute, build_module
+
+    def progress(line: str) -> None:
+        print(line, file=sys.stderr)
+
+    try:
+        built = build_module(out / "native", work / "native-x64", "x64", board.micropython.version, progress)
+    except (NoRoute, UserError) as exc:
+        print(f"  no native module for the host ({exc}): the app runs its fused fallback", file=sys.stderr)
+        return []
+    folder = work / "natmod"
+    folder.mkdir(exist_ok=True)
+    (folder / "dr_native.mpy").write_bytes(built.module.read_bytes())
+    return [folder]
 
 
 def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: int = 0, quality: str = "open-sky",

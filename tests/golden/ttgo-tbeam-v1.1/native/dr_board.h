@@ -86,4 +86,44 @@
 #define DR_FUSED_KEEP_SPEED_NOISE (1.0f) /* m/s/sqrt(s) */
 #define DR_FUSED_MAX_ACCEL_MS2 (4.0f) /* m/s^2 */
 
+/* algorithm: eskf (dr_eskf.c; codegen/kernel/eskf.py): board algorithm.eskf_*, declared in codegen/kernel/layout.py */
+#define DR_WITH_ESKF (0) /* 1: dr_native carries the filter */
+#define DR_ESKF_ACCEL_NOISE (0.05f) /* m/s^2/sqrt(Hz) */
+#define DR_ESKF_GYRO_NOISE (0.002f) /* rad/s/sqrt(Hz) */
+#define DR_ESKF_ACCEL_BIAS_WALK (0.0002f) /* m/s^2/sqrt(s) */
+#define DR_ESKF_GYRO_BIAS_WALK (2e-05f) /* rad/s/sqrt(s) */
+#define DR_ESKF_MOUNT_WALK (0.0002f) /* rad/sqrt(s) */
+#define DR_ESKF_TURN_SCALE_WALK (1e-05f) /* 1/sqrt(s) */
+#define DR_ESKF_GPS_POS_SIGMA (2.12f) /* m */
+#define DR_ESKF_GPS_UP_SIGMA (3.2f) /* m */
+#define DR_ESKF_GPS_TAU_S (60.0f) /* s */
+#define DR_ESKF_GPS_WHITE_SIGMA (0.3f) /* m */
+#define DR_ESKF_GPS_VEL_SIGMA (0.15f) /* m/s */
+#define DR_ESKF_GPS_SLOW_SIGMA (0.4f) /* m/s */
+#define DR_ESKF_NHC_SIGMA (0.6f) /* m/s */
+#define DR_ESKF_SATURATION_EXCESS_MS2 (20.0f) /* m/s^2 */
+#define DR_ESKF_NHC_LEVER_M (1.0f) /* m */
+#define DR_ESKF_NHC_GATE (3.0f) /* sigmas */
+#define DR_ESKF_NHC_MIN_SPEED (1.0f) /* m/s */
+#define DR_ESKF_ZUPT_SIGMA (0.02f) /* m/s */
+#define DR_ESKF_ZUPT_GATE (16.3f) /* 1 */
+#define DR_ESKF_ZARU_SIGMA (0.002f) /* rad/s */
+#define DR_ESKF_REST_ACCEL_G (0.02f) /* g */
+#define DR_ESKF_REST_GYRO_DPS (1.0f) /* degree/s */
+#define DR_ESKF_REST_TIME_S (0.5f) /* s */
+#define DR_ESKF_REST_SPEED_MS (1.5f) /* m/s */
+#define DR_ESKF_REST_HORIZONTAL_MS2 (0.3f) /* m/s^2 */
+#define DR_ESKF_STAT_TAU_S (0.5f) /* s */
+#define DR_ESKF_ALIGN_MIN (3.0f) /* (m/s)^2 */
+#define DR_ESKF_ALIGN_COHERENCE (0.8f) /* 1 */
+#define DR_ESKF_ALIGN_SPEED_MS (2.0f) /* m/s */
+#define DR_ESKF_INIT_YAW_SIGMA_DEG (10.0f) /* degree */
+#define DR_ESKF_INIT_TILT_SIGMA_DEG (0.3f) /* degree */
+#define DR_ESKF_INIT_TILT_MOVING_DEG (2.0f) /* degree */
+#define DR_ESKF_INIT_GYRO_BIAS_DPS (0.1f) /* degree/s */
+#define DR_ESKF_INIT_GYRO_BIAS_MOVING_DPS (0.5f) /* degree/s */
+#define DR_ESKF_INIT_ACCEL_BIAS_MS2 (0.3f) /* m/s^2 */
+#define DR_ESKF_INIT_MOUNT_SIGMA_DEG (5.0f) /* degree */
+#define DR_ESKF_INIT_TURN_SCALE (0.03f) /* 1 */
+
 #endif /* DR_BOARD_H */

@@ -878,4 +878,149 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
 #define DR_FUSED_KERNEL_CONFIG_AT (205)
 #define DR_FUSED_BUFFER_FLOATS (217)
 
+/* ---- the error-state filter (dr_eskf.c, codegen/kernel/eskf.py) ----
+ * Its structs are dr_eskf.h's, written by hand; these are their lengths and offsets as codegen/kernel/layout.py
+ * declares them, and the field lists (name, offset in floats, floats) that DR_ESKF_LAYOUT_CHECKS holds dr_eskf.h's
+ * structs to at compile time wherever both headers are included (dr_native.c, the host's cffi build). */
+#define DR_ESKF_STATE_FLOATS (606) /* floats in dr_eskf_state */
+#define DR_ESKF_CONFIG_FLOATS (39) /* floats in dr_eskf_config */
+#define DR_ESKF_STATE_POS (0) /* m: position E N U, the run's ENU frame */
+#define DR_ESKF_STATE_VEL (3) /* m/s: velocity E N U */
+#define DR_ESKF_STATE_Q (6) /* attitude w x y z, body -> ENU */
+#define DR_ESKF_STATE_GPS_SPEED (64) /* m/s: the last fix's speed (0 in an outage: rest may be detected) */
+#define DR_ESKF_STATE_ALIGNED (74) /* 1: 1 once the filter runs */
+#define DR_ESKF_STATE_COV_REPAIRS (76) /* covariances that went wrong and were reset */
+#define DR_ESKF_STATE_FIELDS(X) \
+    X(pos, 0, 3) \
+    X(vel, 3, 3) \
+    X(q, 6, 4) \
+    X(bg, 10, 3) \
+    X(ba, 13, 3) \
+    X(sg, 16, 3) \
+    X(ge, 19, 3) \
+    X(mount, 22, 9) \
+    X(acc_a, 31, 9) \
+    X(acc_b, 40, 9) \
+    X(acc_dv, 49, 3) \
+    X(acc_t, 52, 1) \
+    X(sat_dv, 53, 1) \
+    X(since_nhc, 54, 1) \
+    X(mean_f, 55, 1) \
+    X(var_f, 56, 1) \
+    X(ws, 57, 3) \
+    X(ah, 60, 2) \
+    X(rest_s, 62, 1) \
+    X(rate2, 63, 1) \
+    X(gps_speed, 64, 1) \
+    X(t_fix, 65, 1) \
+    X(al_du, 66, 2) \
+    X(al_dot, 68, 1) \
+    X(al_cross, 69, 1) \
+    X(al_norm, 70, 1) \
+    X(al_prev, 71, 2) \
+    X(al_have_prev, 73, 1) \
+    X(aligned, 74, 1) \
+    X(gyro_moving, 75, 1) \
+    X(cov_repairs, 76, 1) \
+    X(p, 77, 529)
+#define DR_ESKF_CONFIG_FIELDS(X) \
+    X(cov_dt_s, 0, 1) \
+    X(nhc_dt_s, 1, 1) \
+    X(accel_noise, 2, 1) \
+    X(gyro_noise, 3, 1) \
+    X(accel_bias_walk, 4, 1) \
+    X(gyro_bias_walk, 5, 1) \
+    X(mount_walk, 6, 1) \
+    X(turn_scale_walk, 7, 1) \
+    X(gps_pos_sigma, 8, 1) \
+    X(gps_up_sigma, 9, 1) \
+    X(gps_tau_s, 10, 1) \
+    X(gps_white_sigma, 11, 1) \
+    X(gps_vel_sigma, 12, 1) \
+    X(gps_slow_sigma, 13, 1) \
+    X(nhc_sigma, 14, 1) \
+    X(saturation_excess_ms2, 15, 1) \
+    X(nhc_lever_m, 16, 1) \
+    X(nhc_gate, 17, 1) \
+    X(nhc_min_speed, 18, 1) \
+    X(zupt_sigma, 19, 1) \
+    X(zupt_gate, 20, 1) \
+    X(zaru_sigma, 21, 1) \
+    X(rest_accel_g, 22, 1) \
+    X(rest_gyro_dps, 23, 1) \
+    X(rest_time_s, 24, 1) \
+    X(rest_speed_ms, 25, 1) \
+    X(rest_horizontal_ms2, 26, 1) \
+    X(stat_tau_s, 27, 1) \
+    X(align_min, 28, 1) \
+    X(align_coherence, 29, 1) \
+    X(align_speed_ms, 30, 1) \
+    X(init_yaw_sigma_deg, 31, 1) \
+    X(init_tilt_sigma_deg, 32, 1) \
+    X(init_tilt_moving_deg, 33, 1) \
+    X(init_gyro_bias_dps, 34, 1) \
+    X(init_gyro_bias_moving_dps, 35, 1) \
+    X(init_accel_bias_ms2, 36, 1) \
+    X(init_mount_sigma_deg, 37, 1) \
+    X(init_turn_scale, 38, 1)
+#define DR_ESKF_STATE_FIELD_AT(name, at, floats) \
+    typedef char dr_eskf_state_##name##_at_##at[offsetof(dr_eskf_state, name) == (at) * sizeof(float) && \
+        sizeof(((dr_eskf_state *)0)->name) == (floats) * sizeof(float) ? 1 : -1];
+#define DR_ESKF_CONFIG_FIELD_AT(name, at, floats) \
+    typedef char dr_eskf_config_##name##_at_##at[offsetof(dr_eskf_config, name) == (at) * sizeof(float) && \
+        sizeof(((dr_eskf_config *)0)->name) == (floats) * sizeof(float) ? 1 : -1];
+/* after dr_eskf.h: every field where the declaration has it, and nothing else in the structs */
+#define DR_ESKF_LAYOUT_CHECKS \
+    DR_ESKF_STATE_FIELDS(DR_ESKF_STATE_FIELD_AT) \
+    DR_ESKF_CONFIG_FIELDS(DR_ESKF_CONFIG_FIELD_AT) \
+    typedef char dr_eskf_state_is_606_floats[ \
+        sizeof(dr_eskf_state) == DR_ESKF_STATE_FLOATS * sizeof(float) ? 1 : -1]; \
+    typedef char dr_eskf_config_is_39_floats[ \
+        sizeof(dr_eskf_config) == DR_ESKF_CONFIG_FLOATS * sizeof(float) ? 1 : -1];
+/* cfg <- the board's parameters (dr_board.h, board keys algorithm.eskf_*); the rest keep dr_eskf_config_init's */
+#define DR_ESKF_CONFIG_BOARD(cfg) \
+    do { \
+        (cfg)->accel_noise = DR_ESKF_ACCEL_NOISE; \
+        (cfg)->gyro_noise = DR_ESKF_GYRO_NOISE; \
+        (cfg)->accel_bias_walk = DR_ESKF_ACCEL_BIAS_WALK; \
+        (cfg)->gyro_bias_walk = DR_ESKF_GYRO_BIAS_WALK; \
+        (cfg)->mount_walk = DR_ESKF_MOUNT_WALK; \
+        (cfg)->turn_scale_walk = DR_ESKF_TURN_SCALE_WALK; \
+        (cfg)->gps_pos_sigma = DR_ESKF_GPS_POS_SIGMA; \
+        (cfg)->gps_up_sigma = DR_ESKF_GPS_UP_SIGMA; \
+        (cfg)->gps_tau_s = DR_ESKF_GPS_TAU_S; \
+        (cfg)->gps_white_sigma = DR_ESKF_GPS_WHITE_SIGMA; \
+        (cfg)->gps_vel_sigma = DR_ESKF_GPS_VEL_SIGMA; \
+        (cfg)->gps_slow_sigma = DR_ESKF_GPS_SLOW_SIGMA; \
+        (cfg)->nhc_sigma = DR_ESKF_NHC_SIGMA; \
+        (cfg)->saturation_excess_ms2 = DR_ESKF_SATURATION_EXCESS_MS2; \
+        (cfg)->nhc_lever_m = DR_ESKF_NHC_LEVER_M; \
+        (cfg)->nhc_gate = DR_ESKF_NHC_GATE; \
+        (cfg)->nhc_min_speed = DR_ESKF_NHC_MIN_SPEED; \
+        (cfg)->zupt_sigma = DR_ESKF_ZUPT_SIGMA; \
+        (cfg)->zupt_gate = DR_ESKF_ZUPT_GATE; \
+        (cfg)->zaru_sigma = DR_ESKF_ZARU_SIGMA; \
+        (cfg)->rest_accel_g = DR_ESKF_REST_ACCEL_G; \
+        (cfg)->rest_gyro_dps = DR_ESKF_REST_GYRO_DPS; \
+        (cfg)->rest_time_s = DR_ESKF_REST_TIME_S; \
+        (cfg)->rest_speed_ms = DR_ESKF_REST_SPEED_MS; \
+        (cfg)->rest_horizontal_ms2 = DR_ESKF_REST_HORIZONTAL_MS2; \
+        (cfg)->stat_tau_s = DR_ESKF_STAT_TAU_S; \
+        (cfg)->align_min = DR_ESKF_ALIGN_MIN; \
+        (cfg)->align_coherence = DR_ESKF_ALIGN_COHERENCE; \
+        (cfg)->align_speed_ms = DR_ESKF_ALIGN_SPEED_MS; \
+        (cfg)->init_yaw_sigma_deg = DR_ESKF_INIT_YAW_SIGMA_DEG; \
+        (cfg)->init_tilt_sigma_deg = DR_ESKF_INIT_TILT_SIGMA_DEG; \
+        (cfg)->init_tilt_moving_deg = DR_ESKF_INIT_TILT_MOVING_DEG; \
+        (cfg)->init_gyro_bias_dps = DR_ESKF_INIT_GYRO_BIAS_DPS; \
+        (cfg)->init_gyro_bias_moving_dps = DR_ESKF_INIT_GYRO_BIAS_MOVING_DPS; \
+        (cfg)->init_accel_bias_ms2 = DR_ESKF_INIT_ACCEL_BIAS_MS2; \
+        (cfg)->init_mount_sigma_deg = DR_ESKF_INIT_MOUNT_SIGMA_DEG; \
+        (cfg)->init_turn_scale = DR_ESKF_INIT_TURN_SCALE; \
+    } while (0)
+/* The eskf buffer dr_native hands the app: dr_eskf_state | dr_eskf_config | dr_config. */
+#define DR_ESKF_CONFIG_AT (606)
+#define DR_ESKF_KERNEL_CONFIG_AT (645)
+#define DR_ESKF_BUFFER_FLOATS (657)
+
 #endif /* DR_LAYOUT_H */
