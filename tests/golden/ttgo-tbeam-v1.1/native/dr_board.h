@@ -85,5 +85,6 @@
 #define DR_FUSED_SPEED_BIAS_NOISE (0.05f) /* m/s^2/sqrt(s) */
 #define DR_FUSED_KEEP_SPEED_NOISE (1.0f) /* m/s/sqrt(s) */
 #define DR_FUSED_MAX_ACCEL_MS2 (4.0f) /* m/s^2 */
+#define DR_FUSED_CARRIED_MS (2.5f) /* m/s */
 
 #endif /* DR_BOARD_H */
