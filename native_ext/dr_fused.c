@@ -769,9 +769,11 @@ static inline void dr_fused_vehicle_speed(const dr_config *kcfg, const dr_fused_
         float b = dt * cfg->inv_accel_tau;
         st->acc_lp += (b < 1.0f ? b : 1.0f) * (a - st->acc_lp);
         if (dr_absf(st->acc_lp) < kcfg->deadband_ms2) {
+            st->sb_lost += a * dt; /* what the deadband keeps out: the speed's noise at the next fix, no bias */
             a = 0.0f;
         }
     } else if (dr_absf(a) < kcfg->deadband_ms2) { /* the board's deadband, on the along-track acceleration */
+        st->sb_lost += a * dt;
         a = 0.0f;
     }
     a += (st->gps_speed - st->speed) * cfg->inv_speed_tau;
@@ -832,6 +834,7 @@ static inline void dr_fused_speed(const dr_config *kcfg, const dr_fused_config *
         st->sb_p[DR_FUSED_SB_PSS] = 0.0f;
         st->sb_p[DR_FUSED_SB_PSB] = 0.0f;
         st->sk_t = 0.0f;
+        st->sb_lost = 0.0f;
         st->cal_moved = 0.0f;
         st->keep_v = -1.0f;
     } else if (walking || walked) {
@@ -1186,7 +1189,8 @@ static int dr_fused_speed_update(const dr_fused_config *cfg, dr_fused_state *st,
         }
     }
     q_bias = dr_fused_bias_walk(cfg, st) * t + cfg->kf_turn_q * st->turn * st->turn;
-    if (!dr_fused_speed_predict(cfg, st, t, cfg->speed_q * t, q_bias)) {
+    /* the speed's noise: its random walk and what the deadband kept out of it (dr_fused_vehicle_speed) */
+    if (!dr_fused_speed_predict(cfg, st, t, cfg->speed_q * t + st->sb_lost * st->sb_lost, q_bias)) {
         return 0;
     }
     return dr_fused_speed_correct(cfg, st, 0.5f * cfg->kf_vel_r, gain);
@@ -1258,6 +1262,7 @@ static inline void dr_fused_fix_speed(const dr_fused_config *cfg, dr_fused_state
     }
     st->keep_v = speed;
     st->sk_t = 0.0f;
+    st->sb_lost = 0.0f;
 }
 
 /* What the next interval starts from (codegen.fused's _fix_restart): whether the motion acceleration (ae, an) is
@@ -1274,7 +1279,8 @@ static inline void dr_fused_fix_restart(const dr_fused_config *cfg, dr_fused_sta
     st->gps_vn = vn;
     st->gps_speed = speed;
     st->gps_ok = speed - cfg->min_speed_ms;
-    if (speed > cfg->pedestrian_max_ms) { /* faster than people run: a vehicle until it rests */
+    /* faster than people run, or than people move without steps: a vehicle until it rests */
+    if (speed > cfg->pedestrian_max_ms || (speed > cfg->carried_ms && !((int)st->flags & DR_FUSED_WALKING))) {
         st->flags = (float)((int)st->flags | DR_FUSED_FAST);
     }
     st->dvx = 0.0f;

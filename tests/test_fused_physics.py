@@ -321,9 +321,29 @@ def test_a_car_slowed_to_5_ms_after_gps_said_15_is_never_a_walker(impl, tmp_path
     flags = trace.series("flags").astype(int)
     assert not np.any(flags & F.WALKING) and np.all(flags[3:] & (F.VEHICLE | F.FAST) == F.VEHICLE | F.FAST)
     assert trace.at(-1, "speed") == pytest.approx(5.0, abs=0.5)
-    unbounded = run(impl, steps, tmp_path, start=start, params=replace(FCFG, pedestrian_max_ms=100.0))
+    unbounded = run(impl, steps, tmp_path, start=start, params=replace(FCFG, pedestrian_max_ms=100.0,
+                                                                       carried_ms=100.0))
     assert np.any(unbounded.series("flags").astype(int) & F.WALKING)
     assert abs(unbounded.at(-1, "speed") - 5.0) > 1.0
+
+
+def test_slow_traffic_that_gps_sees_moving_without_steps_is_never_a_walker(impl, tmp_path):
+    """A car (level, heading East, no flags) in slow traffic: GPS says 4 m/s (slower than people run, so
+    pedestrian_max_ms says nothing) while its shaking shows no steps, then a queue's surface shakes it in the gait
+    band (2 Hz, 0.06 g rms), 3 s under GPS at 4 m/s and 8 s in an outage. A pedestrian who moves faster than
+    carried_ms (2.5 m/s) steps, so a device moving that fast without steps is carried: a vehicle until it rests,
+    never a walk, its speed kept. Without that rule the same samples are a walk and the speed is lost."""
+    shaking, dt = _shaken("steps", 200, accel_g=0.06)
+    steps = [("p", *_samples(200, accel_g=(0.0, 0.0, 1.0))), ("g", 4.0, 0.0, 4.0, 0.0)] * 2
+    steps += [("p", shaking, dt), ("g", 4.0, 0.0, 4.0, 0.0)] * 3 + [("p", shaking, dt)] * 8
+    start = _still(since_fix=0.5, walk_speed=1.2, speed=4.0)
+    trace = run(impl, steps, tmp_path, start=start)
+    flags = trace.series("flags").astype(int)
+    assert not np.any(flags & F.WALKING) and np.all(flags[200:] & F.FAST)
+    assert trace.at(-1, "speed") == pytest.approx(4.0, abs=0.5)
+    unruled = run(impl, steps, tmp_path, start=start, params=replace(FCFG, carried_ms=100.0))
+    assert np.any(unruled.series("flags").astype(int) & F.WALKING)
+    assert abs(unruled.at(-1, "speed") - 4.0) > 1.0
 
 
 def test_a_pedestrian_who_stops_stepping_without_rest_slows_to_0(impl, tmp_path):
@@ -751,3 +771,20 @@ def test_position_filter_restarts_after_an_outage(impl, tmp_path):
     assert trace.at(0, "fix_pxx") == pytest.approx(var, rel=1e-6)
     assert trace.at(0, "fix_pee") == pytest.approx(var, rel=1e-6)
     assert trace.at(0, "fix_pxe") == pytest.approx(-var, rel=1e-6)
+
+
+def test_a_gentle_start_the_deadband_hides_is_speed_not_an_along_track_bias(impl, tmp_path):
+    """A car at 1 m/s by GPS (its speed known) speeds up at 0.025 g, under the deadband (0.031 g): the gate keeps the
+    acceleration out of the integrated speed, so each fix 1 s apart finds the speed short by 0.25 m/s. What the
+    deadband kept out is counted as the speed's noise at the fix (sb_lost), so the filter takes more of the
+    difference for speed, less for an along-track bias (on a town's gentle starts it learned -0.58 m/s^2, and the car's speed grew at
+    +0.53 m/s^2 standing at the next lights)."""
+    samples, dt = _samples(200, accel_g=(0.025, 0.0, 1.0))
+    steps = []
+    for k in range(1, 5):
+        steps += [("p", samples, dt), ("v", 1.0 + 0.025 * G * k, 0.0)]
+    start = _still(flags=float(F.VEHICLE), since_fix=0.0, gps_ok=0.5, gps_speed=1.0, speed=1.0)
+    trace = run(impl, steps, tmp_path, start=start)
+    assert not np.any(trace.series("flags").astype(int) & (F.AT_REST | F.WALKING))
+    assert abs(trace.at(-1, "bias")) < 0.1  # -0.083 m/s^2; -0.127 before the deadband's loss was counted
+    assert trace.at(-1, "speed") == pytest.approx(1.0 + 0.1 * G, abs=0.1)

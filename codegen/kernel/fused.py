@@ -395,7 +395,7 @@ def _speed(lp: _Loop, st: FusedState) -> None:
         st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_v = st.zr_turn = 0.0
         # the speed known (0, exactly); a vehicle that stood starts again from 0, not from the speed it kept, and
         # the rest re-learns the gyro bias (rest_update)
-        st.sb_pss = st.sb_psb = st.sk_t = st.cal_moved = 0.0
+        st.sb_pss = st.sb_psb = st.sk_t = st.sb_lost = st.cal_moved = 0.0
         st.keep_v = -1.0
     elif walking or walked:
         if walking:
@@ -425,8 +425,10 @@ def _vehicle_speed(lp: _Loop, st: FusedState) -> None:
         beta = dt * lp.inv_acc
         st.acc_lp += (beta if beta < 1.0 else 1.0) * (a - st.acc_lp)
         if abs(st.acc_lp) < deadband:
+            st.sb_lost += a * dt
             a = 0.0
     elif abs(a) < deadband:
+        st.sb_lost += a * dt
         a = 0.0
     a += (st.gps_speed - st.speed) * lp.inv_speed
     st.speed += a * dt
@@ -747,7 +749,8 @@ def _speed_update(st: FusedState, e: float, fcfg: FusedConfig):
             return None
     t = st.sk_t
     qb = _bias_walk(st, fcfg) * t + (fcfg.kf_turn_noise * st.turn) ** 2
-    if not _speed_predict(st, t, fcfg.speed_noise * fcfg.speed_noise * t, qb, fcfg):
+    qs = fcfg.speed_noise * fcfg.speed_noise * t + st.sb_lost * st.sb_lost  # what the deadband kept out: no bias
+    if not _speed_predict(st, t, qs, qb, fcfg):
         return None
     return _speed_correct(st, fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms, fcfg)
 
@@ -922,7 +925,7 @@ def _fix_speed(st: FusedState, speed: float, t: float, fcfg: FusedConfig) -> Non
             st.speed += gain[0] * e
             st.bias += gain[1] * e
     st.keep_v = speed
-    st.sk_t = 0.0
+    st.sk_t = st.sb_lost = 0.0
 
 
 def _fix_restart(st: FusedState, ve: float, vn: float, speed: float, ae: float, an: float,
@@ -938,7 +941,7 @@ def _fix_restart(st: FusedState, ve: float, vn: float, speed: float, ae: float, 
     st.gps_ve, st.gps_vn = ve, vn
     st.gps_speed = speed
     st.gps_ok = speed - fcfg.min_speed_ms
-    if speed > fcfg.pedestrian_max_ms:
+    if speed > fcfg.pedestrian_max_ms or speed > fcfg.carried_ms and not int(st.flags) & WALKING:
         st.flags = float(int(st.flags) | FAST)
     st.dvx = st.dvy = st.dpx = st.dpy = 0.0
     st.m00 = st.m01 = st.m10 = st.m11 = st.m02 = st.m12 = st.turn = 0.0

@@ -399,6 +399,9 @@ FUSED = Kernel(
         Field("sk_t", "s", "time since the speed was last known (a fix, a rest, calibration)", local="carry"),
         Field("keep_v", "m/s", "the speed a vehicle is taken to keep (the last fix's); < 0 before a fix and after a "
               "rest: none", initial=(-1.0,), local="carry"),
+        Field("sb_lost", "m/s", "the along-track acceleration the deadband kept out of a vehicle's integrated speed "
+              "since the speed was last known, integrated: its square is noise of the speed at the next fix, not a "
+              "bias", local="carry"),
         Field("cal_moved", "", "1 from a calibration that moved until the next rest (the gyro bias took the motion's "
               "mean rate for a bias: the tilt drifts), else 0"),
     ),
@@ -532,6 +535,9 @@ FUSED = Kernel(
               Store("keep_q", "(m/s)^2/s", "square"), 1.0, ge=0),
         Param("max_accel_ms2", "m/s^2", "a vehicle's speed stays within [0, the speed last known + this x the time "
               "since]", Store("max_accel_ms2", "m/s^2"), 4.0, gt=0),
+        Param("carried_ms", "m/s", "auto: a fix faster than this while no steps are seen makes the device a vehicle "
+              "until it rests, as a fix faster than fused_pedestrian_max_ms does (a pedestrian who moves that fast "
+              "steps; slow traffic does not)", Store("carried_ms", "m/s"), 2.5, gt=0),
     ),
     flags=(
         Flag("AT_REST", 1, "the last sample was at rest"),

@@ -379,8 +379,8 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(217)
-_F_KCFG = const(205)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(219)
+_F_KCFG = const(207)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
@@ -458,7 +458,8 @@ COV_REPAIRS = const(142)  # public: cov_repairs
 _F_SB_P = const(143)  # the speed/bias filter's covariance at the last fix (or rest), upper triangle: speed (m/s), along-track bias (m/s^2); the bias's 0 until its first fix, the speed's large after a calibration that moved
 _F_SK_T = const(146)  # s: time since the speed was last known (a fix, a rest, calibration)
 _F_KEEP_V = const(147)  # m/s: the speed a vehicle is taken to keep (the last fix's); < 0 before a fix and after a rest: none
-_F_CAL_MOVED = const(148)  # 1 from a calibration that moved until the next rest (the gyro bias took the motion's mean rate for a bias: the tilt drifts), else 0
+_F_SB_LOST = const(148)  # m/s: the along-track acceleration the deadband kept out of a vehicle's integrated speed since the speed was last known, integrated: its square is noise of the speed at the next fix, not a bias
+_F_CAL_MOVED = const(149)  # 1 from a calibration that moved until the next rest (the gyro bias took the motion's mean rate for a bias: the tilt drifts), else 0
 _F_QW = const(0)  # q[0]
 _F_QX = const(1)  # q[1]
 _F_QY = const(2)  # q[2]
@@ -517,62 +518,63 @@ _F_NH_PYY = const(141)  # nh_p[9]
 _F_SB_PSS = const(143)  # sb_p[0]
 _F_SB_PSB = const(144)  # sb_p[1]
 _F_SB_PBB = const(145)  # sb_p[2]
-_FC_KP = const(149)  # 1/s, from tilt_tau_s (s)
-_FC_REJECT_MS2 = const(150)  # m/s^2, from accel_reject_g (g)
-_FC_KP_DARK = const(151)  # 1/s, from tilt_tau_dark_s (s)
-_FC_STEADY_MS2 = const(152)  # m/s^2, from steady_accel_ms2 (m/s^2)
-_FC_INV_SPEED_TAU = const(153)  # 1/s, from speed_tau_s (s)
-_FC_GPS_TIMEOUT_S = const(154)  # s, from gps_timeout_s (s)
-_FC_INV_STAT_TAU = const(155)  # 1/s, from stat_tau_s (s)
-_FC_REST_VAR = const(156)  # (m/s^2)^2, from rest_accel_g (g)
-_FC_REST_W2 = const(157)  # (rad/s)^2, from rest_gyro_dps (degree/s)
-_FC_REST_TIME_S = const(158)  # s, from rest_time_s (s)
-_FC_INV_BIAS_TAU = const(159)  # 1/s, from bias_tau_s (s)
-_FC_WALK_VAR = const(160)  # (m/s^2)^2, from walk_accel_g (g)
-_FC_MIN_SPEED_MS = const(161)  # m/s, from min_speed_ms (m/s)
-_FC_HEADING_GAIN = const(162)  # per fix, from heading_gain (per fix)
-_FC_ALIGN_FORGET = const(163)  # per fix, from align_forget (per fix)
-_FC_SPEED_GAIN = const(164)  # per fix, from speed_gain (per fix)
-_FC_WALK_SPEED_GAIN = const(165)  # per fix, from walk_speed_gain (per fix)
-_FC_KF_BIAS_VAR = const(166)  # (m/s^2)^2, from kf_bias_init_g (g)
-_FC_KF_BIAS_Q = const(167)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
-_FC_KF_TILT_Q = const(168)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
-_FC_KF_TURN_Q = const(169)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
-_FC_KF_VEL_R = const(170)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
-_FC_KF_ALIGN_MIN = const(171)  # (m/s)^2, from kf_align_min ((m/s)^2)
-_FC_MEDIAN = const(172)  # 1: on, from median
-_FC_POS_VAR = const(173)  # m^2, from pos_sigma_m (m)
-_FC_INV_POS_TAU = const(174)  # 1/s, from pos_tau_s (s)
-_FC_POS_STEP_Q = const(175)  # (m/s)^2, from pos_step_sigma_ms (m/s)
-_FC_HOLD_RATE = const(176)  # 1/s, from turn_hold_tau_s (s)
-_FC_TURN_START = const(177)  # rad/s, from turn_start_dps (degree/s)
-_FC_TURN_END = const(178)  # rad/s, from turn_end_dps (degree/s)
-_FC_PLATFORM = const(179)  # choice, from platform
-_FC_VIB_RATE = const(180)  # rad/s, from vibration_hz (Hz)
-_FC_VIB_RATIO = const(181)  # , from vibration_ratio
-_FC_INV_VIB_TAU = const(182)  # 1/s, from vibration_tau_s (s)
-_FC_WALK_TIME_S = const(183)  # s, from walk_time_s (s)
-_FC_REST_SPEED_MS = const(184)  # m/s, from rest_speed_ms (m/s)
-_FC_REST_UPDATE_S = const(185)  # s, from rest_update_s (s)
-_FC_KF_REST_R = const(186)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
-_FC_ZUPT_TURN_WEIGHT = const(187)  # 1/rad, from zupt_turn_weight (1/rad)
-_FC_INV_ACCEL_TAU = const(188)  # 1/s, from accel_tau_s (s)
-_FC_NHC_VAR = const(189)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
-_FC_NHC_PERIOD_S = const(190)  # s, from nhc_period_s (s)
-_FC_NHC_SPEED_Q = const(191)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
-_FC_NHC_LEAK_VAR = const(192)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
-_FC_NHC_MIN_RATE = const(193)  # rad/s, from nhc_min_rate (rad/s)
-_FC_NHC_POSITION = const(194)  # , from nhc_position
-_FC_NHC_LEAK_TURN = const(195)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
-_FC_NHC_FOLD_SCALE = const(196)  # , from nhc_fold_scale
-_FC_PEDESTRIAN_MAX_MS = const(197)  # m/s, from pedestrian_max_ms (m/s)
-_FC_STILL_VAR = const(198)  # (m/s^2)^2, from still_accel_g (g)
-_FC_IDLE_VAR = const(199)  # (m/s^2)^2, from idle_accel_g (g)
-_FC_INV_STAND_TAU = const(200)  # 1/s, from stand_tau_s (s)
-_FC_SPEED_Q = const(201)  # (m/s)^2/s, from speed_noise (m/s/sqrt(s))
-_FC_SPEED_BIAS_Q = const(202)  # (m/s^2)^2/s, from speed_bias_noise (m/s^2/sqrt(s))
-_FC_KEEP_Q = const(203)  # (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s))
-_FC_MAX_ACCEL_MS2 = const(204)  # m/s^2, from max_accel_ms2 (m/s^2)
+_FC_KP = const(150)  # 1/s, from tilt_tau_s (s)
+_FC_REJECT_MS2 = const(151)  # m/s^2, from accel_reject_g (g)
+_FC_KP_DARK = const(152)  # 1/s, from tilt_tau_dark_s (s)
+_FC_STEADY_MS2 = const(153)  # m/s^2, from steady_accel_ms2 (m/s^2)
+_FC_INV_SPEED_TAU = const(154)  # 1/s, from speed_tau_s (s)
+_FC_GPS_TIMEOUT_S = const(155)  # s, from gps_timeout_s (s)
+_FC_INV_STAT_TAU = const(156)  # 1/s, from stat_tau_s (s)
+_FC_REST_VAR = const(157)  # (m/s^2)^2, from rest_accel_g (g)
+_FC_REST_W2 = const(158)  # (rad/s)^2, from rest_gyro_dps (degree/s)
+_FC_REST_TIME_S = const(159)  # s, from rest_time_s (s)
+_FC_INV_BIAS_TAU = const(160)  # 1/s, from bias_tau_s (s)
+_FC_WALK_VAR = const(161)  # (m/s^2)^2, from walk_accel_g (g)
+_FC_MIN_SPEED_MS = const(162)  # m/s, from min_speed_ms (m/s)
+_FC_HEADING_GAIN = const(163)  # per fix, from heading_gain (per fix)
+_FC_ALIGN_FORGET = const(164)  # per fix, from align_forget (per fix)
+_FC_SPEED_GAIN = const(165)  # per fix, from speed_gain (per fix)
+_FC_WALK_SPEED_GAIN = const(166)  # per fix, from walk_speed_gain (per fix)
+_FC_KF_BIAS_VAR = const(167)  # (m/s^2)^2, from kf_bias_init_g (g)
+_FC_KF_BIAS_Q = const(168)  # (m/s^2)^2/s, from kf_bias_noise (m/s^2/sqrt(s))
+_FC_KF_TILT_Q = const(169)  # (m/s^2)^2/s, from kf_tilt_noise (m/s^2/sqrt(s))
+_FC_KF_TURN_Q = const(170)  # (m/s^2/rad)^2, from kf_turn_noise (m/s^2 per rad)
+_FC_KF_VEL_R = const(171)  # (m/s)^2, from kf_vel_sigma_ms (m/s)
+_FC_KF_ALIGN_MIN = const(172)  # (m/s)^2, from kf_align_min ((m/s)^2)
+_FC_MEDIAN = const(173)  # 1: on, from median
+_FC_POS_VAR = const(174)  # m^2, from pos_sigma_m (m)
+_FC_INV_POS_TAU = const(175)  # 1/s, from pos_tau_s (s)
+_FC_POS_STEP_Q = const(176)  # (m/s)^2, from pos_step_sigma_ms (m/s)
+_FC_HOLD_RATE = const(177)  # 1/s, from turn_hold_tau_s (s)
+_FC_TURN_START = const(178)  # rad/s, from turn_start_dps (degree/s)
+_FC_TURN_END = const(179)  # rad/s, from turn_end_dps (degree/s)
+_FC_PLATFORM = const(180)  # choice, from platform
+_FC_VIB_RATE = const(181)  # rad/s, from vibration_hz (Hz)
+_FC_VIB_RATIO = const(182)  # , from vibration_ratio
+_FC_INV_VIB_TAU = const(183)  # 1/s, from vibration_tau_s (s)
+_FC_WALK_TIME_S = const(184)  # s, from walk_time_s (s)
+_FC_REST_SPEED_MS = const(185)  # m/s, from rest_speed_ms (m/s)
+_FC_REST_UPDATE_S = const(186)  # s, from rest_update_s (s)
+_FC_KF_REST_R = const(187)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
+_FC_ZUPT_TURN_WEIGHT = const(188)  # 1/rad, from zupt_turn_weight (1/rad)
+_FC_INV_ACCEL_TAU = const(189)  # 1/s, from accel_tau_s (s)
+_FC_NHC_VAR = const(190)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
+_FC_NHC_PERIOD_S = const(191)  # s, from nhc_period_s (s)
+_FC_NHC_SPEED_Q = const(192)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
+_FC_NHC_LEAK_VAR = const(193)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
+_FC_NHC_MIN_RATE = const(194)  # rad/s, from nhc_min_rate (rad/s)
+_FC_NHC_POSITION = const(195)  # , from nhc_position
+_FC_NHC_LEAK_TURN = const(196)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
+_FC_NHC_FOLD_SCALE = const(197)  # , from nhc_fold_scale
+_FC_PEDESTRIAN_MAX_MS = const(198)  # m/s, from pedestrian_max_ms (m/s)
+_FC_STILL_VAR = const(199)  # (m/s^2)^2, from still_accel_g (g)
+_FC_IDLE_VAR = const(200)  # (m/s^2)^2, from idle_accel_g (g)
+_FC_INV_STAND_TAU = const(201)  # 1/s, from stand_tau_s (s)
+_FC_SPEED_Q = const(202)  # (m/s)^2/s, from speed_noise (m/s/sqrt(s))
+_FC_SPEED_BIAS_Q = const(203)  # (m/s^2)^2/s, from speed_bias_noise (m/s^2/sqrt(s))
+_FC_KEEP_Q = const(204)  # (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s))
+_FC_MAX_ACCEL_MS2 = const(205)  # m/s^2, from max_accel_ms2 (m/s^2)
+_FC_CARRIED_MS = const(206)  # m/s, from carried_ms (m/s)
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
@@ -653,11 +655,12 @@ _FUSED_PARAMS = (
     0.05,  # speed_bias_noise, m/s^2/sqrt(s)
     1.0,  # keep_speed_noise, m/s/sqrt(s)
     4.0,  # max_accel_ms2, m/s^2
+    2.5,  # carried_ms, m/s
 )
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 56 values in the
+    """Reset the fused state and store the configuration: the board's, or 57 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -772,6 +775,8 @@ def fused_init(fstate, params=_FUSED_PARAMS):
         raise ValueError("keep_speed_noise must be >= 0")
     if not (p[55] > 0):
         raise ValueError("max_accel_ms2 must be > 0")
+    if not (p[56] > 0):
+        raise ValueError("carried_ms must be > 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
     fstate[_F_Q + 0] = 1.0
@@ -834,6 +839,7 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_SPEED_BIAS_Q] = p[53] * p[53]
     fstate[_FC_KEEP_Q] = p[54] * p[54]
     fstate[_FC_MAX_ACCEL_MS2] = p[55]
+    fstate[_FC_CARRIED_MS] = p[56]
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -1014,6 +1020,7 @@ def fused_process(fstate, samples, dt_us, out):
     nh_iy = st[_F_NH_IY]
     sk_t = st[_F_SK_T]
     keep_v = st[_F_KEEP_V]
+    sb_lost = st[_F_SB_LOST]
     moving_ref = acc_e != 0.0 or acc_n != 0.0  # the tilt reference subtracts a GPS motion acceleration
     steady = st[_F_STEADY] > 0.0
     gps_ok = st[_F_GPS_OK] > 0.0
@@ -1181,7 +1188,7 @@ def fused_process(fstate, samples, dt_us, out):
                 # the speed known (0); a vehicle that stood starts from 0, not from the speed it kept; the gyro
                 # bias re-learnt
                 st[_F_SB_PSS] = st[_F_SB_PSB] = st[_F_CAL_MOVED] = 0.0
-                sk_t = 0.0
+                sk_t = sb_lost = 0.0
                 keep_v = -1.0
                 bias_q = st[_FC_KF_TILT_Q]
             elif walking:
@@ -1215,8 +1222,10 @@ def fused_process(fstate, samples, dt_us, out):
                 ka = dt * inv_acc
                 acc_lp += (ka if ka < 1.0 else 1.0) * (a - acc_lp)
                 if ndeadband < acc_lp < deadband:
+                    sb_lost += a * dt  # what the deadband keeps out: the speed's noise at the next fix, no bias
                     a = 0.0
             elif ndeadband < a < deadband:  # the board's deadband, on the along-track acceleration
+                sb_lost += a * dt
                 a = 0.0
             if inv_speed > 0.0:
                 a += (gps_speed - speed) * inv_speed
@@ -1434,6 +1443,7 @@ def fused_process(fstate, samples, dt_us, out):
     st[_F_NH_IY] = nh_iy
     st[_F_SK_T] = sk_t
     st[_F_KEEP_V] = keep_v
+    st[_F_SB_LOST] = sb_lost
     st[_F_FLAGS] = ((_AT_REST if rest else 0) | (_WALKING if walking else 0) | turning | (_VEHICLE if vehicle else 0)
                     | driven | (_FAST if fast else 0) | walked)  # the last sample's
     out[0] = st[_F_PE] - pe0
@@ -1888,7 +1898,8 @@ def _speed_update(st):
     turn = st[_F_TURN]
     q_bias = st[_FC_SPEED_BIAS_Q] if st[_F_CAL_MOVED] > 0.0 else st[_FC_KF_TILT_Q]
     q_bias = q_bias * t + st[_FC_KF_TURN_Q] * turn * turn
-    if not _speed_predict(st, t, st[_FC_SPEED_Q] * t, q_bias):
+    lost = st[_F_SB_LOST]  # what the deadband kept out of the speed: its noise, no bias
+    if not _speed_predict(st, t, st[_FC_SPEED_Q] * t + lost * lost, q_bias):
         return None
     return _speed_correct(st, 0.5 * st[_FC_KF_VEL_R])
 
@@ -1947,7 +1958,7 @@ def fused_gps(fstate, ve, vn):
             st[_F_SPEED] += gain[0] * e
             st[_F_BIAS] += gain[1] * e
     st[_F_KEEP_V] = speed
-    st[_F_SK_T] = 0.0
+    st[_F_SK_T] = st[_F_SB_LOST] = 0.0
     if st[_FC_KF_BIAS_VAR] > 0.0:
         _fused_filter(st, ve, vn, moving, t)
     de = ae - st[_F_ACC_E]
@@ -1973,7 +1984,8 @@ def fused_gps(fstate, ve, vn):
     st[_F_GPS_VN] = vn
     st[_F_GPS_SPEED] = speed
     st[_F_GPS_OK] = speed - min_speed
-    if speed > st[_FC_PEDESTRIAN_MAX_MS]:  # faster than people run: a vehicle until it rests
+    # faster than people run, or than people move without steps: a vehicle until it rests
+    if speed > st[_FC_PEDESTRIAN_MAX_MS] or speed > st[_FC_CARRIED_MS] and not int(st[_F_FLAGS]) & _WALKING:
         st[_F_FLAGS] = float(int(st[_F_FLAGS]) | _FAST)
     st[_F_DVX] = 0.0
     st[_F_DVY] = 0.0

@@ -191,6 +191,7 @@ typedef struct {
     float speed_bias_q; /* (m/s^2)^2/s, from speed_bias_noise (m/s^2/sqrt(s)) */
     float keep_q; /* (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s)) */
     float max_accel_ms2; /* m/s^2, from max_accel_ms2 (m/s^2) */
+    float carried_ms; /* m/s, from carried_ms (m/s) */
 } dr_fused_config;
 
 /* The state, by concern. */
@@ -294,14 +295,17 @@ typedef struct {
     float sk_t; /* s: time since the speed was last known (a fix, a rest, calibration) */
     /* m/s: the speed a vehicle is taken to keep (the last fix's); < 0 before a fix and after a rest: none */
     float keep_v;
+    /* m/s: the along-track acceleration the deadband kept out of a vehicle's integrated speed since the speed was
+     * last known, integrated: its square is noise of the speed at the next fix, not a bias */
+    float sb_lost;
     /* 1 from a calibration that moved until the next rest (the gyro bias took the motion's mean rate for a bias: the
      * tilt drifts), else 0 */
     float cal_moved;
 } dr_fused_state;
 
-#define DR_FUSED_STATE_FLOATS (149) /* floats in dr_fused_state */
-#define DR_FUSED_CONFIG_FLOATS (56) /* floats in dr_fused_config */
-#define DR_FUSED_PARAMS (56) /* parameters dr_fused_config_set takes */
+#define DR_FUSED_STATE_FLOATS (150) /* floats in dr_fused_state */
+#define DR_FUSED_CONFIG_FLOATS (57) /* floats in dr_fused_config */
+#define DR_FUSED_PARAMS (57) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
 #define DR_FUSED_STATE_Q (0)
 #define DR_FUSED_STATE_GYRO_BIAS_LSB (4)
@@ -378,7 +382,8 @@ typedef struct {
 #define DR_FUSED_STATE_SB_P (143)
 #define DR_FUSED_STATE_SK_T (146)
 #define DR_FUSED_STATE_KEEP_V (147)
-#define DR_FUSED_STATE_CAL_MOVED (148)
+#define DR_FUSED_STATE_SB_LOST (148)
+#define DR_FUSED_STATE_CAL_MOVED (149)
 /* each named element's index into its array field (st->p[DR_FUSED_P22], not st->p[7]) */
 #define DR_FUSED_QW (0) /* q[0] */
 #define DR_FUSED_QX (1) /* q[1] */
@@ -438,10 +443,10 @@ typedef struct {
 #define DR_FUSED_SB_PSS (0) /* sb_p[0] */
 #define DR_FUSED_SB_PSB (1) /* sb_p[1] */
 #define DR_FUSED_SB_PBB (2) /* sb_p[2] */
-typedef char dr_fused_state_is_149_floats[
-    sizeof(dr_fused_state) == 149 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_56_floats[
-    sizeof(dr_fused_config) == 56 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_state_is_150_floats[
+    sizeof(dr_fused_state) == 150 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_57_floats[
+    sizeof(dr_fused_config) == 57 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
     ? 1 : -1];
@@ -559,6 +564,9 @@ typedef char dr_fused_cov_repairs_at_142[
 #define DR_FUSED_P_KEEP_SPEED_NOISE (54)
 /* m/s^2: a vehicle's speed stays within [0, the speed last known + this x the time since] */
 #define DR_FUSED_P_MAX_ACCEL_MS2 (55)
+/* m/s: auto: a fix faster than this while no steps are seen makes the device a vehicle until it rests, as a fix
+ * faster than fused_pedestrian_max_ms does (a pedestrian who moves that fast steps; slow traffic does not) */
+#define DR_FUSED_P_CARRIED_MS (56)
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
@@ -735,6 +743,9 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     if (!(p[DR_FUSED_P_MAX_ACCEL_MS2] > 0.0f)) { /* max_accel_ms2 must be > 0 */
         return DR_ERR_RANGE;
     }
+    if (!(p[DR_FUSED_P_CARRIED_MS] > 0.0f)) { /* carried_ms must be > 0 */
+        return DR_ERR_RANGE;
+    }
     return DR_OK;
 }
 
@@ -796,6 +807,7 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->speed_bias_q = p[DR_FUSED_P_SPEED_BIAS_NOISE] * p[DR_FUSED_P_SPEED_BIAS_NOISE];
     cfg->keep_q = p[DR_FUSED_P_KEEP_SPEED_NOISE] * p[DR_FUSED_P_KEEP_SPEED_NOISE];
     cfg->max_accel_ms2 = p[DR_FUSED_P_MAX_ACCEL_MS2];
+    cfg->carried_ms = p[DR_FUSED_P_CARRIED_MS];
 }
 
 /* p <- the board's parameters (dr_board.h), in the order of DR_FUSED_P_*. */
@@ -856,6 +868,7 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_SPEED_BIAS_NOISE] = DR_FUSED_SPEED_BIAS_NOISE;
     p[DR_FUSED_P_KEEP_SPEED_NOISE] = DR_FUSED_KEEP_SPEED_NOISE;
     p[DR_FUSED_P_MAX_ACCEL_MS2] = DR_FUSED_MAX_ACCEL_MS2;
+    p[DR_FUSED_P_CARRIED_MS] = DR_FUSED_CARRIED_MS;
 }
 
 /* st <- every field 0, then the declared starting values. */
@@ -874,9 +887,9 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
 /* The buffers dr_native hands the app, in floats: the seed's dr_state | dr_config | scratch (3 * block), the fused
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
-#define DR_FUSED_CONFIG_AT (149)
-#define DR_FUSED_KERNEL_CONFIG_AT (205)
-#define DR_FUSED_BUFFER_FLOATS (217)
+#define DR_FUSED_CONFIG_AT (150)
+#define DR_FUSED_KERNEL_CONFIG_AT (207)
+#define DR_FUSED_BUFFER_FLOATS (219)
 
 /* ---- the error-state filter (dr_eskf.c, codegen/kernel/eskf.py) ----
  * Its structs are dr_eskf.h's, written by hand; these are their lengths and offsets as codegen/kernel/layout.py
