@@ -99,20 +99,6 @@ void dr_eskf_state_init(dr_eskf_state *st) {
     eye3(st->mount);
 }
 
-/* R(q), body -> ENU. */
-static void rotation(const float q[4], float r[3][3]) {
-    const float qw = q[0], qx = q[1], qy = q[2], qz = q[3];
-    r[0][0] = 1.0f - 2.0f * (qy * qy + qz * qz);
-    r[0][1] = 2.0f * (qx * qy - qw * qz);
-    r[0][2] = 2.0f * (qx * qz + qw * qy);
-    r[1][0] = 2.0f * (qx * qy + qw * qz);
-    r[1][1] = 1.0f - 2.0f * (qx * qx + qz * qz);
-    r[1][2] = 2.0f * (qy * qz - qw * qx);
-    r[2][0] = 2.0f * (qx * qz - qw * qy);
-    r[2][1] = 2.0f * (qy * qz + qw * qx);
-    r[2][2] = 1.0f - 2.0f * (qx * qx + qy * qy);
-}
-
 /* Returns exp(-x) for x >= 0 (a few ulp): 2^-k exp(-r) with x = k ln 2 + r, r in [0, ln 2). */
 static float exp_neg(float x) {
     dr_bits scale;
@@ -223,7 +209,7 @@ void dr_eskf_prior(const dr_eskf_config *cfg, dr_eskf_state *st) {
         st->p[i][i] = d[i];
     }
     /* the tilt error tied to the accelerometer bias that calibration folded into it: G = [-R_N; R_E] / g */
-    rotation(st->q, r);
+    dr_quat_to_matrix(st->q, r);
     for (j = 0; j < 3; j++) {
         g[0][j] = -r[1][j] * DR_INV_GRAVITY;
         g[1][j] = r[0][j] * DR_INV_GRAVITY;
@@ -246,7 +232,7 @@ void dr_eskf_prior(const dr_eskf_config *cfg, dr_eskf_state *st) {
 static void mounting_from_velocity(dr_eskf_state *st) {
     float r[3][3], x[3], z[3], k, dot;
     int i;
-    rotation(st->q, r);
+    dr_quat_to_matrix(st->q, r);
     for (i = 0; i < 3; i++) {
         x[i] = r[0][i] * st->vel[0] + r[1][i] * st->vel[1] + r[2][i] * st->vel[2];
     }
@@ -694,7 +680,7 @@ int dr_eskf_gps(const dr_eskf_config *cfg, dr_eskf_state *st, float t_s, float e
 static void vehicle_frame(const dr_eskf_state *st, float cr[3][3], float vv[3]) {
     float r[3][3];
     int i, j;
-    rotation(st->q, r);
+    dr_quat_to_matrix(st->q, r);
     for (i = 0; i < 3; i++) {
         for (j = 0; j < 3; j++) {
             cr[i][j] = st->mount[i][0] * r[j][0] + st->mount[i][1] * r[j][1] + st->mount[i][2] * r[j][2];

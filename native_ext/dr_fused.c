@@ -124,27 +124,13 @@ static void dr_fused_p_store(dr_fused_state *st, float pm[5][5]) {
     }
 }
 
-/* The rows of R(q) (body -> kernel ENU): r[i][j] for i, j in 0..2. */
-static void dr_fused_rotation(const float q[4], float r[3][3]) {
-    float qw = q[0], qx = q[1], qy = q[2], qz = q[3];
-    r[0][0] = 1.0f - 2.0f * (qy * qy + qz * qz);
-    r[0][1] = 2.0f * (qx * qy - qw * qz);
-    r[0][2] = 2.0f * (qx * qz + qw * qy);
-    r[1][0] = 2.0f * (qx * qy + qw * qz);
-    r[1][1] = 1.0f - 2.0f * (qx * qx + qz * qz);
-    r[1][2] = 2.0f * (qy * qz - qw * qx);
-    r[2][0] = 2.0f * (qx * qz - qw * qy);
-    r[2][1] = 2.0f * (qy * qz + qw * qx);
-    r[2][2] = 1.0f - 2.0f * (qx * qx + qy * qy);
-}
-
 /* The tilt/offset filter's covariance at its start (codegen.fused's _kf_prior): b ~ kf_bias_init_g per axis across
  * gravity (0 along it), d = -R_h b, from the attitude st->q. */
 static void dr_fused_kf_prior(const dr_fused_config *cfg, dr_fused_state *st) {
     float r[3][3], pm[5][5];
     const float v = cfg->kf_bias_var;
     int i, j, c;
-    dr_fused_rotation(st->q, r);
+    dr_quat_to_matrix(st->q, r);
     for (i = 0; i < 5; i++) {
         for (j = i; j < 5; j++) {
             float value;
@@ -362,7 +348,7 @@ static void dr_fused_rest_update(const dr_config *kcfg, const dr_fused_config *c
         !dr_fused_kf_predict(cfg, st)) {
         return;
     }
-    dr_fused_rotation(st->q, r);
+    dr_quat_to_matrix(st->q, r);
     for (i = 0; i < 3; i++) {
         h[0][i] = r[0][i];
         h[1][i] = r[1][i];
@@ -404,7 +390,7 @@ static void dr_fused_nhc_start(const dr_fused_config *cfg, dr_fused_state *st, c
     float pm[5][5], r[3][3], rp[2][3], c[3] = {0.0f, 0.0f, 0.0f};
     int a, j, k;
     dr_fused_p_load(st, pm);
-    dr_fused_rotation(q, r);
+    dr_quat_to_matrix(q, r);
     for (a = 0; a < 2; a++) { /* R_h P_bb */
         for (j = 0; j < 3; j++) {
             rp[a][j] = 0.0f;

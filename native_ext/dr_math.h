@@ -120,6 +120,21 @@ static inline void dr_quat_rotate(float r[3], const float q[4], const float v[3]
     r[2] = rz;
 }
 
+/* r = R(q), the rotation matrix of the unit quaternion q = [w, x, y, z] (body -> earth: r[i][j] is the earth axis
+ * i's component of the body axis j). */
+static inline void dr_quat_to_matrix(const float q[4], float r[3][3]) {
+    const float qw = q[0], qx = q[1], qy = q[2], qz = q[3];
+    r[0][0] = 1.0f - 2.0f * (qy * qy + qz * qz);
+    r[0][1] = 2.0f * (qx * qy - qw * qz);
+    r[0][2] = 2.0f * (qx * qz + qw * qy);
+    r[1][0] = 2.0f * (qx * qy + qw * qz);
+    r[1][1] = 1.0f - 2.0f * (qx * qx + qz * qz);
+    r[1][2] = 2.0f * (qy * qz - qw * qx);
+    r[2][0] = 2.0f * (qx * qz - qw * qy);
+    r[2][1] = 2.0f * (qy * qz + qw * qx);
+    r[2][2] = 1.0f - 2.0f * (qx * qx + qy * qy);
+}
+
 /* Adds to total[0..axes-1] the sums of the first `axes` values of `count` rows of 6 int16 counts (a window's
  * ax ay az gx gy gz), summed exactly in int32 over `chunk` rows at a time (|int16| * chunk must fit an int32) and
  * moved to float per chunk: each kernel keeps the chunk its fallback mirrors, so their sums round alike. */
