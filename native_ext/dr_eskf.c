@@ -126,7 +126,7 @@ static float exp_neg(float x) {
 
 int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_state *st, const int16_t *samples,
                       int32_t count) {
-    float total[6], mean[6], var[3], inv_n, norm, w;
+    float total[6], mean[6], var[3], inv_n, norm;
     int32_t k, i;
     int moved = 0;
     (void)cfg;
@@ -158,18 +158,7 @@ int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_
     if (!(norm > 0.0f)) {
         return DR_ESKF_ERR_COUNT;
     }
-    w = norm + mean[2]; /* the shortest arc onto Up (codegen.kernel.reference.tilt_from_gravity) */
-    if (w <= 1e-6f * norm) {
-        st->q[0] = 0.0f;
-        st->q[1] = 1.0f;
-        st->q[2] = st->q[3] = 0.0f;
-    } else {
-        st->q[0] = w;
-        st->q[1] = mean[1];
-        st->q[2] = -mean[0];
-        st->q[3] = 0.0f;
-        dr_quat_normalise(st->q);
-    }
+    dr_quat_from_gravity(st->q, mean, norm);
     for (i = 0; i < 3; i++) {
         st->bg[i] = mean[3 + i] * kcfg->gyro_rads_per_lsb;
     }

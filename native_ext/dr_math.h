@@ -17,6 +17,7 @@
 #define DR_RAD_PER_DEG (0.0174532925199433f) /* rad per degree */
 #define DR_RAD_PER_CYCLE (6.28318530717959f) /* rad per cycle (2 pi) */
 #define DR_S_PER_US (1.0e-6f)                /* s per microsecond */
+#define DR_TILT_DEGENERATE (1.0e-6f)         /* |f| + f_z below this share of |f|: the device is upside down */
 
 /* The bits of a float and back, without breaking aliasing rules (C99 allows reading another union member). */
 typedef union {
@@ -133,6 +134,25 @@ static inline void dr_quat_to_matrix(const float q[4], float r[3][3]) {
     r[2][0] = 2.0f * (qx * qz - qw * qy);
     r[2][1] = 2.0f * (qy * qz + qw * qx);
     r[2][2] = 1.0f - 2.0f * (qx * qx + qy * qy);
+}
+
+/* q = the shortest arc turning the mean specific force f (body, any unit) onto Up, yaw 0, with norm = |f| (the
+ * caller has it): normalise([|f| + f_z, f_y, -f_x, 0]); upside down (f along -z, or f = 0) the half turn about x
+ * (codegen.kernel.reference.tilt_from_gravity). */
+static inline void dr_quat_from_gravity(float q[4], const float f[3], float norm) {
+    const float w = norm + f[2];
+    if (w <= DR_TILT_DEGENERATE * norm) {
+        q[0] = 0.0f;
+        q[1] = 1.0f;
+        q[2] = 0.0f;
+        q[3] = 0.0f;
+        return;
+    }
+    q[0] = w;
+    q[1] = f[1];
+    q[2] = -f[0];
+    q[3] = 0.0f;
+    dr_quat_normalise(q);
 }
 
 /* Adds to total[0..axes-1] the sums of the first `axes` values of `count` rows of 6 int16 counts (a window's
