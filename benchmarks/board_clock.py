@@ -6,7 +6,7 @@
 --calibrate builds ../shared/micropython's mpy-cross and its QEMU port for MPS2-AN500 (Cortex-M7,
 MICROPY_FLOAT_IMPL=float, a 2 MiB heap), once per content into $DEADRECKON_CACHE (default ~/.cache/deadreckon; by
 codegen/portbuild.py and codegen.natmod.qemu_arm.firmware), and the default board's native module for armv7emsp
-(LINK_RUNTIME=1 with picolibc), then runs (codegen.natmod.qemu_arm.Session, without its /mem file system) under
+(hardware float: no runtime linked), then runs (codegen.natmod.qemu_arm.Session, without its /mem file system) under
 `qemu-system-arm -icount shift=0` (one virtual nanosecond per instruction, so ticks_us() counts thousands of
 instructions):
 - MicroPython's tests/perf_bench (N=100 M=100, the benchmarks whose parameters have not changed since the pyboard
@@ -543,9 +543,10 @@ def calibrate(log) -> dict:
             if mode == "fused":
                 log("the native module for armv7emsp")
                 native = out / "native"
-                subprocess.run(["make", f"MPY_DIR={tree}", "ARCH=armv7emsp", "LINK_RUNTIME=1", "USE_PICOLIBC=1",
-                                f"MPY_CROSS={mpy_cross}", f"PYTHON={sys.executable}"], cwd=native, env=tool_env(),
-                               check=True, capture_output=True)
+                # the Makefile's own runtime choice, as `deadreckon build` makes it: armv7emsp has the FPU and
+                # needs no libgcc (LINK_RUNTIME=1 pulls libc's memcpy beside natmod_libc.c's: duplicate symbol)
+                subprocess.run(["make", f"MPY_DIR={tree}", "ARCH=armv7emsp", f"MPY_CROSS={mpy_cross}",
+                                f"PYTHON={sys.executable}"], cwd=native, env=tool_env(), check=True, capture_output=True)
                 walk = walk_counts(512).ravel().tolist()
                 log("kernels: fallback")
                 raw = run_probe(firmware, files, KERNEL_PROBE.format(module="dr_fallback", walk=walk, kind="python"))
