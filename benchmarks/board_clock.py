@@ -3,9 +3,10 @@
     python3 benchmarks/board_clock.py                        # the checked-in table, per bundled board's chip
     python3 benchmarks/board_clock.py --calibrate [--write]  # measure in QEMU (minutes); --write updates the table
 
---calibrate copies ../shared/micropython into $DEADRECKON_CACHE/board-clock (default ~/.cache/deadreckon), builds
-its mpy-cross and its QEMU port for MPS2-AN500 (Cortex-M7, MICROPY_FLOAT_IMPL=float, a 2 MiB heap) and the default
-board's native module for armv7emsp (LINK_RUNTIME=1 with picolibc), then runs under
+--calibrate builds ../shared/micropython's mpy-cross and its QEMU port for MPS2-AN500 (Cortex-M7,
+MICROPY_FLOAT_IMPL=float, a 2 MiB heap), once per content into $DEADRECKON_CACHE (default ~/.cache/deadreckon; by
+codegen/portbuild.py and codegen.natmod.qemu_arm.firmware), and the default board's native module for armv7emsp
+(hardware float: no runtime linked), then runs (codegen.natmod.qemu_arm.Session, without its /mem file system) under
 `qemu-system-arm -icount shift=0` (one virtual nanosecond per instruction, so ticks_us() counts thousands of
 instructions):
 - MicroPython's tests/perf_bench (N=100 M=100, the benchmarks whose parameters have not changed since the pyboard
@@ -22,11 +23,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -43,77 +42,36 @@ from codegen.tools import SHARED_MICROPYTHON, find_tool, tool_env  # noqa: E402
 PYBOARD_US = {"bm_chaos": 172991.88, "bm_float": 53790.38, "bm_hexiom": 291988.25, "misc_aes": 95260.00,
               "misc_mandel": 138049.00, "misc_pystone": 162376.12, "misc_raytrace": 343353.88}
 QEMU_BOARD = "MPS2_AN500"
-QEMU_MACHINE = "mps2-an500"
-GUEST_HEAP = 2 * 1024 * 1024
+GUEST_HEAP = 2 * 1024 * 1024  # bytes: the whole app with its log and the probes
+GUEST_ICOUNT = "shift=0,align=off,sleep=off"  # one instruction per virtual ns; idle time does not follow the host's
+GUEST_TIMEOUT_S = 1800.0
 
 
-def cache_dir() -> Path:
-    base = Path(os.environ.get("DEADRECKON_CACHE", Path.home() / ".cache" / "deadreckon"))
-    return base / "board-clock"
+def build_firmware(log) -> Path:
+    """MicroPython's QEMU port for QEMU_BOARD with a GUEST_HEAP heap, built once per content into the cache
+    (codegen.natmod.qemu_arm.firmware, codegen/portbuild.py)."""
+    from codegen.natmod import qemu_arm
+
+    return qemu_arm.firmware(SHARED_MICROPYTHON, QEMU_BOARD, log=log, heap_bytes=GUEST_HEAP)
 
 
-def build(log) -> tuple[Path, Path]:
-    """The MicroPython copy and its QEMU firmware (built once, kept in the cache)."""
-    tree = cache_dir() / "micropython"
-    if not (tree / "py" / "dynruntime.mk").exists():
-        log(f"copying {SHARED_MICROPYTHON} to {tree}")
-        shutil.copytree(SHARED_MICROPYTHON, tree)
-        for path in tree.rglob("*"):
-            path.chmod(path.stat().st_mode | 0o200)
-    env = tool_env()
-    if not (tree / "mpy-cross" / "build" / "mpy-cross").exists():
-        log("building mpy-cross")
-        subprocess.run(["make", "-C", "mpy-cross", "-j2"], cwd=tree, env=env, check=True, capture_output=True)
-    firmware = tree / "ports" / "qemu" / "build-clock" / "firmware.elf"
-    if not firmware.exists():
-        log(f"building the QEMU port ({QEMU_BOARD}, float32, {GUEST_HEAP // 1024} KiB heap)")
-        subprocess.run(["make", "-C", "ports/qemu", f"BOARD={QEMU_BOARD}", "MICROPY_FLOAT_IMPL=float",
-                        "FROZEN_MANIFEST=", f"MICROPY_HEAP_SIZE={GUEST_HEAP}", "BUILD=build-clock", "-j2"],
-                       cwd=tree, env=env, check=True, capture_output=True)
-    return tree, firmware
+def build_mpy_cross(log) -> str:
+    """The MicroPython tree's own mpy-cross (the compiler of the app's .mpy the table was measured with), built once
+    per content into the cache (codegen/portbuild.py)."""
+    from codegen import portbuild
+
+    product = portbuild.Product(name="micropython-mpy-cross", dirs=("py", "mpy-cross", "shared", "extmod", "lib",
+                                                                     "tools"),
+                                make_dir="mpy-cross", make_args=(), built="build/mpy-cross", hint="apt-get install gcc make")
+    return str(portbuild.build(product, SHARED_MICROPYTHON, log=log))
 
 
-class Guest:
-    """MicroPython in qemu-system-arm with instruction counting, driven through its raw REPL."""
+def session(elf: Path):
+    """MicroPython in qemu-system-arm counting instructions, driven through its raw REPL (codegen.natmod.qemu_arm's
+    Session, a context manager), the clock never waiting for the host's."""
+    from codegen.natmod import qemu_arm
 
-    def __init__(self, firmware: Path):
-        self.proc = subprocess.Popen(
-            ["qemu-system-arm", "-machine", QEMU_MACHINE, "-nographic", "-monitor", "null", "-semihosting",
-             "-icount", "shift=0,align=off,sleep=off", "-kernel", str(firmware)],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-        self._send(b"\r\x03\x03\x01")
-        self._until(b"raw REPL; CTRL-B to exit\r\n>")
-
-    def _send(self, data: bytes):
-        self.proc.stdin.write(data)
-        self.proc.stdin.flush()
-
-    def _until(self, token: bytes, limit: float = 1800.0) -> bytes:
-        buf = bytearray()
-        start = time.monotonic()
-        while not buf.endswith(token):
-            c = self.proc.stdout.read(1)
-            if not c or time.monotonic() - start > limit:
-                raise RuntimeError(f"QEMU stopped answering: {bytes(buf[-400:])!r}")
-            buf += c
-        return bytes(buf[: -len(token)])
-
-    def run(self, code: str) -> str:
-        """Execute `code`; its printed output (raises with the guest's traceback on an error)."""
-        for i in range(0, len(code), 4096):  # the raw REPL takes any length; chunks keep the pipe moving
-            self._send(code[i : i + 4096].encode())
-        self._send(b"\x04")
-        self._until(b"OK")
-        out = self._until(b"\x04").decode()
-        err = self._until(b"\x04").decode()
-        self._until(b">")
-        if err.strip():
-            raise RuntimeError(f"guest error:\n{err}\n(output so far: {out[-2000:]})")
-        return out
-
-    def close(self):
-        self.proc.kill()
-        self.proc.wait()
+    return qemu_arm.Session(elf, QEMU_BOARD, timeout=GUEST_TIMEOUT_S, icount=GUEST_ICOUNT, mem_fs=False)
 
 
 # ------------------------------------------------------------------------------------------------ guest code
@@ -339,11 +297,8 @@ def perf_bench(firmware: Path, log) -> dict:
     runner = (bench / "benchrun.py").read_text()
     out = {}
     for name in PYBOARD_US:
-        guest = Guest(firmware)
-        try:
-            text = guest.run((bench / f"{name}.py").read_text() + "\n" + runner + "\nbm_run(100, 100)\n")
-        finally:
-            guest.close()
+        with session(firmware) as guest:
+            text = guest.exec((bench / f"{name}.py").read_text() + "\n" + runner + "\nbm_run(100, 100)\n")
         us = int(text.split()[0])
         out[name] = {"instructions": us * 1000, "pyboard_us": PYBOARD_US[name]}
         log(f"  {name}: {us * 1000 / 1e6:.1f} M instructions, pyboard {PYBOARD_US[name] / 1000:.1f} ms")
@@ -494,11 +449,8 @@ report("diag", per_call(lambda: a._diag(app.time.ticks_add(a.diag_ms, 5000)), 50
 
 
 def run_probe(firmware: Path, files: dict, code: str) -> dict:
-    guest = Guest(firmware)
-    try:
-        text = guest.run(mount_code(files, "/app") + "\n" + GUEST_TOOLS + "\n" + code)
-    finally:
-        guest.close()
+    with session(firmware) as guest:
+        text = guest.exec(mount_code(files, "/app") + "\n" + GUEST_TOOLS + "\n" + code)
     ops = {}
     for line in text.splitlines():
         if line.startswith("OP "):
@@ -566,8 +518,9 @@ def calibrate(log) -> dict:
     for tool in ("qemu-system-arm", "arm-none-eabi-gcc", "make"):
         if find_tool(tool) is None:
             raise SystemExit(f"{tool} is missing (Debian: qemu-system-arm, gcc-arm-none-eabi, picolibc-arm-none-eabi)")
-    tree, firmware = build(log)
-    mpy_cross = str(tree / "mpy-cross" / "build" / "mpy-cross")
+    firmware = build_firmware(log)
+    tree = SHARED_MICROPYTHON
+    mpy_cross = build_mpy_cross(log)
     table = {"measured_with": {
         "micropython": "v1.28.0 (../shared/micropython), ports/qemu BOARD=MPS2_AN500 MICROPY_FLOAT_IMPL=float",
         "qemu": subprocess.run(["qemu-system-arm", "--version"], capture_output=True, text=True).stdout.split("\n")[0],
@@ -590,9 +543,10 @@ def calibrate(log) -> dict:
             if mode == "fused":
                 log("the native module for armv7emsp")
                 native = out / "native"
-                subprocess.run(["make", f"MPY_DIR={tree}", "ARCH=armv7emsp", "LINK_RUNTIME=1", "USE_PICOLIBC=1",
-                                f"MPY_CROSS={mpy_cross}", f"PYTHON={sys.executable}"], cwd=native, env=tool_env(),
-                               check=True, capture_output=True)
+                # the Makefile's own runtime choice, as `deadreckon build` makes it: armv7emsp has the FPU and
+                # needs no libgcc (LINK_RUNTIME=1 pulls libc's memcpy beside natmod_libc.c's: duplicate symbol)
+                subprocess.run(["make", f"MPY_DIR={tree}", "ARCH=armv7emsp", f"MPY_CROSS={mpy_cross}",
+                                f"PYTHON={sys.executable}"], cwd=native, env=tool_env(), check=True, capture_output=True)
                 walk = walk_counts(512).ravel().tolist()
                 log("kernels: fallback")
                 raw = run_probe(firmware, files, KERNEL_PROBE.format(module="dr_fallback", walk=walk, kind="python"))

@@ -99,20 +99,6 @@ void dr_eskf_state_init(dr_eskf_state *st) {
     eye3(st->mount);
 }
 
-/* R(q), body -> ENU. */
-static void rotation(const float q[4], float r[3][3]) {
-    const float qw = q[0], qx = q[1], qy = q[2], qz = q[3];
-    r[0][0] = 1.0f - 2.0f * (qy * qy + qz * qz);
-    r[0][1] = 2.0f * (qx * qy - qw * qz);
-    r[0][2] = 2.0f * (qx * qz + qw * qy);
-    r[1][0] = 2.0f * (qx * qy + qw * qz);
-    r[1][1] = 1.0f - 2.0f * (qx * qx + qz * qz);
-    r[1][2] = 2.0f * (qy * qz - qw * qx);
-    r[2][0] = 2.0f * (qx * qz - qw * qy);
-    r[2][1] = 2.0f * (qy * qz + qw * qx);
-    r[2][2] = 1.0f - 2.0f * (qx * qx + qy * qy);
-}
-
 /* Returns exp(-x) for x >= 0 (a few ulp): 2^-k exp(-r) with x = k ln 2 + r, r in [0, ln 2). */
 static float exp_neg(float x) {
     dr_bits scale;
@@ -140,7 +126,7 @@ static float exp_neg(float x) {
 
 int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_state *st, const int16_t *samples,
                       int32_t count) {
-    float total[6], mean[6], var[3], inv_n, norm, w;
+    float total[6], mean[6], var[3], inv_n, norm;
     int32_t k, i;
     int moved = 0;
     (void)cfg;
@@ -172,18 +158,7 @@ int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_
     if (!(norm > 0.0f)) {
         return DR_ESKF_ERR_COUNT;
     }
-    w = norm + mean[2]; /* the shortest arc onto Up (codegen.kernel.reference.tilt_from_gravity) */
-    if (w <= 1e-6f * norm) {
-        st->q[0] = 0.0f;
-        st->q[1] = 1.0f;
-        st->q[2] = st->q[3] = 0.0f;
-    } else {
-        st->q[0] = w;
-        st->q[1] = mean[1];
-        st->q[2] = -mean[0];
-        st->q[3] = 0.0f;
-        dr_quat_normalise(st->q);
-    }
+    dr_quat_from_gravity(st->q, mean, norm);
     for (i = 0; i < 3; i++) {
         st->bg[i] = mean[3 + i] * kcfg->gyro_rads_per_lsb;
     }
@@ -223,7 +198,7 @@ void dr_eskf_prior(const dr_eskf_config *cfg, dr_eskf_state *st) {
         st->p[i][i] = d[i];
     }
     /* the tilt error tied to the accelerometer bias that calibration folded into it: G = [-R_N; R_E] / g */
-    rotation(st->q, r);
+    dr_quat_to_matrix(st->q, r);
     for (j = 0; j < 3; j++) {
         g[0][j] = -r[1][j] * DR_INV_GRAVITY;
         g[1][j] = r[0][j] * DR_INV_GRAVITY;
@@ -246,7 +221,7 @@ void dr_eskf_prior(const dr_eskf_config *cfg, dr_eskf_state *st) {
 static void mounting_from_velocity(dr_eskf_state *st) {
     float r[3][3], x[3], z[3], k, dot;
     int i;
-    rotation(st->q, r);
+    dr_quat_to_matrix(st->q, r);
     for (i = 0; i < 3; i++) {
         x[i] = r[0][i] * st->vel[0] + r[1][i] * st->vel[1] + r[2][i] * st->vel[2];
     }
@@ -694,7 +669,7 @@ int dr_eskf_gps(const dr_eskf_config *cfg, dr_eskf_state *st, float t_s, float e
 static void vehicle_frame(const dr_eskf_state *st, float cr[3][3], float vv[3]) {
     float r[3][3];
     int i, j;
-    rotation(st->q, r);
+    dr_quat_to_matrix(st->q, r);
     for (i = 0; i < 3; i++) {
         for (j = 0; j < 3; j++) {
             cr[i][j] = st->mount[i][0] * r[j][0] + st->mount[i][1] * r[j][1] + st->mount[i][2] * r[j][2];

@@ -40,16 +40,12 @@ void dr_fused_state_init(dr_fused_state *st) {
     dr_fused_state_start(st);
 }
 
-int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t *samples, int32_t count) {
-    dr_state seed;
+/* Returns |mean accelerometer counts| of count >= 1 samples (sensor frame: the remap does not change a length),
+ * summed in int32 chunks of DR_FUSED_SUM_CHUNK as the fallback sums them. */
+static float dr_fused_mean_force_counts(const int16_t *samples, int32_t count) {
     float total[3];
     float inv_count, m2;
-    int i, code;
-    dr_state_init(&seed);
-    code = dr_calibrate(kcfg, &seed, samples, count);
-    if (code < 0) {
-        return code;
-    }
+    int i;
     for (i = 0; i < 3; i++) {
         total[i] = 0.0f;
     }
@@ -60,13 +56,13 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
         float m = total[i] * inv_count;
         m2 += m * m;
     }
-    for (i = 0; i < 4; i++) {
-        st->q[i] = seed.q[i];
-    }
-    for (i = 0; i < 3; i++) {
-        st->gyro_bias_lsb[i] = seed.gyro_bias_lsb[i];
-    }
-    st->mean_f = dr_sqrt(m2) * kcfg->accel_ms2_per_lsb;
+    return dr_sqrt(m2);
+}
+
+/* The motion statistics started at rest, from the mean specific force st->mean_f (m/s^2): no variance, no
+ * vibration, no walking steps, no rest time, speed 0, no along-track offsets. */
+static void dr_fused_motion_start(dr_fused_state *st) {
+    int i;
     st->var_f = 0.0f;
     st->vib_var = 0.0f;
     st->vib_tot = 0.0f;
@@ -80,8 +76,12 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
     st->bax = 0.0f;
     st->bay = 0.0f;
     st->baz = 0.0f;
-    /* the speed 0 if the device stood still; after a calibration that moved not known, and the gyro bias took the
-     * motion's mean rate (the tilt drifts until a rest) */
+}
+
+/* The speed/bias filter's start after a calibration with the verdict code (DR_OK or DR_MOVED): the speed 0 if the
+ * device stood still; after a calibration that moved not known, and the gyro bias took the motion's mean rate (the
+ * tilt drifts until a rest). */
+static void dr_fused_speed_start(dr_fused_state *st, int code) {
     st->sb_p[DR_FUSED_SB_PSS] = 0.0f;
     st->sb_p[DR_FUSED_SB_PSB] = 0.0f;
     st->sb_p[DR_FUSED_SB_PBB] = 0.0f;
@@ -92,6 +92,25 @@ int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t 
         st->sb_p[DR_FUSED_SB_PSS] = DR_FUSED_SPEED_UNKNOWN_VAR;
         st->cal_moved = 1.0f;
     }
+}
+
+int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t *samples, int32_t count) {
+    dr_state seed;
+    int i, code;
+    dr_state_init(&seed);
+    code = dr_calibrate(kcfg, &seed, samples, count); /* the tilt and the gyro bias, as the seed kernel's */
+    if (code < 0) {
+        return code;
+    }
+    for (i = 0; i < 4; i++) {
+        st->q[i] = seed.q[i];
+    }
+    for (i = 0; i < 3; i++) {
+        st->gyro_bias_lsb[i] = seed.gyro_bias_lsb[i];
+    }
+    st->mean_f = dr_fused_mean_force_counts(samples, count) * kcfg->accel_ms2_per_lsb;
+    dr_fused_motion_start(st);
+    dr_fused_speed_start(st, code);
     return code;
 }
 
@@ -124,27 +143,13 @@ static void dr_fused_p_store(dr_fused_state *st, float pm[5][5]) {
     }
 }
 
-/* The rows of R(q) (body -> kernel ENU): r[i][j] for i, j in 0..2. */
-static void dr_fused_rotation(const float q[4], float r[3][3]) {
-    float qw = q[0], qx = q[1], qy = q[2], qz = q[3];
-    r[0][0] = 1.0f - 2.0f * (qy * qy + qz * qz);
-    r[0][1] = 2.0f * (qx * qy - qw * qz);
-    r[0][2] = 2.0f * (qx * qz + qw * qy);
-    r[1][0] = 2.0f * (qx * qy + qw * qz);
-    r[1][1] = 1.0f - 2.0f * (qx * qx + qz * qz);
-    r[1][2] = 2.0f * (qy * qz - qw * qx);
-    r[2][0] = 2.0f * (qx * qz - qw * qy);
-    r[2][1] = 2.0f * (qy * qz + qw * qx);
-    r[2][2] = 1.0f - 2.0f * (qx * qx + qy * qy);
-}
-
 /* The tilt/offset filter's covariance at its start (codegen.fused's _kf_prior): b ~ kf_bias_init_g per axis across
  * gravity (0 along it), d = -R_h b, from the attitude st->q. */
 static void dr_fused_kf_prior(const dr_fused_config *cfg, dr_fused_state *st) {
     float r[3][3], pm[5][5];
     const float v = cfg->kf_bias_var;
     int i, j, c;
-    dr_fused_rotation(st->q, r);
+    dr_quat_to_matrix(st->q, r);
     for (i = 0; i < 5; i++) {
         for (j = i; j < 5; j++) {
             float value;
@@ -362,7 +367,7 @@ static void dr_fused_rest_update(const dr_config *kcfg, const dr_fused_config *c
         !dr_fused_kf_predict(cfg, st)) {
         return;
     }
-    dr_fused_rotation(st->q, r);
+    dr_quat_to_matrix(st->q, r);
     for (i = 0; i < 3; i++) {
         h[0][i] = r[0][i];
         h[1][i] = r[1][i];
@@ -404,7 +409,7 @@ static void dr_fused_nhc_start(const dr_fused_config *cfg, dr_fused_state *st, c
     float pm[5][5], r[3][3], rp[2][3], c[3] = {0.0f, 0.0f, 0.0f};
     int a, j, k;
     dr_fused_p_load(st, pm);
-    dr_fused_rotation(q, r);
+    dr_quat_to_matrix(q, r);
     for (a = 0; a < 2; a++) { /* R_h P_bb */
         for (j = 0; j < 3; j++) {
             rp[a][j] = 0.0f;

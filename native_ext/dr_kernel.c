@@ -5,8 +5,6 @@
 #include "dr_math.h"
 #include "dr_median.h"
 
-#define DR_TILT_DEGENERATE (1.0e-6f) /* |f| + f_z below this fraction of |f|: the device is upside down */
-
 void dr_config_init(dr_config *cfg) {
     cfg->axis_source[0] = DR_AXIS_X_SOURCE;
     cfg->axis_source[1] = DR_AXIS_Y_SOURCE;
@@ -64,7 +62,7 @@ int dr_calibrate(const dr_config *cfg, dr_state *st, const int16_t *samples, int
     float total[6];
     float mean[6];
     float var[3];
-    float inv_count, norm, w;
+    float inv_count, norm;
     int32_t k;
     int i, moved = 0;
     if (!dr_config_usable(cfg)) {
@@ -98,21 +96,8 @@ int dr_calibrate(const dr_config *cfg, dr_state *st, const int16_t *samples, int
             moved = 1;
         }
     }
-    /* shortest arc turning the mean specific force f onto up: q = normalise([|f| + f_z, f_y, -f_x, 0]) */
     norm = dr_sqrt(mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]);
-    w = norm + mean[2];
-    if (w <= DR_TILT_DEGENERATE * norm) {
-        st->q[0] = 0.0f;
-        st->q[1] = 1.0f;
-        st->q[2] = 0.0f;
-        st->q[3] = 0.0f;
-    } else {
-        st->q[0] = w;
-        st->q[1] = mean[1];
-        st->q[2] = -mean[0];
-        st->q[3] = 0.0f;
-        dr_quat_normalise(st->q);
-    }
+    dr_quat_from_gravity(st->q, mean, norm);
     for (i = 0; i < 3; i++) {
         st->gyro_bias_lsb[i] = mean[3 + i];
         st->v[i] = 0.0f;

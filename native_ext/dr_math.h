@@ -17,6 +17,7 @@
 #define DR_RAD_PER_DEG (0.0174532925199433f) /* rad per degree */
 #define DR_RAD_PER_CYCLE (6.28318530717959f) /* rad per cycle (2 pi) */
 #define DR_S_PER_US (1.0e-6f)                /* s per microsecond */
+#define DR_TILT_DEGENERATE (1.0e-6f)         /* |f| + f_z below this share of |f|: the device is upside down */
 
 /* The bits of a float and back, without breaking aliasing rules (C99 allows reading another union member). */
 typedef union {
@@ -118,6 +119,40 @@ static inline void dr_quat_rotate(float r[3], const float q[4], const float v[3]
     r[0] = rx;
     r[1] = ry;
     r[2] = rz;
+}
+
+/* r = R(q), the rotation matrix of the unit quaternion q = [w, x, y, z] (body -> earth: r[i][j] is the earth axis
+ * i's component of the body axis j). */
+static inline void dr_quat_to_matrix(const float q[4], float r[3][3]) {
+    const float qw = q[0], qx = q[1], qy = q[2], qz = q[3];
+    r[0][0] = 1.0f - 2.0f * (qy * qy + qz * qz);
+    r[0][1] = 2.0f * (qx * qy - qw * qz);
+    r[0][2] = 2.0f * (qx * qz + qw * qy);
+    r[1][0] = 2.0f * (qx * qy + qw * qz);
+    r[1][1] = 1.0f - 2.0f * (qx * qx + qz * qz);
+    r[1][2] = 2.0f * (qy * qz - qw * qx);
+    r[2][0] = 2.0f * (qx * qz - qw * qy);
+    r[2][1] = 2.0f * (qy * qz + qw * qx);
+    r[2][2] = 1.0f - 2.0f * (qx * qx + qy * qy);
+}
+
+/* q = the shortest arc turning the mean specific force f (body, any unit) onto Up, yaw 0, with norm = |f| (the
+ * caller has it): normalise([|f| + f_z, f_y, -f_x, 0]); upside down (f along -z, or f = 0) the half turn about x
+ * (codegen.kernel.reference.tilt_from_gravity). */
+static inline void dr_quat_from_gravity(float q[4], const float f[3], float norm) {
+    const float w = norm + f[2];
+    if (w <= DR_TILT_DEGENERATE * norm) {
+        q[0] = 0.0f;
+        q[1] = 1.0f;
+        q[2] = 0.0f;
+        q[3] = 0.0f;
+        return;
+    }
+    q[0] = w;
+    q[1] = f[1];
+    q[2] = -f[0];
+    q[3] = 0.0f;
+    dr_quat_normalise(q);
 }
 
 /* Adds to total[0..axes-1] the sums of the first `axes` values of `count` rows of 6 int16 counts (a window's

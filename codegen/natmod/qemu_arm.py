@@ -94,15 +94,17 @@ class QemuError(UserError):
     pass
 
 
-def firmware(tree: Path, board: str, log=None) -> Path:
+def firmware(tree: Path, board: str, log=None, heap_bytes: Optional[int] = None) -> Path:
     """The QEMU port's firmware.elf for `board`, built from `tree` into the cache on first use (codegen/portbuild.py:
-    keyed by the tree's content, the board, the flags and the compiler)."""
+    keyed by the tree's content, the board, the flags and the compiler); heap_bytes: the MicroPython heap instead of
+    HEAP's (benchmarks/board_clock.py runs the whole app)."""
     spec = BOARDS[board]
+    make = [f"MICROPY_HEAP_SIZE={heap_bytes}" if heap_bytes and arg == HEAP else arg for arg in spec.get("make", [])]
     product = portbuild.Product(
         name="qemu-arm",
         dirs=PORT_DIRS,
         make_dir="ports/qemu",
-        make_args=(f"BOARD={board}", "FROZEN_MANIFEST=", f"CFLAGS_EXTRA={spec['cflags']}", *spec.get("make", [])),
+        make_args=(f"BOARD={board}", "FROZEN_MANIFEST=", f"CFLAGS_EXTRA={spec['cflags']}", *make),
         built=f"build-{board}/firmware.elf",
         needs="arm-none-eabi-gcc",
         hint="apt-get install gcc-arm-none-eabi picolibc-arm-none-eabi",
@@ -117,21 +119,24 @@ class Result:
 
 
 class Session:
-    """One qemu-system-arm running the firmware, driven over the raw REPL; a context manager."""
+    """One qemu-system-arm running the firmware, driven over the raw REPL; a context manager. icount: QEMU's
+    -icount option (shift=0 at the least: the virtual clock counts instructions); mem_fs: mount /mem for put_file
+    (False leaves the heap as the firmware starts, for a caller that measures it)."""
 
-    def __init__(self, elf: Path, board: str, timeout: float = 120.0):
+    def __init__(self, elf: Path, board: str, timeout: float = 120.0, icount: str = "shift=0", mem_fs: bool = True):
         qemu = shutil.which("qemu-system-arm")
         if qemu is None:
             raise QemuError("qemu-system-arm is not installed", hint="apt-get install qemu-system-arm")
         self.board, self.timeout = board, timeout
         self.process = subprocess.Popen(
             [qemu, "-machine", *BOARDS[board]["machine"], "-nographic", "-monitor", "null", "-semihosting",
-             "-serial", "stdio", "-icount", "shift=0", "-kernel", str(elf)],
+             "-serial", "stdio", "-icount", icount, "-kernel", str(elf)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         self.buffer = b""
         self._send(b"\r\x03\x03\x01")
         self._until(b"raw REPL; CTRL-B to exit\r\n>")
-        self.exec(MEM_FS)
+        if mem_fs:
+            self.exec(MEM_FS)
 
     def __enter__(self):
         return self

@@ -2,6 +2,8 @@
 text of the .mpy itself, placed and relocated as MicroPython's loader does (codegen.natmod.mpyfile.relocate), its
 kernel functions called by a small bare-metal harness (xtensa_sim/harness.c, built by the same LLVM route and linked
 by mpy_ld) after a start-up that sets up the register windows, the FPU and the instruction counter (xtensa_sim/boot.s).
+assemble_boot, link_objects and run_images serve every harness (codegen.natmod.xtensa_eskf's too); the steps' format
+and ICOUNT reader the harnesses share are xtensa_sim/sim_steps.h.
 
 de233_fpu is an LX7 with windowed registers, MUL32, DIV32, loops, booleans and a single-precision FPU, as the ESP32's
 LX6; it lacks one option the ESP32 has, MUL32_HIGH (MULUH/MULSH). llc -mcpu=esp32 emits those only in the binding
@@ -69,23 +71,35 @@ def _text_of(obj: Path) -> bytes:
         return bytes(ELFFile(f).get_section_by_name(".text").data())
 
 
-def build_harness(native_dir: Path, tree: Path, work: Path) -> Harness:
-    """Assemble boot.s and build harness.c against the kernel headers in native_dir (a generated OUT/native)."""
+def assemble_boot(work: Path) -> bytes:
+    """The start-up every harness runs after (xtensa_sim/boot.s: register windows, FPU, ICOUNT), assembled for the
+    ESP32 in `work`: its text, to be loaded at VECBASE."""
     work.mkdir(parents=True, exist_ok=True)
     boot = work / "boot.o"
     done = subprocess.run([_llvm("llvm-mc"), "-triple=xtensa", "-mcpu=esp32", "-filetype=obj", str(SIM / "boot.s"),
                            "-o", str(boot)], capture_output=True, text=True)
     if done.returncode:
         raise XtensaSimError(f"boot.s does not assemble:\n{done.stderr}")
-    obj = work / "harness.o"
-    xtensa_llvm.compile_object(SIM / "harness.c", obj, ["-I", str(native_dir), "-std=c99", "-O2", "-Wall",
-                                                        "-Werror"])
-    linked = work / "harness.mpy"
-    done = subprocess.run([sys.executable, str(tree / "tools" / "mpy_ld.py"), "--arch", "xtensawin", "-o",
-                           str(linked), str(obj)], capture_output=True, text=True, cwd=work)
+    return _text_of(boot)
+
+
+def link_objects(objects: list[Path], tree: Path, out: Path, what: str) -> mpyfile.NativeMpy:
+    """The objects (the first holds the image's mpy_init) linked by the MicroPython tree's mpy_ld into `out` as
+    xtensawin code, parsed; `what` names the image in an error."""
+    done = subprocess.run([sys.executable, str(tree / "tools" / "mpy_ld.py"), "--arch", "xtensawin", "-o", str(out),
+                           *map(str, objects)], capture_output=True, text=True, cwd=out.parent)
     if done.returncode:
-        raise XtensaSimError(f"mpy_ld did not link the harness:\n{done.stdout[-2000:]}{done.stderr[-2000:]}")
-    return Harness(_text_of(boot), mpyfile.parse(linked.read_bytes(), "harness.mpy"))
+        raise XtensaSimError(f"mpy_ld did not link {what}:\n{done.stdout[-2000:]}{done.stderr[-2000:]}")
+    return mpyfile.parse(out.read_bytes(), out.name)
+
+
+def build_harness(native_dir: Path, tree: Path, work: Path) -> Harness:
+    """Assemble boot.s and build harness.c against the kernel headers in native_dir (a generated OUT/native)."""
+    boot = assemble_boot(work)
+    obj = work / "harness.o"
+    xtensa_llvm.compile_object(SIM / "harness.c", obj, ["-I", str(native_dir), "-I", str(SIM), "-std=c99", "-O2",
+                                                        "-Wall", "-Werror"])
+    return Harness(boot, link_objects([obj], tree, work / "harness.mpy", "the harness"))
 
 
 def function_offsets(link: linkmap.LinkMap) -> dict:
@@ -120,15 +134,21 @@ def uses_missing(module: mpyfile.NativeMpy, start: int, end: int) -> list:
     return found
 
 
+def sample_step(item: tuple) -> bytes:
+    """A calibration ("C", counts) or window ("P", counts, dt_us) step as xtensa_sim/sim_steps.h reads it."""
+    samples = np.ascontiguousarray(item[1], dtype="<i2").reshape(-1, 6)
+    step = struct.pack("<II", ord(item[0]), len(samples)) + samples.tobytes()
+    if item[0] == "P":
+        step += np.ascontiguousarray(item[2], dtype="<i4").tobytes()
+    return step
+
+
 def _input(steps: list, algorithm: str, state_floats: int, functions: list[int]) -> bytes:
     body = bytearray()
     for item in steps:
         kind = item[0]
         if kind in ("C", "P"):
-            samples = np.ascontiguousarray(item[1], dtype="<i2").reshape(-1, 6)
-            body += struct.pack("<II", ord(kind), len(samples)) + samples.tobytes()
-            if kind == "P":
-                body += np.ascontiguousarray(item[2], dtype="<i4").tobytes()
+            body += sample_step(item)
         else:
             body += struct.pack("<IIffff", ord("G"), 4, *item[1:5])
     header = struct.pack("<6I", MAGIC, 1 if algorithm == "fused" else 0, len(steps), state_floats, WORKSPACE, OUTPUT)
@@ -139,9 +159,6 @@ def _input(steps: list, algorithm: str, state_floats: int, functions: list[int])
 def run(module: mpyfile.NativeMpy, link: linkmap.LinkMap, harness: Harness, steps: list, algorithm: str,
         state_floats: int, timeout: float = 600) -> list[Answer]:
     """Run `steps` (codegen.natmod.windows' format) through `algorithm` in the module's own code."""
-    qemu = find_tool("qemu-system-xtensa")
-    if qemu is None:
-        raise XtensaSimError("qemu-system-xtensa is not installed", hint="apt-get install qemu-system-misc")
     offsets = function_offsets(link)
     missing = [name for name in FUNCTIONS if name not in offsets]
     if missing:
@@ -151,26 +168,11 @@ def run(module: mpyfile.NativeMpy, link: linkmap.LinkMap, harness: Harness, step
     text, rodata = mpyfile.relocate(module, bases)
     h_text, h_rodata = mpyfile.relocate(harness.mpy, dict(bases, text=HARNESS_TEXT, rodata=HARNESS_RODATA))
     blob = _input(steps, algorithm, state_floats, [MODULE_TEXT + offsets[name] for name in FUNCTIONS])
-    with tempfile.TemporaryDirectory(prefix="dr-xtensa-") as tmp:
-        images = {"boot.bin": (harness.boot, VECBASE), "harness.bin": (bytes(h_text), HARNESS_TEXT),
-                  "harness-rodata.bin": (bytes(h_rodata), HARNESS_RODATA), "text.bin": (bytes(text), MODULE_TEXT),
-                  "rodata.bin": (bytes(rodata), MODULE_RODATA), "input.bin": (blob, INPUT)}
-        command = [qemu, "-M", "sim", "-cpu", "de233_fpu", "-semihosting", "-nographic", "-monitor", "none",
-                   "-serial", "none"]
-        for name, (data, address) in images.items():
-            if not data:
-                continue
-            (Path(tmp) / name).write_bytes(data)
-            command += ["-device", f"loader,file={Path(tmp) / name},addr={address:#x},force-raw=on"]
-        command += ["-device", f"loader,addr={START:#x},cpu-num=0"]
-        done = subprocess.run(command, capture_output=True, timeout=timeout)
-    if done.returncode:
-        cause = done.returncode - 64
-        what = EXCCAUSE.get(cause, f"exception cause {cause}") if 0 <= cause < 64 else f"exit {done.returncode}"
-        raise XtensaSimError(f"the ESP32 code stopped on qemu-system-xtensa: {what}\n"
-                             f"{done.stderr.decode(errors='replace')[-1000:]}")
+    data = run_images({"boot.bin": (harness.boot, VECBASE), "harness.bin": (bytes(h_text), HARNESS_TEXT),
+                       "harness-rodata.bin": (bytes(h_rodata), HARNESS_RODATA), "text.bin": (bytes(text), MODULE_TEXT),
+                       "rodata.bin": (bytes(rodata), MODULE_RODATA), "input.bin": (blob, INPUT)},
+                      "the ESP32 code", timeout)
     words = 2 + OUT_FLOATS + state_floats
-    data = done.stdout
     if len(data) != 4 * words * len(steps):
         raise XtensaSimError(f"the harness wrote {len(data)} bytes, expected {4 * words * len(steps)}")
     answers = []
@@ -184,3 +186,28 @@ def run(module: mpyfile.NativeMpy, link: linkmap.LinkMap, harness: Harness, step
         answers.append(Answer(float(took), out, values[OUT_FLOATS:].copy()))
     return answers
 
+
+
+def run_images(images: dict[str, tuple[bytes, int]], what: str, timeout: float) -> bytes:
+    """Load each image (name -> (bytes, address); an empty one is skipped) raw into qemu-system-xtensa's sim
+    machine (de233_fpu, semihosting), start at START (boot.s) and return what the harness wrote to stdout; an
+    exception stop is an XtensaSimError naming its cause, `what` naming the code that stopped."""
+    qemu = find_tool("qemu-system-xtensa")
+    if qemu is None:
+        raise XtensaSimError("qemu-system-xtensa is not installed", hint="apt-get install qemu-system-misc")
+    with tempfile.TemporaryDirectory(prefix="dr-xtensa-") as tmp:
+        command = [qemu, "-M", "sim", "-cpu", "de233_fpu", "-semihosting", "-nographic", "-monitor", "none",
+                   "-serial", "none"]
+        for name, (data, address) in images.items():
+            if not data:
+                continue
+            (Path(tmp) / name).write_bytes(data)
+            command += ["-device", f"loader,file={Path(tmp) / name},addr={address:#x},force-raw=on"]
+        command += ["-device", f"loader,addr={START:#x},cpu-num=0"]
+        done = subprocess.run(command, capture_output=True, timeout=timeout)
+    if done.returncode:
+        cause = done.returncode - 64
+        stop = EXCCAUSE.get(cause, f"exception cause {cause}") if 0 <= cause < 64 else f"exit {done.returncode}"
+        raise XtensaSimError(f"{what} stopped on qemu-system-xtensa: {stop}\n"
+                             f"{done.stderr.decode(errors='replace')[-1000:]}")
+    return done.stdout

@@ -5,7 +5,7 @@
  * the filter's own, as in harness.c.
  *
  *   magic "DRE1" | steps | workspace | output | cov_dt_s | nhc_dt_s (floats; 0: the default) | steps: kind ('C', 'P', 'G') | samples n | payload
- *   C: int16 samples[6n]   P: int16 samples[6n], int32 dt_us[n]   G: float t e n u ve vn (n = 6)
+ *   C: int16 samples[6n]   P: int16 samples[6n], int32 dt_us[n]   G: float t e n u ve vn (n = 6) (sim_steps.h)
  *   one step alone, on the state as it is (n = 0; the state is saved before and restored after, so the run goes on
  *   unchanged): Q the covariance propagation, K the covariance check, U one scalar update with the constraint's
  *   lateral row (8 non-zeros), N the constraint's rows
@@ -17,6 +17,7 @@
 
 #include "dr_eskf.h"
 #include "dr_kernel.h"
+#include "sim_steps.h"
 
 #define HARNESS_MAGIC (0x31455244u) /* "DRE1" */
 #define HEADER_WORDS (8)
@@ -69,12 +70,6 @@ static int32_t alone(workspace *w, uint32_t kind) {
     return code;
 }
 
-static uint32_t instructions(void) {
-    uint32_t count;
-    __asm__ volatile("rsr %0, icount" : "=r"(count));
-    return count;
-}
-
 uint32_t mpy_init(const uint32_t *input) {
     workspace *w = (workspace *)input[2];
     uint32_t *at = (uint32_t *)input[3];
@@ -94,33 +89,28 @@ uint32_t mpy_init(const uint32_t *input) {
     }
     dr_eskf_state_init(&w->st);
     for (k = 0; k < steps; k++) {
-        uint32_t kind = step[0], n = step[1];
-        const int16_t *samples = (const int16_t *)(step + 2);
-        const int32_t *dt = (const int32_t *)(step + 2 + 3 * n);
+        sim_step s;
         int32_t code = 0;
-        if (kind == 'C') {
-            t0 = instructions();
-            code = dr_eskf_calibrate(&w->kcfg, &w->cfg, &w->st, samples, (int32_t)n);
-            t1 = instructions();
-            step += 2 + 3 * n;
-        } else if (kind == 'P') {
-            t0 = instructions();
-            code = dr_eskf_process(&w->kcfg, &w->cfg, &w->st, samples, dt, (int32_t)n, w->out);
-            t1 = instructions();
-            step += 2 + 3 * n + n;
-        } else if (kind != 'G') {
+        step = sim_step_read(step, &s);
+        if (s.kind == 'C') {
+            t0 = sim_instructions();
+            code = dr_eskf_calibrate(&w->kcfg, &w->cfg, &w->st, s.samples, (int32_t)s.n);
+            t1 = sim_instructions();
+        } else if (s.kind == 'P') {
+            t0 = sim_instructions();
+            code = dr_eskf_process(&w->kcfg, &w->cfg, &w->st, s.samples, s.dt_us, (int32_t)s.n, w->out);
+            t1 = sim_instructions();
+        } else if (s.kind != 'G') {
             copy_state(&w->saved, &w->st);
-            t0 = instructions();
-            code = alone(w, kind); /* U includes the rows' set-up: N alone says how much of it that is */
-            t1 = instructions();
+            t0 = sim_instructions();
+            code = alone(w, s.kind); /* U includes the rows' set-up: N alone says how much of it that is */
+            t1 = sim_instructions();
             copy_state(&w->st, &w->saved);
-            step += 2;
         } else {
-            const float *g = (const float *)(step + 2);
-            t0 = instructions();
+            const float *g = s.values;
+            t0 = sim_instructions();
             code = dr_eskf_gps(&w->cfg, &w->st, g[0], g[1], g[2], g[3], g[4], g[5]);
-            t1 = instructions();
-            step += 2 + n;
+            t1 = sim_instructions();
         }
         *at++ = t1 - t0;
         *at++ = (uint32_t)code;

@@ -8,7 +8,7 @@
  *
  *   magic "DRX1" | algorithm (0 seed, 1 fused) | steps | state floats reported | workspace | output |
  *   10 function addresses (FN_*) | steps: kind ('C', 'P', 'G') | samples n | payload
- *   C: int16 samples[6n]   P: int16 samples[6n], int32 dt_us[n]   G: float ve vn de dn
+ *   C: int16 samples[6n]   P: int16 samples[6n], int32 dt_us[n]   G (n = 4): float ve vn de dn (sim_steps.h)
  */
 #include <stddef.h>
 #include <stdint.h>
@@ -16,6 +16,7 @@
 #include "dr_board.h"
 #include "dr_fused.h"
 #include "dr_kernel.h"
+#include "sim_steps.h"
 
 #define HARNESS_MAGIC (0x31585244u) /* "DRX1" */
 #define HEADER_WORDS (16)
@@ -57,12 +58,6 @@ typedef struct {
     float scratch[3 * DR_BLOCK_SAMPLES];
 } workspace;
 
-static uint32_t instructions(void) {
-    uint32_t count;
-    __asm__ volatile("rsr %0, icount" : "=r"(count));
-    return count;
-}
-
 /* The output record of one step; returns the next free word. */
 static uint32_t *report(uint32_t *at, uint32_t took, int32_t code, const float *out, const float *state,
                         uint32_t floats) {
@@ -99,32 +94,28 @@ uint32_t mpy_init(const uint32_t *input) {
         fn->state_init(&w->st);
     }
     for (k = 0; k < steps; k++) {
-        uint32_t kind = step[0], n = step[1];
-        const int16_t *samples = (const int16_t *)(step + 2);
-        const int32_t *dt = (const int32_t *)(step + 2 + 3 * n);
+        sim_step s;
         int32_t code = 0;
-        if (kind == 'C') {
-            t0 = instructions();
-            code = fused ? fn->fused_calibrate(&w->kcfg, &w->fst, samples, (int32_t)n)
-                         : fn->calibrate(&w->kcfg, &w->st, samples, (int32_t)n);
-            t1 = instructions();
-            step += 2 + 3 * n;
-        } else if (kind == 'P') {
-            t0 = instructions();
+        step = sim_step_read(step, &s);
+        if (s.kind == 'C') {
+            t0 = sim_instructions();
+            code = fused ? fn->fused_calibrate(&w->kcfg, &w->fst, s.samples, (int32_t)s.n)
+                         : fn->calibrate(&w->kcfg, &w->st, s.samples, (int32_t)s.n);
+            t1 = sim_instructions();
+        } else if (s.kind == 'P') {
+            t0 = sim_instructions();
             if (fused) {
-                code = fn->fused_process(&w->kcfg, &w->fcfg, &w->fst, samples, dt, (int32_t)n, w->out);
+                code = fn->fused_process(&w->kcfg, &w->fcfg, &w->fst, s.samples, s.dt_us, (int32_t)s.n, w->out);
             } else {
-                code = fn->process(&w->kcfg, &w->st, w->scratch, samples, dt, (int32_t)n, w->out, 0);
+                code = fn->process(&w->kcfg, &w->st, w->scratch, s.samples, s.dt_us, (int32_t)s.n, w->out, 0);
             }
-            t1 = instructions();
-            step += 2 + 3 * n + n;
+            t1 = sim_instructions();
         } else {
-            const float *gps = (const float *)(step + 2);
-            t0 = instructions();
+            const float *gps = s.values;
+            t0 = sim_instructions();
             fn->fused_position(&w->fcfg, &w->fst, gps[0], gps[1], gps[2], gps[3]);
             fn->fused_gps(&w->fcfg, &w->fst, gps[0], gps[1]);
-            t1 = instructions();
-            step += 2 + 4;
+            t1 = sim_instructions();
         }
         at = report(at, t1 - t0, code, w->out, state, floats);
     }
