@@ -62,8 +62,9 @@ void dr_eskf_config_init(dr_eskf_config *cfg) {
     cfg->rest_speed_ms = 1.5f;
     cfg->rest_horizontal_ms2 = 0.3f;
     cfg->stat_tau_s = 0.5f;
-    cfg->align_min = 3.0f;
-    cfg->align_coherence = 0.8f;
+    cfg->align_fixes = 5.0f;
+    cfg->align_yaw_sigma_deg = 10.0f;
+    cfg->align_scale = 1.25f;
     cfg->align_speed_ms = 2.0f;
     cfg->init_yaw_sigma_deg = 10.0f;
     cfg->init_tilt_sigma_deg = 0.3f;
@@ -96,6 +97,7 @@ void dr_eskf_state_init(dr_eskf_state *st) {
         f[i] = 0.0f;
     }
     st->q[0] = 1.0f;
+    st->al_u[0] = 1.0f;
     eye3(st->mount);
 }
 
@@ -177,7 +179,7 @@ void dr_eskf_prior(const dr_eskf_config *cfg, dr_eskf_state *st) {
         }
     }
     tilt = (moving ? cfg->init_tilt_moving_deg : cfg->init_tilt_sigma_deg) * DR_RAD_PER_DEG;
-    bg = (moving ? cfg->init_gyro_bias_moving_dps : cfg->init_gyro_bias_dps) * DR_RAD_PER_DEG;
+    bg = cfg->init_gyro_bias_dps * DR_RAD_PER_DEG;
     yaw = cfg->init_yaw_sigma_deg * DR_RAD_PER_DEG;
     mount = cfg->init_mount_sigma_deg * DR_RAD_PER_DEG;
     vb = cfg->init_accel_bias_ms2 * cfg->init_accel_bias_ms2;
@@ -197,8 +199,16 @@ void dr_eskf_prior(const dr_eskf_config *cfg, dr_eskf_state *st) {
     for (i = 0; i < N; i++) {
         st->p[i][i] = d[i];
     }
-    /* the tilt error tied to the accelerometer bias that calibration folded into it: G = [-R_N; R_E] / g */
     dr_quat_to_matrix(st->q, r);
+    if (moving) { /* a calibration in motion: the road's turn rate about Up went into the gyro bias */
+        const float up = cfg->init_gyro_bias_moving_dps * DR_RAD_PER_DEG, extra = up * up - bg * bg;
+        for (i = 0; i < 3; i++) {
+            for (j = 0; j < 3; j++) {
+                st->p[DR_ESKF_ERR_BG + i][DR_ESKF_ERR_BG + j] += extra * r[2][i] * r[2][j];
+            }
+        }
+    }
+    /* the tilt error tied to the accelerometer bias that calibration folded into it: G = [-R_N; R_E] / g */
     for (j = 0; j < 3; j++) {
         g[0][j] = -r[1][j] * DR_INV_GRAVITY;
         g[1][j] = r[0][j] * DR_INV_GRAVITY;
@@ -266,43 +276,105 @@ static void start(const dr_eskf_config *cfg, dr_eskf_state *st, float t_s, float
     st->aligned = 1.0f;
 }
 
-/* codegen.kernel.eskf.align: the yaw from the correlation of the GPS's and the wander frame's velocity changes;
- * returns 1 if the filter started now. The half angle's cosine and sine come from the resultant, no trigonometry. */
-static int align(const dr_eskf_config *cfg, dr_eskf_state *st, float t_s, float e, float n, float u, float ve,
-                 float vn) {
-    float speed, resultant, c, s, ch, sh, q[4];
+void dr_eskf_calibration_interval(dr_eskf_state *st, float ve, float vn, float seconds) {
+    st->al_prev[0] = ve;
+    st->al_prev[1] = vn;
+    st->al_have_prev = 1.0f;
+    st->al_s[0] = seconds;
+    st->al_s[1] = 0.0f;
+}
+
+/* codegen.kernel.eskf._alignment_sums: the fix interval that ends now into the yaw fit's sums. */
+static void alignment_sums(dr_eskf_state *st, float ve, float vn) {
     if (st->al_have_prev != 0.0f) {
-        const float dve = ve - st->al_prev[0], dvn = vn - st->al_prev[1];
-        st->al_dot += st->al_du[0] * dve + st->al_du[1] * dvn;
-        st->al_cross += st->al_du[0] * dvn - st->al_du[1] * dve;
-        st->al_norm += dr_sqrt(st->al_du[0] * st->al_du[0] + st->al_du[1] * st->al_du[1]) *
-                       dr_sqrt(dve * dve + dvn * dvn);
+        const float de = st->al_du[0], dn = st->al_du[1], se = st->al_s[0], sn = st->al_s[1];
+        const float ve_ = ve - st->al_prev[0], vn_ = vn - st->al_prev[1];
+        float *sum = st->al_sums;
+        sum[DR_ESKF_AL_N] += 1.0f;
+        sum[DR_ESKF_AL_DD] += de * de + dn * dn;
+        sum[DR_ESKF_AL_SS] += se * se + sn * sn;
+        sum[DR_ESKF_AL_DS] += de * se + dn * sn;
+        sum[DR_ESKF_AL_DS + 1] += de * sn - dn * se;
+        sum[DR_ESKF_AL_DV] += de * ve_ + dn * vn_;
+        sum[DR_ESKF_AL_DV + 1] += de * vn_ - dn * ve_;
+        sum[DR_ESKF_AL_SV] += se * ve_ + sn * vn_;
+        sum[DR_ESKF_AL_SV + 1] += se * vn_ - sn * ve_;
+        sum[DR_ESKF_AL_VV] += ve_ * ve_ + vn_ * vn_;
     }
     st->al_prev[0] = ve;
     st->al_prev[1] = vn;
     st->al_have_prev = 1.0f;
     st->al_du[0] = st->al_du[1] = 0.0f;
-    speed = dr_sqrt(ve * ve + vn * vn);
-    resultant = dr_sqrt(st->al_dot * st->al_dot + st->al_cross * st->al_cross);
-    if (st->al_norm < cfg->align_min || resultant < cfg->align_coherence * st->al_norm ||
-        speed < cfg->align_speed_ms || !(resultant > 0.0f)) {
-        return 0;
+    st->al_s[0] = st->al_s[1] = 0.0f;
+}
+
+/* codegen.kernel.eskf.align: the least-squares fit dv = z du + c s over the fix intervals (alignment_fit); once it
+ * has align_fixes intervals, its yaw's variance is within align_yaw_sigma_deg^2, |z| is plausible and the vehicle
+ * moves, level the attitude by the offset b = -c / z (as it reads now: times al_u), turn it by z's angle and start.
+ * Returns 1 if the filter started now. The half angle's cosine and sine come from z, no trigonometry. */
+static int align(const dr_eskf_config *cfg, dr_eskf_state *st, float t_s, float e, float n, float u, float ve,
+                 float vn) {
+    const float *sum = st->al_sums;
+    float det, zr, zi, cr, ci, inv, rss, var, z2, lim, br, bi, oe, on, hx, hy, c, ch, sh, q[4], k;
+    alignment_sums(st, ve, vn);
+    {
+        const float sdd = sum[DR_ESKF_AL_DD], sss = sum[DR_ESKF_AL_SS];
+        const float dsr = sum[DR_ESKF_AL_DS], dsi = sum[DR_ESKF_AL_DS + 1];
+        const float dvr = sum[DR_ESKF_AL_DV], dvi = sum[DR_ESKF_AL_DV + 1];
+        const float svr = sum[DR_ESKF_AL_SV], svi = sum[DR_ESKF_AL_SV + 1];
+        const float nfix = sum[DR_ESKF_AL_N];
+        if (nfix < cfg->align_fixes || nfix < 3.0f || ve * ve + vn * vn < cfg->align_speed_ms * cfg->align_speed_ms) {
+            return 0;
+        }
+        det = sdd * sss - (dsr * dsr + dsi * dsi);
+        if (!(det > 1e-12f * sdd * sss) || !(det > 0.0f)) {
+            return 0;
+        }
+        inv = dr_recip(det);
+        zr = (sss * dvr - (dsr * svr - dsi * svi)) * inv; /* z = (Sss Sdv - Sds Ssv) / det */
+        zi = (sss * dvi - (dsr * svi + dsi * svr)) * inv;
+        cr = (sdd * svr - (dsr * dvr + dsi * dvi)) * inv; /* c = (Sdd Ssv - conj(Sds) Sdv) / det */
+        ci = (sdd * svi - (dsr * dvi - dsi * dvr)) * inv;
+        rss = sum[DR_ESKF_AL_VV] - (dvr * zr + dvi * zi + svr * cr + svi * ci);
+        if (rss < 0.0f) {
+            rss = 0.0f;
+        }
+        var = rss * dr_recip(2.0f * nfix - 4.0f) * sss * inv; /* the variance of z per real component */
+        z2 = zr * zr + zi * zi;
+        lim = cfg->align_yaw_sigma_deg * DR_RAD_PER_DEG;
+        if (!(z2 > 0.0f) || var > lim * lim * z2 || z2 * cfg->align_scale * cfg->align_scale < 1.0f ||
+            z2 > cfg->align_scale * cfg->align_scale) {
+            return 0;
+        }
     }
-    c = st->al_dot * dr_recip(resultant);
-    s = st->al_cross * dr_recip(resultant);
+    /* the offset as it reads now: b = -c / z times al_u; the levelling (th_E, th_N) = (b_N, -b_E) / g */
+    inv = dr_recip(z2);
+    br = -(cr * zr + ci * zi) * inv;
+    bi = -(ci * zr - cr * zi) * inv;
+    oe = br * st->al_u[0] - bi * st->al_u[1];
+    on = br * st->al_u[1] + bi * st->al_u[0];
+    hx = 0.5f * on * DR_INV_GRAVITY;
+    hy = -0.5f * oe * DR_INV_GRAVITY;
+    q[0] = st->q[0] - hx * st->q[1] - hy * st->q[2]; /* q <- [1, hx, hy, 0] (x) q */
+    q[1] = st->q[1] + hx * st->q[0] + hy * st->q[3];
+    q[2] = st->q[2] + hy * st->q[0] - hx * st->q[3];
+    q[3] = st->q[3] + hx * st->q[2] - hy * st->q[1];
+    k = dr_inv_sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    q[0] *= k;
+    q[1] *= k;
+    q[2] *= k;
+    q[3] *= k;
+    k = dr_inv_sqrt(z2);
+    c = zr * k;
     ch = dr_sqrt(0.5f * (1.0f + c));
     sh = dr_sqrt(0.5f * (1.0f - c));
-    if (s < 0.0f) {
+    if (zi < 0.0f) {
         sh = -sh;
     }
-    q[0] = ch * st->q[0] - sh * st->q[3]; /* q <- [ch, 0, 0, sh] (x) q */
-    q[1] = ch * st->q[1] - sh * st->q[2];
-    q[2] = ch * st->q[2] + sh * st->q[1];
-    q[3] = ch * st->q[3] + sh * st->q[0];
-    st->q[0] = q[0];
-    st->q[1] = q[1];
-    st->q[2] = q[2];
-    st->q[3] = q[3];
+    st->q[0] = ch * q[0] - sh * q[3]; /* q <- [ch, 0, 0, sh] (x) q */
+    st->q[1] = ch * q[1] - sh * q[2];
+    st->q[2] = ch * q[2] + sh * q[1];
+    st->q[3] = ch * q[3] + sh * q[0];
     start(cfg, st, t_s, e, n, u, ve, vn);
     return 1;
 }
@@ -911,9 +983,15 @@ int dr_eskf_process(const dr_config *restrict kcfg, const dr_eskf_config *restri
             st->acc_dv[1] += sn * dt;
             st->acc_dv[2] += su * dt;
             st->acc_t += dt;
-        } else {
+        } else { /* the yaw fit's sums: the velocity change, and the heading turned by the rate about Up */
+            const float td = turn * dt, ue = st->al_u[0] - st->al_u[1] * td, un = st->al_u[1] + st->al_u[0] * td;
+            const float k = dr_inv_sqrt(ue * ue + un * un);
             st->al_du[0] += se * dt;
             st->al_du[1] += sn * dt;
+            st->al_u[0] = ue * k;
+            st->al_u[1] = un * k;
+            st->al_s[0] += st->al_u[0] * dt;
+            st->al_s[1] += st->al_u[1] * dt;
         }
         /* q <- q (x) [1, w dt / 2]; |q|^2 = 1 + e with e ~ |w dt|^2 / 4 (1e-4 at 5 rad/s): one Newton step of
          * 1/sqrt from 1 leaves 3e^2/8 (float32 rounding), and each step corrects what the last left */

@@ -29,6 +29,17 @@
 #define DR_ESKF_ERR_SG (17) /* the gyro's turn-rate error per rad/s about Up, body, 1 */
 #define DR_ESKF_ERR_GE (20) /* the receiver's position error E N U, m */
 
+/* The yaw fit's sums, al_sums[] (codegen.kernel.eskf._alignment_sums; du the wander frame's velocity change over a
+ * fix interval, s the integral of the body's heading over it, dv the GPS's velocity change; complex as E + i N). */
+#define DR_ESKF_AL_N (0)      /* intervals */
+#define DR_ESKF_AL_DD (1)     /* |du|^2 */
+#define DR_ESKF_AL_SS (2)     /* |s|^2 */
+#define DR_ESKF_AL_DS (3)     /* conj(du) s: real, imaginary */
+#define DR_ESKF_AL_DV (5)     /* conj(du) dv */
+#define DR_ESKF_AL_SV (7)     /* conj(s) dv */
+#define DR_ESKF_AL_VV (9)     /* |dv|^2 */
+#define DR_ESKF_AL_SUMS (10)
+
 /* The steps the observer hook sees (the host's tests; nothing on the device). */
 #define DR_ESKF_STEP_PRIOR (0)
 #define DR_ESKF_STEP_PREDICT (1)
@@ -68,8 +79,9 @@ typedef struct {
     float rest_speed_ms;         /* m/s */
     float rest_horizontal_ms2;   /* m/s^2 */
     float stat_tau_s;            /* s */
-    float align_min;             /* (m/s)^2 */
-    float align_coherence;       /* 1 */
+    float align_fixes;           /* fix intervals */
+    float align_yaw_sigma_deg;   /* deg */
+    float align_scale;           /* 1 */
     float align_speed_ms;        /* m/s */
     float init_yaw_sigma_deg;    /* deg */
     float init_tilt_sigma_deg;   /* deg */
@@ -106,9 +118,9 @@ typedef struct {
     float gps_speed;               /* m/s: the last fix's */
     float t_fix;                   /* s: the last fix's time */
     float al_du[2];                /* m/s: the wander frame's velocity change since the last fix */
-    float al_dot;                  /* (m/s)^2: the alignment's correlation sums */
-    float al_cross;
-    float al_norm;
+    float al_u[2];                 /* 1: the body's heading in the wander frame since the calibration, E + i N */
+    float al_s[2];                 /* s: its integral since the last fix */
+    float al_sums[DR_ESKF_AL_SUMS]; /* the yaw fit's sums (DR_ESKF_AL_*) */
     float al_prev[2];              /* m/s: the previous fix's velocity */
     float al_have_prev;            /* 1 once a fix was seen */
     float aligned;                 /* 1 once the filter runs */
@@ -130,6 +142,12 @@ void dr_eskf_state_init(dr_eskf_state *st);
  * DR_ESKF_ERR_COUNT (st unchanged) for no samples or no gravity. */
 int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_state *st, const int16_t *samples,
                       int32_t count);
+
+/* The fix interval that spans a calibration: ve, vn (m/s) the GPS velocity of a fix `seconds` before the
+ * calibration's end (call it after dr_eskf_calibrate; the next dr_eskf_gps closes the interval). Over the calibration
+ * the wander frame's velocity change is 0 by construction, so that interval's GPS velocity change is the mean
+ * acceleration a calibration in motion took for gravity: it ties the yaw to the offset that acceleration leaves. */
+void dr_eskf_calibration_interval(dr_eskf_state *st, float ve, float vn, float seconds);
 
 /* The strapdown step over count raw samples (sensor frame), each held dt_us[k] us, with the covariance propagated
  * every cov_dt_s and the pseudo-measurements every nhc_dt_s. out: position E N U (m), velocity E N U (m/s) after

@@ -411,6 +411,19 @@ static mp_obj_t dr_eskf_gps_fn(size_t n_args, const mp_obj_t *args) {
                                       (float)mp_obj_get_float(args[5]), (float)mp_obj_get_float(args[6])));
 }
 static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_eskf_gps_obj, 7, 7, dr_eskf_gps_fn);
+
+/* eskf_calibration_interval(estate, ve, vn, seconds) -> None: the fix `seconds` before the calibration's end */
+static mp_obj_t dr_eskf_calibration_interval_fn(size_t n_args, const mp_obj_t *args) {
+    dr_eskf_state *st;
+    dr_eskf_config *cfg;
+    dr_config *kcfg;
+    (void)n_args;
+    dr_eskf_unpack(args[0], &st, &cfg, &kcfg);
+    dr_eskf_calibration_interval(st, (float)mp_obj_get_float(args[1]), (float)mp_obj_get_float(args[2]),
+                                 (float)mp_obj_get_float(args[3]));
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_VAR_BETWEEN(dr_eskf_calibration_interval_obj, 4, 4, dr_eskf_calibration_interval_fn);
 #endif /* DR_WITH_ESKF */
 
 #if MICROPY_ENABLE_DYNRUNTIME
@@ -446,6 +459,7 @@ mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *a
     mp_store_global(MP_QSTR_eskf_calibrate, MP_OBJ_FROM_PTR(&dr_eskf_calibrate_obj));
     mp_store_global(MP_QSTR_eskf_process, MP_OBJ_FROM_PTR(&dr_eskf_process_obj));
     mp_store_global(MP_QSTR_eskf_gps, MP_OBJ_FROM_PTR(&dr_eskf_gps_obj));
+    mp_store_global(MP_QSTR_eskf_calibration_interval, MP_OBJ_FROM_PTR(&dr_eskf_calibration_interval_obj));
     mp_store_global(MP_QSTR_ESKF_STATE_LEN, MP_OBJ_NEW_SMALL_INT(DR_ESKF_BUFFER_FLOATS));
     mp_store_global(MP_QSTR_ESKF_POS, MP_OBJ_NEW_SMALL_INT(DR_ESKF_STATE_POS));
     mp_store_global(MP_QSTR_ESKF_VEL, MP_OBJ_NEW_SMALL_INT(DR_ESKF_STATE_VEL));
@@ -490,6 +504,7 @@ static const mp_rom_map_elem_t dr_native_globals_table[] = {
     { MP_ROM_QSTR(MP_QSTR_eskf_calibrate), MP_ROM_PTR(&dr_eskf_calibrate_obj) },
     { MP_ROM_QSTR(MP_QSTR_eskf_process), MP_ROM_PTR(&dr_eskf_process_obj) },
     { MP_ROM_QSTR(MP_QSTR_eskf_gps), MP_ROM_PTR(&dr_eskf_gps_obj) },
+    { MP_ROM_QSTR(MP_QSTR_eskf_calibration_interval), MP_ROM_PTR(&dr_eskf_calibration_interval_obj) },
     { MP_ROM_QSTR(MP_QSTR_ESKF_STATE_LEN), MP_ROM_INT(DR_ESKF_BUFFER_FLOATS) },
     { MP_ROM_QSTR(MP_QSTR_ESKF_POS), MP_ROM_INT(DR_ESKF_STATE_POS) },
     { MP_ROM_QSTR(MP_QSTR_ESKF_VEL), MP_ROM_INT(DR_ESKF_STATE_VEL) },

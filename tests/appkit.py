@@ -128,6 +128,13 @@ if ESKF:
         return started
 
     dr.eskf_gps = eskf_gps
+    orig_eskf_interval = dr.eskf_calibration_interval
+
+    def eskf_calibration_interval(st, ve, vn, seconds):
+        orig_eskf_interval(st, ve, vn, seconds)
+        dump.write(b"I" + struct.pack("<3f", ve, vn, seconds))
+
+    dr.eskf_calibration_interval = eskf_calibration_interval
 elif FUSED:
     dr.fused_process = _wrap(dr.fused_process, True)
 else:
@@ -175,6 +182,8 @@ class Record:
     fixes: list[Fix] = field(default_factory=list)
     # eskf: each fix into the filter, after how many calls: (calls before it, (t_s, e, n, u, ve, vn), started)
     eskf_fixes: list[tuple[int, tuple, bool]] = field(default_factory=list)
+    # eskf: the fix interval that spans the last calibration (ve, vn, seconds before its end), if the app had one
+    eskf_interval: tuple | None = None
 
     def stream(self) -> tuple[np.ndarray, np.ndarray]:
         """(samples (N, 6), dt (N,)): everything the app's kernel got after calibration, in order."""
@@ -225,6 +234,9 @@ def read_record(path: Path) -> Record:
             *args, started = struct.unpack_from("<6fB", data, i)
             i += struct.calcsize("<6fB")
             rec.eskf_fixes.append((len(rec.calls), tuple(args), bool(started)))
+        elif kind == b"I":
+            rec.eskf_interval = struct.unpack_from("<3f", data, i)
+            i += 12
         else:
             raise AssertionError(f"bad record {kind!r} at byte {i - 1}")
     return rec

@@ -8,6 +8,8 @@
   NHC, zero-velocity steps all observed), and a broken one repaired and counted;
 - physics: a known constant acceleration and turn through the strapdown step, a stationary device whose vertical
   accelerometer bias the zero-velocity updates find, a mounting yaw error the non-holonomic constraint finds;
+- the start: the yaw fit finds the yaw and the offset a calibration in motion leaves, levels that tilt, waits while
+  nothing is observable, and starts the real car (car-comma2k19, calibrated on the move) within seconds;
 - the method contract: no GPS after an outage's start is used.
 """
 
@@ -268,3 +270,96 @@ def test_no_gps_after_the_outage_start_is_used(car_run):
     corrupted.gps.course[later] = (corrupted.gps.course[later] + 180.0) % 360.0
     got = E.estimate(corrupted, starts[:1], times[:1])
     assert np.array_equal(got[0], clean[0])
+
+
+# --------------------------------------------------------------------------------------------- the start
+def _fit_case(rng, yaw, offset, intervals=12, noise=0.02):
+    """A state before the start whose yaw fit has `intervals` fix intervals: the GPS's velocity change dv (ENU), the
+    wander frame's du = dv turned by -yaw plus the body-fixed offset integrated over the heading, plus noise. The
+    first interval spans a calibration in motion: du 0 there, and the offset is what the GPS saw."""
+    st = E.EskfState()
+    turn = np.exp(-1j * yaw)
+    heading = 0.0
+    v = complex(0.0, 15.0)
+    st.al_prev = (v.real, v.imag)
+    for k in range(intervals):
+        heading += rng.normal(0.0, 0.05)
+        s = np.exp(1j * heading) * 1.0  # 1 s intervals, the heading steady in each
+        dv = complex(*rng.normal(0.0, 0.3, 2))
+        if k == 0:
+            dv = -offset * np.exp(1j * heading) / turn  # the calibration's mean acceleration, seen by the GPS
+            du = 0.0
+        else:
+            du = dv * turn + offset * s + complex(*rng.normal(0.0, noise, 2))
+        st.al_du = np.array([du.real, du.imag])
+        st.al_s = np.array([s.real, s.imag])
+        st.al_u = np.array([np.cos(heading), np.sin(heading)])
+        v += dv
+        E._alignment_sums(st, (v.real, v.imag))
+    return st
+
+
+@pytest.mark.parametrize("case", range(CASES))
+def test_the_yaw_fit_finds_the_yaw_and_the_offset(case):
+    """dv = z du + c s by least squares: z's angle is the yaw, -c / z the body-fixed offset, and the yaw's 1-sigma
+    covers the error."""
+    rng = np.random.default_rng(900 + case)
+    yaw = rng.uniform(-math.pi, math.pi)
+    offset = complex(*rng.normal(0.0, 0.8, 2))
+    st = _fit_case(rng, yaw, offset)
+    z, c, sigma = E.alignment_fit(st.al_sums)
+    error = abs(math.remainder(math.atan2(z.imag, z.real) - yaw, 2 * math.pi))
+    assert error <= max(3.0 * sigma, 1e-6) and sigma < math.radians(3.0)
+    assert abs(abs(z) - 1.0) < 0.05
+    assert abs(-c / z - offset) < 0.05
+
+
+def test_the_yaw_fit_waits_without_velocity_change():
+    """A run that holds its velocity (and no calibration interval) leaves the yaw undetermined: no start."""
+    st = E.EskfState()
+    st.al_prev = (0.0, 15.0)
+    for _ in range(20):
+        st.al_du = np.array([0.3, -0.1])  # an offset, no motion
+        st.al_s = np.array([1.0, 0.0])
+        E.align(st, 0.0, (0.0, 0.0, 0.0), (0.0, 15.0), CFG)
+    assert not st.aligned
+    assert E.alignment_fit(st.al_sums) is None or E.alignment_fit(st.al_sums)[2] > math.radians(CFG.align_yaw_sigma_deg)
+
+
+def test_a_start_on_the_move_levels_the_tilt_it_took_for_gravity():
+    """The start turns the attitude by the fitted yaw and levels it by the offset: the wander frame's horizontal
+    specific force of a level device whose calibration took a 1.2 m/s^2 acceleration for gravity vanishes."""
+    st = E.EskfState()
+    accel = 1.2  # m/s^2 forward (body x) during the calibration: the mean specific force tilted by atan(1.2 / g)
+    f_cal = np.array([accel, 0.0, STANDARD_GRAVITY])
+    q = E.tilt_from_gravity(f_cal)
+    st.qw, st.qx, st.qy, st.qz = (float(v) for v in q)
+    level = st.rotation() @ np.array([0.0, 0.0, STANDARD_GRAVITY])  # gravity alone, as read after the calibration
+    offset = complex(level[0], level[1])  # what the wander frame sees: the offset b at heading 0
+    assert abs(offset) > 1.0
+    st.al_u = np.array([1.0, 0.0])
+    E._turn(st, offset.imag / STANDARD_GRAVITY, -offset.real / STANDARD_GRAVITY, 0.9)
+    after = st.rotation() @ np.array([0.0, 0.0, STANDARD_GRAVITY])
+    assert math.hypot(after[0], after[1]) < 0.01 * abs(offset)
+
+
+def test_the_real_car_starts_within_seconds_of_a_calibration_in_motion():
+    """car-comma2k19 starts at 8 m/s and calibrates while it speeds up to 20 m/s (its first 10 s): with the
+    calibration's fix interval the filter starts by 16 s (the velocity-change correlation alone took until 33 s),
+    and its 10 s outages beat the constant-velocity baseline by far."""
+    board = load_board(None).board
+    run = build_run("replay-car", board, seed=0)
+    t, _, _, _, snaps, _ = E._pass(run, CFG)
+    started = min(run.gps.t[j] for j, (_, st) in snaps.items() if st.aligned)
+    assert started <= 16.0
+    from codegen.sim.run import evaluate
+
+    res = evaluate(run, (10.0,), {"eskf": E.estimate, "cv": _constant_velocity}, step=1.0)
+    eskf_err, cv_err = (np.nanmedian(res.errors[m][:, 1]) for m in ("eskf", "cv"))
+    assert eskf_err < 5.0 and eskf_err < 0.5 * cv_err
+
+
+def _constant_velocity(run, starts, times):
+    from codegen.sim.methods import registered_methods
+
+    return registered_methods()["const-velocity"](run, starts, times)

@@ -273,3 +273,33 @@ def test_c_method_uses_no_gps_after_the_outage_start(car_run):
     corrupted.gps.course[later] = (corrupted.gps.course[later] + 180.0) % 360.0
     got = H.estimate(corrupted, starts[:1], times[:1])
     assert np.array_equal(got[0], clean[0])
+
+
+@pytest.mark.parametrize("case", range(CASES))
+def test_c_start_equals_the_reference(ek, case):
+    """The yaw fit's sums, the start's levelling and turn: the C starts at the same fix with the same attitude."""
+    from test_eskf import _fit_case
+
+    rng = np.random.default_rng(700 + case)
+    yaw, offset = rng.uniform(-math.pi, math.pi), complex(*rng.normal(0.0, 0.8, 2))
+    ref = _fit_case(rng, yaw, offset, intervals=4)
+    q = _f32(rng.standard_normal(4))
+    ref.qw, ref.qx, ref.qy, ref.qz = (float(v) for v in q / np.linalg.norm(q))
+    ref.al_sums = _f32(ref.al_sums)
+    ref.al_prev = tuple(float(v) for v in _f32(np.array(ref.al_prev)))
+    vel = _f32(np.array(ref.al_prev) + rng.normal(0.0, 0.3, 2))
+    dv = complex(vel[0] - ref.al_prev[0], vel[1] - ref.al_prev[1])
+    du = dv * np.exp(-1j * yaw) + offset  # the fifth interval, s = 1 s at heading 0
+    ref.al_du = _f32(np.array([du.real, du.imag]))
+    ref.al_s = _f32(np.array([1.0, 0.0]))
+    ref.al_u = _f32(np.array([1.0, 0.0]))
+    s = ek.session(CFG)
+    s.set_from_reference(ref)
+    started_c = s.gps(12.0, (1.0, 2.0, 0.0), vel)
+    started_ref = E.align(ref, 12.0, (1.0, 2.0, 0.0), vel, CFG)
+    assert started_c == started_ref == True  # noqa: E712: both start at this fix (5 intervals, 1 s each)
+    want = H.reference_nominal(ref)
+    got = s.nominal()
+    for name in ("q", "mount"):
+        assert np.max(np.abs(got[name] - want[name])) <= 1e-4, name
+    assert np.max(np.abs(s.covariance() - ref.p)) <= F32_REL * np.max(np.abs(ref.p))

@@ -34,9 +34,13 @@ No heading is measured: yaw is observed through the GPS velocity's changes again
 
 Start (`calibrate`, `align`): calibration gives the tilt (yaw 0) and the gyro bias, at rest or (a run that starts
 driving) from the mean of its first calibration_s. Yaw is unknown: until the filter starts, the attitude is
-integrated in that wander frame and, at each fix, the horizontal velocity change of the GPS is correlated with the
-one of the rotated specific force; once they agree (enough change, a consistent angle) the attitude is turned by
-that angle, the filter starts from the fix and its velocity, and the mounting is set from the body-frame velocity.
+integrated in that wander frame and each fix interval's GPS velocity change dv is fitted by least squares as
+z du + c s (`alignment_fit`): du the rotated specific force's integral, s the body heading's (a calibration in
+motion took the mean acceleration for gravity, a body-fixed horizontal offset b = -c / z that turns with the
+vehicle). The interval that spans the calibration (`calibration_interval`: du 0 by construction) ties z to that
+offset, so a start on the move is found within seconds. Once the fit's yaw is as sure as the prior assumes, the
+attitude is levelled by b and turned by z's angle, the filter starts from the fix and its velocity, and the mounting
+is set from the body-frame velocity.
 
 `estimate` is the benchmark's method contract (codegen.sim.methods): one pass over the run with every fix, the state
 kept after each; each outage continues from the state after its last fix with the IMU alone. An outage that starts
@@ -53,6 +57,7 @@ import numpy as np
 from codegen.kernel.reference import STANDARD_GRAVITY, KernelConfig, remap_axes, tilt_from_gravity
 
 N_ERR = 23
+N_AL_SUMS = 10  # the yaw fit's sums: intervals, |du|^2, |s|^2, du*s, du*dv, s*dv (re, im), |dv|^2
 ERR_P, ERR_V, ERR_TH, ERR_BG, ERR_BA, ERR_MU, ERR_SG, ERR_GE = 0, 3, 6, 9, 12, 15, 17, 20
 COV_MAX = 1e30  # a covariance entry beyond this in magnitude (or not a number) is broken (float32 ends at 3.4e38)
 PSD_TOL = 1e-9  # the smallest eigenvalue may be this much below 0, relative to the largest (rounding)
@@ -96,8 +101,9 @@ class EskfConfig:
     rest_horizontal_ms2: float = 0.3  # and the smoothed horizontal specific force below this (a start is no rest)
     stat_tau_s: float = 0.5  # s: the shaking's and the rate's smoothing
     # the start
-    align_min: float = 3.0  # (m/s)^2: sum of |dv_gps| |dv_imu| over fix intervals before the yaw is taken
-    align_coherence: float = 0.8  # the correlation's resultant over that sum
+    align_fixes: float = 5.0  # fix intervals the yaw fit needs at least (and 3)
+    align_yaw_sigma_deg: float = 10.0  # the fitted yaw's 1-sigma at most this (the prior's, init_yaw_sigma_deg)
+    align_scale: float = 1.25  # the fit's |z| (GPS velocity change over the IMU's) within [1 / this, this]
     align_speed_ms: float = 2.0  # m/s: the filter starts while moving at least this fast (the mounting)
     init_yaw_sigma_deg: float = 10.0
     init_tilt_sigma_deg: float = 0.3  # beside the accelerometer bias's share (_prior)
@@ -114,7 +120,7 @@ class EskfState:
 
     __slots__ = ("pe", "pn", "pu", "ve", "vn", "vu", "qw", "qx", "qy", "qz", "bgx", "bgy", "bgz", "bax", "bay",
                  "baz", "c", "p", "aligned", "acc_t", "acc_a", "acc_dv", "since_nhc", "mean_f", "var_f", "wsx",
-                 "wsy", "wsz", "rest_s", "al_du", "al_dot", "al_cross", "al_norm", "al_prev", "gps_speed",
+                 "wsy", "wsz", "rest_s", "al_du", "al_u", "al_s", "al_sums", "al_prev", "gps_speed",
                  "cov_repairs", "gyro_moving", "ahe", "ahn", "sgx", "sgy", "sgz", "acc_b", "gee", "gen", "geu", "t_fix", "rate2", "sat_dv")
 
     def __init__(self):
@@ -127,6 +133,9 @@ class EskfState:
         self.acc_b = np.zeros((3, 3))
         self.acc_dv = np.zeros(3)
         self.al_du = np.zeros(2)
+        self.al_u = np.array([1.0, 0.0])
+        self.al_s = np.zeros(2)
+        self.al_sums = np.zeros(N_AL_SUMS)
         self.al_prev = None
         self.aligned = False
         self.gyro_moving = False
@@ -180,14 +189,17 @@ def _prior(st: EskfState, cfg: EskfConfig) -> np.ndarray:
     d[ERR_V:ERR_V + 3] = (2.0 * cfg.gps_vel_sigma) ** 2
     tilt = math.radians(cfg.init_tilt_moving_deg if st.gyro_moving else cfg.init_tilt_sigma_deg) ** 2
     d[ERR_TH:ERR_TH + 3] = (tilt, tilt, math.radians(cfg.init_yaw_sigma_deg) ** 2)
-    bg = cfg.init_gyro_bias_moving_dps if st.gyro_moving else cfg.init_gyro_bias_dps
-    d[ERR_BG:ERR_BG + 3] = math.radians(bg) ** 2
+    d[ERR_BG:ERR_BG + 3] = math.radians(cfg.init_gyro_bias_dps) ** 2
     d[ERR_BA:ERR_BA + 3] = cfg.init_accel_bias_ms2 ** 2
     d[ERR_MU:ERR_MU + 2] = math.radians(cfg.init_mount_sigma_deg) ** 2
     d[ERR_SG:ERR_SG + 3] = cfg.init_turn_scale ** 2
     d[ERR_GE:ERR_GE + 3] = (cfg.gps_pos_sigma ** 2, cfg.gps_pos_sigma ** 2, cfg.gps_up_sigma ** 2)
     p = np.diag(d)
     r = st.rotation()
+    if st.gyro_moving:  # a calibration in motion: the road's turn rate about Up went into the bias, the roll and
+        # pitch rates averaged out
+        extra = math.radians(cfg.init_gyro_bias_moving_dps) ** 2 - d[ERR_BG]
+        p[ERR_BG:ERR_BG + 3, ERR_BG:ERR_BG + 3] += extra * np.outer(r[2], r[2])
     g = np.vstack([-r[1], r[0]]) / STANDARD_GRAVITY
     pb = p[ERR_BA:ERR_BA + 3, ERR_BA:ERR_BA + 3]
     p[ERR_TH:ERR_TH + 2, ERR_TH:ERR_TH + 2] += g @ pb @ g.T
@@ -196,30 +208,92 @@ def _prior(st: EskfState, cfg: EskfConfig) -> np.ndarray:
     return p
 
 
-def align(st: EskfState, t_fix: float, fix_enu, vel_en, cfg: EskfConfig) -> bool:
-    """At a fix before the filter runs: correlate the GPS's horizontal velocity change since the previous fix with
-    the wander frame's (al_du, the rotated specific force summed since then); once the sum of |dv_gps| |du| reaches
-    align_min with a resultant of at least align_coherence of it, and the vehicle moves, turn the attitude by the
-    angle between them and start the filter at this fix. Returns True when it started now."""
-    du = st.al_du
+def calibration_interval(st: EskfState, vel_en, seconds: float) -> None:
+    """The fix interval that spans the calibration: `vel_en`, the GPS velocity (E, N) of a fix `seconds` before the
+    calibration's end. Over the calibration the wander frame's velocity change is 0 by construction (its mean
+    specific force was taken for gravity), so that interval's GPS velocity change is all offset: the mean
+    acceleration of a calibration in motion, seen by the GPS, and in the IMU as the offset b that follows. The next
+    fix closes it (`_alignment_sums`)."""
+    st.al_prev = (float(vel_en[0]), float(vel_en[1]))
+    st.al_s = np.array([float(seconds), 0.0])
+
+
+
+def calibration_fix(gps, t_start: float, t_end: float) -> int | None:
+    """The fix whose interval spans a calibration from t_start to t_end (s): the last valid one at or before its
+    start, else the first during it (the device's: the fix it last read when the calibration began), or None."""
+    valid = np.flatnonzero(gps.valid & (gps.t <= t_end))
+    if not len(valid):
+        return None
+    before = valid[gps.t[valid] <= t_start]
+    return int(before[-1] if len(before) else valid[0])
+
+
+def _alignment_sums(st: EskfState, vel_en) -> None:
+    """Add the fix interval that ends now to the yaw fit's sums (AL_*): du, the wander frame's velocity change since
+    the previous fix; s, the integral of the body's heading since the calibration (a unit complex number) over it;
+    dv, the GPS's velocity change. Complex numbers as east + i north."""
     if st.al_prev is not None:
-        dve = vel_en[0] - st.al_prev[0]
-        dvn = vel_en[1] - st.al_prev[1]
-        st.al_dot += du[0] * dve + du[1] * dvn
-        st.al_cross += du[0] * dvn - du[1] * dve
-        st.al_norm += math.hypot(du[0], du[1]) * math.hypot(dve, dvn)
+        du = complex(st.al_du[0], st.al_du[1])
+        sh = complex(st.al_s[0], st.al_s[1])
+        dv = complex(vel_en[0] - st.al_prev[0], vel_en[1] - st.al_prev[1])
+        ds, ddv, sdv = du.conjugate() * sh, du.conjugate() * dv, sh.conjugate() * dv
+        st.al_sums += (1.0, abs(du) ** 2, abs(sh) ** 2, ds.real, ds.imag, ddv.real, ddv.imag, sdv.real, sdv.imag,
+                       abs(dv) ** 2)
     st.al_prev = (float(vel_en[0]), float(vel_en[1]))
     st.al_du = np.zeros(2)
+    st.al_s = np.zeros(2)
+
+
+def alignment_fit(sums) -> tuple[complex, complex, float] | None:
+    """The least-squares fit dv = z du + c s over the fix intervals (`_alignment_sums`): z turns the wander frame
+    onto ENU (its angle the yaw, its modulus near 1), c = -z b with b the body-fixed horizontal specific-force offset
+    that a calibration in motion (the mean acceleration taken for gravity) or an accelerometer bias leaves, as it
+    read at the calibration's heading. Returns (z, c, the yaw's 1-sigma in rad), or None while the fit is not
+    determined (fewer than three intervals, no velocity change)."""
+    n, sdd, sss, dsr, dsi, dvr, dvi, svr, svi, svv = (float(v) for v in sums)
+    sds, sdv, ssv = complex(dsr, dsi), complex(dvr, dvi), complex(svr, svi)
+    det = sdd * sss - abs(sds) ** 2
+    if n < 3.0 or not det > 1e-12 * max(sdd * sss, 1e-30):
+        return None
+    z = (sss * sdv - sds * ssv) / det
+    c = (sdd * ssv - sds.conjugate() * sdv) / det
+    rss = max(svv - (sdv.conjugate() * z + ssv.conjugate() * c).real, 0.0)
+    var = rss / (2.0 * n - 4.0)  # per real component
+    if abs(z) <= 0.0:
+        return None
+    return z, c, math.sqrt(var * sss / det) / abs(z)
+
+
+def align(st: EskfState, t_fix: float, fix_enu, vel_en, cfg: EskfConfig) -> bool:
+    """At a fix before the filter runs: add the interval to the yaw fit (`alignment_fit`); once it has
+    align_fixes intervals, its yaw's 1-sigma is at most align_yaw_sigma_deg, its scale is plausible and the vehicle
+    moves, level the attitude by the fitted offset, turn it by the fitted yaw and start the filter at this fix.
+    Returns True when it started now."""
+    _alignment_sums(st, vel_en)
     speed = math.hypot(vel_en[0], vel_en[1])
-    resultant = math.hypot(st.al_dot, st.al_cross)
-    if st.al_norm < cfg.align_min or resultant < cfg.align_coherence * st.al_norm or speed < cfg.align_speed_ms:
+    fit = alignment_fit(st.al_sums)
+    if fit is None or st.al_sums[0] < cfg.align_fixes or speed < cfg.align_speed_ms:
         return False
-    yaw = math.atan2(st.al_cross, st.al_dot)
-    cz, sz = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz  # q <- [cz, 0, 0, sz] (x) q
-    st.qw, st.qx, st.qy, st.qz = cz * qw - sz * qz, cz * qx - sz * qy, cz * qy + sz * qx, cz * qz + sz * qw
+    z, c, yaw_sigma = fit
+    if yaw_sigma > math.radians(cfg.align_yaw_sigma_deg) or not 1.0 / cfg.align_scale <= abs(z) <= cfg.align_scale:
+        return False
+    offset = -c / z * complex(st.al_u[0], st.al_u[1])  # the offset as it reads now, in the wander frame
+    _turn(st, offset.imag / STANDARD_GRAVITY, -offset.real / STANDARD_GRAVITY, math.atan2(z.imag, z.real))
     start(st, t_fix, fix_enu, vel_en, cfg)
     return True
+
+
+def _turn(st: EskfState, th_e: float, th_n: float, yaw: float) -> None:
+    """q <- [cos(yaw/2), 0, 0, sin(yaw/2)] (x) [1, th/2] (x) q: a small levelling rotation (th_e, th_n about East
+    and North of the wander frame, so that its horizontal specific-force offset vanishes), then the yaw."""
+    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
+    hx, hy = 0.5 * th_e, 0.5 * th_n
+    qw, qx, qy, qz = qw - hx * qx - hy * qy, qx + hx * qw + hy * qz, qy + hy * qw - hx * qz, qz + hx * qy - hy * qx
+    inv = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    qw, qx, qy, qz = qw * inv, qx * inv, qy * inv, qz * inv
+    cz, sz = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    st.qw, st.qx, st.qy, st.qz = cz * qw - sz * qz, cz * qx - sz * qy, cz * qy + sz * qx, cz * qz + sz * qw
 
 
 def start(st: EskfState, t_fix: float, fix_enu, vel_en, cfg: EskfConfig) -> None:
@@ -342,9 +416,16 @@ def mechanise(st: EskfState, acc, gyr, dts, kcfg: KernelConfig, cfg: EskfConfig)
             dv[1] += sn * dt
             dv[2] += su * dt
             st.acc_t += dt
-        else:
+        else:  # the yaw fit's sums: the velocity change, and the heading turned by the rate about Up
             st.al_du[0] += se * dt
             st.al_du[1] += sn * dt
+            ue, un = st.al_u
+            td = turn * dt
+            ue, un = ue - un * td, un + ue * td
+            inv = 1.0 / math.sqrt(ue * ue + un * un)
+            st.al_u[0], st.al_u[1] = ue * inv, un * inv
+            st.al_s[0] += st.al_u[0] * dt
+            st.al_s[1] += st.al_u[1] * dt
         # q <- q (x) [1, w dt / 2], normalised
         hx, hy, hz = 0.5 * wx * dt, 0.5 * wy * dt, 0.5 * wz * dt
         nw = qw - hx * qx - hy * qy - hz * qz
@@ -666,6 +747,9 @@ def _pass(run, cfg: EskfConfig):
     vel = gps.device_velocity()
     snaps = {}
     k = n_cal
+    spanning = calibration_fix(gps, float(t[0]), float(t[n_cal]))
+    if spanning is not None:
+        calibration_interval(st, vel[spanning], float(t[n_cal] - gps.t[spanning]))
     for j in np.flatnonzero(gps.valid & (gps.t >= t[n_cal])):
         stop = min(int(np.searchsorted(t, gps.t[j], side="left")), len(dts))
         if stop > k:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from codegen.kernel import hostkernel
+from codegen.kernel import eskf, hostkernel
 from codegen.kernel.eskf import N_ERR, EskfConfig
 from codegen.kernel.layout import ESKF
 
@@ -42,6 +42,7 @@ int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_
                       int32_t count);
 int dr_eskf_process(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_state *st, const int16_t *samples,
                     const int32_t *dt_us, int32_t count, float out[6]);
+void dr_eskf_calibration_interval(dr_eskf_state *st, float ve, float vn, float seconds);
 int dr_eskf_gps(const dr_eskf_config *cfg, dr_eskf_state *st, float t_s, float e, float n, float u, float ve,
                 float vn);
 void dr_eskf_propagate_covariance(const dr_eskf_config *cfg, dr_eskf_state *st);
@@ -111,6 +112,9 @@ class EskfSession:
                                     ffi.from_buffer("int32_t[]", dt), len(raw), self.out)
         return np.array(list(self.out))
 
+    def calibration_interval(self, vel_en, seconds: float) -> None:
+        self.ek.lib.dr_eskf_calibration_interval(self.st, float(vel_en[0]), float(vel_en[1]), float(seconds))
+
     def gps(self, t_s: float, enu, vel_en) -> bool:
         return bool(self.ek.lib.dr_eskf_gps(self.cfg, self.st, float(t_s), float(enu[0]), float(enu[1]),
                                             float(enu[2]), float(vel_en[0]), float(vel_en[1])))
@@ -122,14 +126,18 @@ class EskfSession:
             for i, x in enumerate(value):
                 getattr(st, name)[i] = float(x)
         for name in ("acc_t", "sat_dv", "since_nhc", "mean_f", "var_f", "rest_s", "rate2", "gps_speed", "t_fix",
-                     "al_dot", "al_cross", "al_norm", "cov_repairs"):
+                     "cov_repairs"):
             setattr(st, name, float(getattr(ref, name)))
         st.aligned = 1.0 if ref.aligned else 0.0
         st.gyro_moving = 1.0 if ref.gyro_moving else 0.0
         st.al_have_prev = 0.0 if ref.al_prev is None else 1.0
         for i in range(2):
             st.al_du[i] = float(ref.al_du[i])
+            st.al_u[i] = float(ref.al_u[i])
+            st.al_s[i] = float(ref.al_s[i])
             st.al_prev[i] = 0.0 if ref.al_prev is None else float(ref.al_prev[i])
+        for i, x in enumerate(ref.al_sums):
+            st.al_sums[i] = float(x)
         for name, value in (("mount", ref.c), ("acc_a", ref.acc_a), ("acc_b", ref.acc_b), ("p", ref.p)):
             target = getattr(st, name)
             for i in range(value.shape[0]):
@@ -225,6 +233,9 @@ def _pass(run, cfg: EskfConfig):
     session.calibrate(run.counts[:n_cal])
     gps = run.gps
     vel = gps.device_velocity()
+    spanning = eskf.calibration_fix(gps, float(t[0]), float(t[n_cal]))
+    if spanning is not None:
+        session.calibration_interval(vel[spanning], float(t[n_cal] - gps.t[spanning]))
     snaps = {}
     k = n_cal
     for j in np.flatnonzero(gps.valid & (gps.t >= t[n_cal])):

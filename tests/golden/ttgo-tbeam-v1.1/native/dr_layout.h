@@ -895,14 +895,14 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
  * Its structs are dr_eskf.h's, written by hand; these are their lengths and offsets as codegen/kernel/layout.py
  * declares them, and the field lists (name, offset in floats, floats) that DR_ESKF_LAYOUT_CHECKS holds dr_eskf.h's
  * structs to at compile time wherever both headers are included (dr_native.c, the host's cffi build). */
-#define DR_ESKF_STATE_FLOATS (606) /* floats in dr_eskf_state */
-#define DR_ESKF_CONFIG_FLOATS (39) /* floats in dr_eskf_config */
+#define DR_ESKF_STATE_FLOATS (617) /* floats in dr_eskf_state */
+#define DR_ESKF_CONFIG_FLOATS (40) /* floats in dr_eskf_config */
 #define DR_ESKF_STATE_POS (0) /* m: position E N U, the run's ENU frame */
 #define DR_ESKF_STATE_VEL (3) /* m/s: velocity E N U */
 #define DR_ESKF_STATE_Q (6) /* attitude w x y z, body -> ENU */
 #define DR_ESKF_STATE_GPS_SPEED (64) /* m/s: the last fix's speed (0 in an outage: rest may be detected) */
-#define DR_ESKF_STATE_ALIGNED (74) /* 1: 1 once the filter runs */
-#define DR_ESKF_STATE_COV_REPAIRS (76) /* covariances that went wrong and were reset */
+#define DR_ESKF_STATE_ALIGNED (85) /* 1: 1 once the filter runs */
+#define DR_ESKF_STATE_COV_REPAIRS (87) /* covariances that went wrong and were reset */
 #define DR_ESKF_STATE_FIELDS(X) \
     X(pos, 0, 3) \
     X(vel, 3, 3) \
@@ -927,15 +927,15 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
     X(gps_speed, 64, 1) \
     X(t_fix, 65, 1) \
     X(al_du, 66, 2) \
-    X(al_dot, 68, 1) \
-    X(al_cross, 69, 1) \
-    X(al_norm, 70, 1) \
-    X(al_prev, 71, 2) \
-    X(al_have_prev, 73, 1) \
-    X(aligned, 74, 1) \
-    X(gyro_moving, 75, 1) \
-    X(cov_repairs, 76, 1) \
-    X(p, 77, 529)
+    X(al_u, 68, 2) \
+    X(al_s, 70, 2) \
+    X(al_sums, 72, 10) \
+    X(al_prev, 82, 2) \
+    X(al_have_prev, 84, 1) \
+    X(aligned, 85, 1) \
+    X(gyro_moving, 86, 1) \
+    X(cov_repairs, 87, 1) \
+    X(p, 88, 529)
 #define DR_ESKF_CONFIG_FIELDS(X) \
     X(cov_dt_s, 0, 1) \
     X(nhc_dt_s, 1, 1) \
@@ -965,17 +965,18 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
     X(rest_speed_ms, 25, 1) \
     X(rest_horizontal_ms2, 26, 1) \
     X(stat_tau_s, 27, 1) \
-    X(align_min, 28, 1) \
-    X(align_coherence, 29, 1) \
-    X(align_speed_ms, 30, 1) \
-    X(init_yaw_sigma_deg, 31, 1) \
-    X(init_tilt_sigma_deg, 32, 1) \
-    X(init_tilt_moving_deg, 33, 1) \
-    X(init_gyro_bias_dps, 34, 1) \
-    X(init_gyro_bias_moving_dps, 35, 1) \
-    X(init_accel_bias_ms2, 36, 1) \
-    X(init_mount_sigma_deg, 37, 1) \
-    X(init_turn_scale, 38, 1)
+    X(align_fixes, 28, 1) \
+    X(align_yaw_sigma_deg, 29, 1) \
+    X(align_scale, 30, 1) \
+    X(align_speed_ms, 31, 1) \
+    X(init_yaw_sigma_deg, 32, 1) \
+    X(init_tilt_sigma_deg, 33, 1) \
+    X(init_tilt_moving_deg, 34, 1) \
+    X(init_gyro_bias_dps, 35, 1) \
+    X(init_gyro_bias_moving_dps, 36, 1) \
+    X(init_accel_bias_ms2, 37, 1) \
+    X(init_mount_sigma_deg, 38, 1) \
+    X(init_turn_scale, 39, 1)
 #define DR_ESKF_STATE_FIELD_AT(name, at, floats) \
     typedef char dr_eskf_state_##name##_at_##at[offsetof(dr_eskf_state, name) == (at) * sizeof(float) && \
         sizeof(((dr_eskf_state *)0)->name) == (floats) * sizeof(float) ? 1 : -1];
@@ -986,9 +987,9 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
 #define DR_ESKF_LAYOUT_CHECKS \
     DR_ESKF_STATE_FIELDS(DR_ESKF_STATE_FIELD_AT) \
     DR_ESKF_CONFIG_FIELDS(DR_ESKF_CONFIG_FIELD_AT) \
-    typedef char dr_eskf_state_is_606_floats[ \
+    typedef char dr_eskf_state_is_617_floats[ \
         sizeof(dr_eskf_state) == DR_ESKF_STATE_FLOATS * sizeof(float) ? 1 : -1]; \
-    typedef char dr_eskf_config_is_39_floats[ \
+    typedef char dr_eskf_config_is_40_floats[ \
         sizeof(dr_eskf_config) == DR_ESKF_CONFIG_FLOATS * sizeof(float) ? 1 : -1];
 /* cfg <- the board's parameters (dr_board.h, board keys algorithm.eskf_*); the rest keep dr_eskf_config_init's */
 #define DR_ESKF_CONFIG_BOARD(cfg) \
@@ -1019,8 +1020,9 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
         (cfg)->rest_speed_ms = DR_ESKF_REST_SPEED_MS; \
         (cfg)->rest_horizontal_ms2 = DR_ESKF_REST_HORIZONTAL_MS2; \
         (cfg)->stat_tau_s = DR_ESKF_STAT_TAU_S; \
-        (cfg)->align_min = DR_ESKF_ALIGN_MIN; \
-        (cfg)->align_coherence = DR_ESKF_ALIGN_COHERENCE; \
+        (cfg)->align_fixes = DR_ESKF_ALIGN_FIXES; \
+        (cfg)->align_yaw_sigma_deg = DR_ESKF_ALIGN_YAW_SIGMA_DEG; \
+        (cfg)->align_scale = DR_ESKF_ALIGN_SCALE; \
         (cfg)->align_speed_ms = DR_ESKF_ALIGN_SPEED_MS; \
         (cfg)->init_yaw_sigma_deg = DR_ESKF_INIT_YAW_SIGMA_DEG; \
         (cfg)->init_tilt_sigma_deg = DR_ESKF_INIT_TILT_SIGMA_DEG; \
@@ -1032,8 +1034,8 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
         (cfg)->init_turn_scale = DR_ESKF_INIT_TURN_SCALE; \
     } while (0)
 /* The eskf buffer dr_native hands the app: dr_eskf_state | dr_eskf_config | dr_config. */
-#define DR_ESKF_CONFIG_AT (606)
-#define DR_ESKF_KERNEL_CONFIG_AT (645)
-#define DR_ESKF_BUFFER_FLOATS (657)
+#define DR_ESKF_CONFIG_AT (617)
+#define DR_ESKF_KERNEL_CONFIG_AT (657)
+#define DR_ESKF_BUFFER_FLOATS (669)
 
 #endif /* DR_LAYOUT_H */
