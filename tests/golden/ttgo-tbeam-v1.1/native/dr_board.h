@@ -116,7 +116,7 @@
 #define DR_ESKF_REST_HORIZONTAL_MS2 (0.3f) /* m/s^2 */
 #define DR_ESKF_STAT_TAU_S (0.5f) /* s */
 #define DR_ESKF_ALIGN_FIXES (5.0f) /* fix intervals */
-#define DR_ESKF_ALIGN_YAW_SIGMA_DEG (3.0f) /* degree */
+#define DR_ESKF_ALIGN_YAW_SIGMA_DEG (10.0f) /* degree */
 #define DR_ESKF_ALIGN_SCALE (1.25f) /* 1 */
 #define DR_ESKF_ALIGN_SPEED_MS (2.0f) /* m/s */
 #define DR_ESKF_INIT_YAW_SIGMA_DEG (10.0f) /* degree */
