@@ -52,9 +52,14 @@ def eskf_app(tmp_path_factory):
 def run_car(entry, work: Path, extra):
     board = entry["board"]
     world, traj, track = outage_world(board, "car", 42, DURATION, OUTAGES, work)
+    return run_tapped(entry["out"], world, work, extra)
+
+
+def run_tapped(out: Path, world, work: Path, extra):
+    """The app in `out` on `world` with the tap recording into work/record.bin; it must exit cleanly."""
     script = work / "tap.py"
     script.write_text(f"DUMP = {str(work / 'record.bin')!r}\n" + TAP)
-    run = run_app(board_micropython(), entry["out"], world, work / "w", script=str(script), extra_path=extra)
+    run = run_app(board_micropython(), out, world, work / "w", script=str(script), extra_path=extra)
     assert run.returncode == 0, run.stderr + run.stdout[-2000:]
     return run
 
@@ -263,11 +268,7 @@ def test_eskf_app_test_mode_dead_reckons_with_the_filter(eskf_app, tmp_path):
     board = eskf_app["board"]
     world, _, _ = outage_world(board, "car", 42, 50.0, [], tmp_path)
     world["pins"][str(board.buttons.test_mode.pin.pin)] = press(30.2) + press(40.2)
-    script = tmp_path / "tap.py"
-    script.write_text(f"DUMP = {str(tmp_path / 'record.bin')!r}\n" + TAP)
-    run = run_app(board_micropython(), eskf_app["out"], world, tmp_path / "w", script=str(script),
-                  extra_path=[eskf_app["natmod"]])
-    assert run.returncode == 0, run.stderr + run.stdout[-2000:]
+    run = run_tapped(eskf_app["out"], world, tmp_path, [eskf_app["natmod"]])
     lines = run.stdout.splitlines()
     assert "TEST on" in lines and "TEST off" in lines and "MODE GPS -> TEST" in lines
     assert any(line.startswith("ESKF started") for line in lines)
@@ -310,11 +311,7 @@ def test_a_calibration_in_a_moving_car_is_kept_and_the_filter_starts(eskf_app, t
     board = eskf_app["board"]
     world, speed = _driving_world(board, tmp_path, skip_s=60.0, duration=40.0)
     assert speed > 5.0
-    script = tmp_path / "tap.py"
-    script.write_text(f"DUMP = {str(tmp_path / 'record.bin')!r}\n" + TAP)
-    run = run_app(board_micropython(), eskf_app["out"], world, tmp_path / "w", script=str(script),
-                  extra_path=[eskf_app["natmod"]])
-    assert run.returncode == 0, run.stderr + run.stdout[-2000:]
+    run = run_tapped(eskf_app["out"], world, tmp_path, [eskf_app["natmod"]])
     lines = run.stdout.splitlines()
     assert any(line.startswith("CAL moved: travelling at") for line in lines), run.stdout[-3000:]
     assert not any(line.startswith("CAL moved: restart") for line in lines)
