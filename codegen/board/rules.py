@@ -27,12 +27,13 @@ RESERVED_I2C_ADDRESSES = set(range(0x00, 0x08)) | set(range(0x78, 0x80))
 MIN_MICROPYTHON = (1, 23)
 # algorithm.mode eskf (the native filter) on the emulated board (tests/test_app_boards.py -k eskf: 32-bit unix
 # MicroPython with the board's heap, esp32-devkitc-gy521 with mode eskf, its x86 dr_native, a simulated drive with
-# an outage) ran in a 104 KiB heap and failed (MemoryError) in 96 KiB, with that board's 24,000-byte calibration
-# buffer (10 s at 200 Hz) and two 4 KiB log blocks (98-102 KiB: either, with the heap's fragmentation). The heap
+# an outage) ran in a 108 KiB heap and failed (MemoryError) in 104 KiB, with that board's 24,000-byte calibration
+# buffer (10 s at 200 Hz) and two 4 KiB log blocks (it had run in 104 KiB and failed in 96 before the start on the
+# move added its yaw fit's sums and the calibration's fix to the app). The heap
 # at or below which it cannot run: what failed, less the buffers it had, plus the board's (its keys size them).
-ESKF_FAILED_HEAP_BYTES = 96 * 1024
+ESKF_FAILED_HEAP_BYTES = 104 * 1024
 ESKF_MEASURED_BUFFERS_BYTES = 12 * 2000 + 2 * 4096
-ESKF_MEASURED_OK_HEAP_BYTES = 104 * 1024
+ESKF_MEASURED_OK_HEAP_BYTES = 108 * 1024
 
 
 @dataclass(frozen=True)
