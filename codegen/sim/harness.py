@@ -9,7 +9,9 @@ from __future__ import annotations
 import functools
 import json
 import os
+import platform
 import re
+import shutil
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,7 +85,9 @@ def compile_app(app_dir: Path, target: Path) -> Path:
         if path.name in ("main.py", "boot.py"):
             (target / path.name).write_bytes(path.read_bytes())
             continue
-        done = subprocess.run([mpy_cross, "-o", str(target / (path.stem + ".mpy")), str(path)],
+        # -s: the source name the .mpy carries is the file's own, as `deadreckon build` gives it (the host's path
+        # would take room in the board's heap, and more in a longer temporary directory)
+        done = subprocess.run([mpy_cross, "-o", str(target / (path.stem + ".mpy")), "-s", path.name, str(path)],
                               capture_output=True, text=True)
         if done.returncode:
             raise RuntimeError(f"mpy-cross {path.name}: {done.stderr.strip()}")
@@ -126,20 +130,48 @@ def run_app(
         scenario["clock"] = boardclock.scenario_clock(constants["CHIP"])
     scenario_path = work / "scenario.json"
     scenario_path.write_text(json.dumps(scenario))
-    modules = compile_app(out / "app", work / "app-mpy")  # as the board holds it: bytecode, not source to compile
-    paths = [str(MPSIM)] + [str(p) for p in (extra_path or [])] + [str(modules)]
+    compile_app(out / "app", work / "app-mpy")  # as the board holds it: bytecode, not source to compile
+    # every path the interpreter is given is short and relative to `work` (links where they lie elsewhere): each
+    # imported module's path is a string in the heap the app runs in, so where the checkout or the temporary
+    # directory lies must not decide how much of it the app has
+    paths = [_linked(work, MPSIM, "mpsim")] + [_linked(work, Path(p), f"path{i}") for i, p in
+                                               enumerate(extra_path or [])] + ["app-mpy"]
     env = dict(os.environ, MICROPYPATH=":".join(paths), MPSIM_SCENARIO=str(scenario_path))
-    target = script if script is not None else str(modules / "main.py")
+    target = script if script is not None else "app-mpy/main.py"
     heap = scenario["heap_bytes"] + boardclock.MPSIM_RESERVE_BYTES
     proc = subprocess.run(
-        [micropython, "-X", f"heapsize={heap}", str(MPSIM / "launch.py"), target], env=env, capture_output=True,
-        text=True, timeout=timeout, cwd=work,
+        [*_fixed_addresses(), micropython, "-X", f"heapsize={heap}", "mpsim/launch.py", target], env=env,
+        capture_output=True, text=True, timeout=timeout, cwd=work,
     )
     trace_path = Path(scenario["trace"])
     trace = []
     if trace_path.exists():
         trace = [json.loads(line) for line in trace_path.read_text().splitlines() if line.strip()]
     return Run(proc.returncode, proc.stdout, proc.stderr, trace)
+
+
+def _linked(work: Path, target: Path, name: str) -> str:
+    """`name`, a link in `work` to the directory `target` (replaced if it was there)."""
+    link = work / name
+    if link.is_symlink():
+        link.unlink()
+    link.symlink_to(Path(target).resolve(), target_is_directory=True)
+    return name
+
+
+@functools.lru_cache(maxsize=None)
+def _fixed_addresses() -> tuple[str, ...]:
+    """A prefix that runs a command with address-space randomisation off (util-linux setarch -R), where the system
+    allows it, else none. MicroPython's collector scans the C stack conservatively: with the heap at another address
+    each run, a stale word on the stack holds a different block alive, and how much heap the app has left at a given
+    moment moved by kilobytes between identical runs (its smallest-heap test failed on one in three under load)."""
+    setarch = shutil.which("setarch")
+    if setarch is None:
+        return ()
+    prefix = (setarch, platform.machine(), "-R")
+    if subprocess.run([*prefix, "true"], capture_output=True).returncode != 0:  # a sandbox refusing personality()
+        return ()
+    return prefix
 
 
 def run_script(micropython: str, app_dir: Path, script: str, args: list[str] = (), timeout: float = 600):
