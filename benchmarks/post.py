@@ -9,6 +9,7 @@
     python3 benchmarks/post.py stops --seeds 0,1,2,3,4   # the same on other seeds
     python3 benchmarks/post.py device     # the emulated board's own device log: post's delay against the truth
     python3 benchmarks/post.py device --seeds 0,1,2,3,4   # the same on other seeds (the app's run, then post)
+    python3 benchmarks/post.py device-matrices   # what limits its mounting: the chip's matrices as drawn and ideal
 
 Synthetic: a vehicle with the device at a known mounting, 0.1 m/s Doppler noise per ENU component, a 50 mg
 accelerometer bias, MPU-6050 noise and int16 quantisation, and an injected IMU delay. Walk: rtklibexplorer's handheld
@@ -346,6 +347,44 @@ def emulated_device_logs(seeds: tuple[int, ...] = (0,)) -> None:
     print()
 
 
+def emulated_device_matrices(seeds: tuple[int, ...] = (0, 1, 4)) -> None:
+    """What limits post's mounting on the app's device log: the same runs as `device`, with the MPU-6050 model's
+    sensitivity and cross-axis errors as drawn, and set to 0 (its offsets, noise and drift kept). The mounting's
+    error is split into turns about the vehicle frame's axes (forward, left, up), beside post's own 1-sigma."""
+    import dataclasses
+    import tempfile
+
+    from scipy.spatial.transform import Rotation
+
+    from codegen.post.orientation import euler_matrix
+    from codegen.sim import mpu6050
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_post_devicelog_e2e import Posted  # noqa: E402
+
+    print(f"## post's mounting on the emulated board's device log, the chip's matrices as drawn and ideal (T-Beam "
+          f"v1.1 board file, seeds {','.join(map(str, seeds))})")
+    print()
+    print("| scenario | seed | sensitivity, cross-axis | mounting error [deg] | about forward / left / up [deg] | "
+          "post 1-sigma roll / pitch / yaw [deg] | delay error [ms] | post delay 1-sigma [ms] |")
+    print("|---|---|---|---|---|---|---|---|")
+    drawn = dataclasses.replace(mpu6050.MpuErrors(), jitter_us=0.0)
+    for seed in seeds:
+        for scenario, duration, min_speed in (("walk", 300.0, 0.5), ("car", 420.0, 2.0)):
+            for name, errors in (("as drawn", drawn),
+                                 ("0", dataclasses.replace(drawn, sensitivity_pct=0.0, cross_axis_pct=0.0))):
+                p = Posted(scenario, duration, Path(tempfile.mkdtemp(prefix=f"post-bench-{scenario}-")), seed=seed,
+                           errors=errors)
+                m = p.result.orientation.mounting
+                error = p.true_mounting(min_speed) * Rotation.from_matrix(euler_matrix(*m.euler)).inv()
+                truth, _, _ = p.true_delay()
+                print(f"| {scenario} | {seed} | {name} | {np.degrees(error.magnitude()):.2f} | "
+                      f"{' / '.join(f'{x:+.2f}' for x in np.degrees(error.as_rotvec()))} | "
+                      f"{' / '.join(f'{x:.2f}' for x in np.degrees(m.sigma_euler))} | "
+                      f"{(p.result.delay - truth) * 1e3:+.1f} | {p.result.delay_estimate.sigma * 1e3:.1f} |", flush=True)
+    print()
+
+
 if __name__ == "__main__":
     args = sys.argv[1:]
     stop_seeds, device_seeds = STOP_SEEDS, (0,)
@@ -366,3 +405,5 @@ if __name__ == "__main__":
         synthetic_stops(stop_seeds)
     if "device" in which:
         emulated_device_logs(device_seeds)
+    if "device-matrices" in which:
+        emulated_device_matrices(device_seeds if "--seeds" in sys.argv else (0, 1, 4))

@@ -5,8 +5,9 @@ the run from them and is checked against that truth.
 
 The truth of the delay is found record by record: each logged IMU record is the box mean of `log_every` of the
 counts the emulated chip served, so matching the record against the box means of the served counts names the
-samples it averages, and their truth times (on UTC: neo6m.DEFAULT_EPOCH + t) against the record's time on `post`'s
-axis give the delay `post` should find. The mounting's truth is the board's rotation in the vehicle frame `post`
+samples it averages, and their truth times (on UTC: neo6m.DEFAULT_EPOCH + t), less the chip's low-pass filter's
+delay (5.1 ms at the T-Beam's DLPF_CFG 3: what a sample holds happened that long before it was read), against the
+record's time on `post`'s axis give the delay `post` should find. The mounting's truth is the board's rotation in the vehicle frame `post`
 fits (along the track, pitched with its grade), with the accelerometer's own cross-axis rotation.
 
 Neither run sits rigidly enough for post's rigid mounting fit (its chi2: ~12 on the drive, where GGA climb rates
@@ -27,6 +28,7 @@ from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
 from codegen.board.loader import load_board
+from codegen.board.model import DLPF_BANDWIDTH_HZ
 from codegen.post import PostOptions, process
 from codegen.post.devicelog import parse_device_parts, read_device_log, run_parts, to_post_log
 from codegen.post.geodesy import geodetic_to_enu
@@ -43,12 +45,12 @@ EPOCH = neo6m.DEFAULT_EPOCH.timestamp()  # UTC of the trajectory's t = 0
 
 
 class Posted:
-    def __init__(self, scenario: str, duration: float, work, seed: int = 0):
+    def __init__(self, scenario: str, duration: float, work, seed: int = 0, errors: mpu6050.MpuErrors | None = None):
         require_tool("micropython")  # what record_on_micropython runs: skips locally, fails under CI, without it
         self.seed = seed
         self.loaded = load_board(BOARD)
         self.traj = trajectory.make_scenario(scenario, seed=seed, duration=duration)
-        self.rec = record_on_micropython(self.loaded, self.traj, seed=seed, work=work)
+        self.rec = record_on_micropython(self.loaded, self.traj, seed=seed, work=work, errors=errors)
         files = sorted(self.rec.logs.glob("dr*.bin"))
         self.parts = run_parts(files[-1])
         self.raw = parse_device_parts(self.parts)
@@ -67,9 +69,16 @@ class Posted:
         ends = np.array([last.get(tuple(r[1:]), -1) for r in self.raw.imu])
         found = ends >= 0
         truth_t = np.array([self.rec.t_us[k - n + 1:k + 1].mean() * 1e-6 for k in ends[found]])
+        truth_t -= self.dlpf_delay()  # what a sample holds happened that much before it was read
         assert len(self.log.imu.t) == len(self.raw.imu)  # no record dropped: the times line up with the records
         lag = self.log.imu.t[found] - (EPOCH + truth_t)
         return float(np.median(lag)), float(np.ptp(lag)), float(found.mean())
+
+    def dlpf_delay(self) -> float:
+        """s: how far the chip's low-pass filter (DLPF_CFG) holds its samples back behind the motion (0 if off)."""
+        if not self.rec.errors.dlpf or self.loaded.board.imu.dlpf not in DLPF_BANDWIDTH_HZ:
+            return 0.0
+        return mpu6050.dlpf_delay_s(DLPF_BANDWIDTH_HZ[self.loaded.board.imu.dlpf], self.traj.rate_hz)
 
     def true_mounting(self, min_speed: float) -> Rotation:
         """The board in post's vehicle frame (Rz(track) Ry(grade)), averaged where faster than min_speed, as the

@@ -31,7 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.signal import butter, lfilter, lfilter_zi
+from scipy.signal import butter, group_delay, lfilter, lfilter_zi
 
 from codegen.board.model import (
     ACCEL_LSB_PER_G,
@@ -88,6 +88,15 @@ def draw_device(errors: MpuErrors, rng: np.random.Generator) -> DeviceErrors:
     accel_offset = rng.uniform(-1, 1, 3) * np.asarray(errors.accel_offset_mg) * 1e-3 * STANDARD_GRAVITY
     gyro_offset = np.radians(rng.uniform(-1, 1, 3) * errors.gyro_offset_dps)
     return DeviceErrors(accel_offset, gyro_offset, matrix(), matrix())
+
+
+def dlpf_delay_s(bandwidth_hz: float, rate_hz: float, at_hz: float = 1.0) -> float:
+    """How late dlpf_filter's output runs behind its input at `at_hz` (s): its group delay there, ~1/(sqrt(2) pi f_c)
+    well below the cut-off (5.1 ms at the 44 Hz DLPF_CFG 3; the datasheet gives 4.9 ms)."""
+    cutoff = min(bandwidth_hz, 0.45 * rate_hz)
+    b, a = butter(2, cutoff, fs=rate_hz)
+    _, samples = group_delay((b, a), w=[at_hz], fs=rate_hz)
+    return float(samples[0]) / rate_hz
 
 
 def gauss_markov(rng: np.random.Generator, n: int, dt: float, sigma: float, tau: float, dims: int = 3) -> np.ndarray:

@@ -64,12 +64,13 @@ class Recording:
 
 def record_on_micropython(loaded, traj: trajectory.Trajectory, seed: int = 0, quality: str = "open-sky",
                           duration: float | None = None, outages=(), work: Path | None = None,
-                          what: str = "") -> Recording:
+                          what: str = "", errors: mpu6050.MpuErrors | None = None) -> Recording:
     """Run the generated app unmodified on the emulated board for `duration` s of virtual time (default the
-    trajectory's), fed by the MPU-6050 and NEO-6M models of `traj` with the GPS `outages` ((start s, end s)) cut in."""
+    trajectory's), fed by the MPU-6050 and NEO-6M models of `traj` with the GPS `outages` ((start s, end s)) cut in;
+    `errors` the chip's (default the model's, without read jitter: the emulated board's clock times the reads)."""
     board = loaded.board
     duration = traj.duration if duration is None else duration
-    errors = replace(mpu6050.MpuErrors(), jitter_us=0.0)
+    errors = replace(mpu6050.MpuErrors(), jitter_us=0.0) if errors is None else errors
     t_us, counts = mpu6050.simulate_imu(traj, board, seed=seed, errors=errors)
     gps = neo6m.simulate_gps(traj, seed=seed + 1000, quality=quality, rate_hz=board.gps.rate_hz, outages=list(outages))
     sentences = neo6m.nmea_sentences(gps)
