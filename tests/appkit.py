@@ -258,6 +258,29 @@ def outage_world(board, scenario: str, seed: int, duration: float, outages, work
     return spec, traj, track
 
 
+def driving_world(board, work: Path, skip_s: float, duration: float):
+    """The simulated car from `skip_s` s on, when it drives: the board is switched on in a moving car."""
+    from codegen.sim import mpu6050, neo6m, trajectory
+
+    traj = trajectory.make_scenario("car", seed=42, duration=skip_s + duration)
+    t_us, counts = mpu6050.simulate_imu(traj, board, seed=42)
+    counts = counts[int(np.searchsorted(t_us * 1e-6, skip_s)):]
+    track = neo6m.simulate_gps(traj, seed=1042, rate_hz=board.gps.rate_hz)
+    sentences = neo6m.nmea_sentences(track)
+    per_epoch = len(sentences) // len(track.t)
+    chunks = [(float(track.t[i]) - skip_s + 0.1, b"".join(sentences[i * per_epoch:(i + 1) * per_epoch]).decode())
+              for i in range(len(track.t)) if skip_s <= track.t[i] and track.t[i] - skip_s + 0.1 < duration]
+    spec = harness.tbeam_scenario(
+        work, harness.write_counts(work / "imu.bin", counts), harness.write_stream(work / "gps.txt", chunks),
+        duration, rate_hz=board.imu.achieved_sample_rate_hz,
+        imu={"address": board.imu.address, "accel_range_g": board.imu.accel_range_g,
+             "gyro_range_dps": board.imu.gyro_range_dps},
+        display=board.display.model if board.display else None, pmu=board.power.chip,
+        rail=None if board.gps.power == "always_on" else board.gps.power, uart_id=board.uart[board.gps.uart].id)
+    speed = float(np.hypot(*traj.velocity_at(np.array([skip_s]))[0][:2]))
+    return spec, speed
+
+
 def x86_natmod(out: Path, target: Path) -> Path:
     """Build OUT/native's dr_native.mpy for x86, the 32-bit board-precision unix MicroPython the app runs on, and put
     it alone in `target` (a folder for run_app's extra_path)."""

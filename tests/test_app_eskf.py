@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from appkit import TAP, outage_world, read_record, x86_natmod
+from appkit import TAP, driving_world, outage_world, read_record, x86_natmod
 
 from codegen.board.loader import load_board
 from codegen.kernel import reference as ref
@@ -281,35 +281,12 @@ def test_eskf_app_test_mode_dead_reckons_with_the_filter(eskf_app, tmp_path):
     assert "TEST MODE" in run.screen_at(35.0)
 
 
-def _driving_world(board, work: Path, skip_s: float, duration: float):
-    """The simulated car from `skip_s` s on, when it drives: the board is switched on in a moving car."""
-    from codegen.sim import harness, mpu6050, neo6m, trajectory
-
-    traj = trajectory.make_scenario("car", seed=42, duration=skip_s + duration)
-    t_us, counts = mpu6050.simulate_imu(traj, board, seed=42)
-    counts = counts[int(np.searchsorted(t_us * 1e-6, skip_s)):]
-    track = neo6m.simulate_gps(traj, seed=1042, rate_hz=board.gps.rate_hz)
-    sentences = neo6m.nmea_sentences(track)
-    per_epoch = len(sentences) // len(track.t)
-    chunks = [(float(track.t[i]) - skip_s + 0.1, b"".join(sentences[i * per_epoch:(i + 1) * per_epoch]).decode())
-              for i in range(len(track.t)) if skip_s <= track.t[i] and track.t[i] - skip_s + 0.1 < duration]
-    spec = harness.tbeam_scenario(
-        work, harness.write_counts(work / "imu.bin", counts), harness.write_stream(work / "gps.txt", chunks),
-        duration, rate_hz=board.imu.achieved_sample_rate_hz,
-        imu={"address": board.imu.address, "accel_range_g": board.imu.accel_range_g,
-             "gyro_range_dps": board.imu.gyro_range_dps},
-        display=board.display.model if board.display else None, pmu=board.power.chip,
-        rail=None if board.gps.power == "always_on" else board.gps.power, uart_id=board.uart[board.gps.uart].id)
-    speed = float(np.hypot(*traj.velocity_at(np.array([skip_s]))[0][:2]))
-    return spec, speed
-
-
 def test_a_calibration_in_a_moving_car_is_kept_and_the_filter_starts(eskf_app, tmp_path):
     """Switched on in a car that drives: the calibration moves, the last fix says the board travels, so the app keeps
     the calibration (it restarted forever before), hands the filter the fix interval that spans it, and the filter
     starts within seconds."""
     board = eskf_app["board"]
-    world, speed = _driving_world(board, tmp_path, skip_s=60.0, duration=40.0)
+    world, speed = driving_world(board, tmp_path, skip_s=60.0, duration=40.0)
     assert speed > 5.0
     run = run_tapped(eskf_app["out"], world, tmp_path, [eskf_app["natmod"]])
     lines = run.stdout.splitlines()

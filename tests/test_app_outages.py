@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from appkit import TAP, outage_world, read_record, x86_natmod
+from appkit import TAP, driving_world, outage_world, read_record, x86_natmod
 
 from codegen.board.loader import load_board
 from codegen.kernel import fused as F
@@ -259,3 +259,26 @@ def test_outages_follow_the_reference(boards, scenario, mode, kernel, tmp_path):
           f"{elapsed / 1e6:.3f} s; dropped samples: {dropped[-1]}")
     if kernel == "native":  # on the board's clock, at the board's rate, the native module misses no sample
         assert dropped[-1] == 0, run.console("DIAG")
+
+
+def test_fused_app_switched_on_in_a_moving_car_keeps_its_calibration(boards, tmp_path):
+    """The default method switched on in a car that drives: the calibration moves, the last fix says the board
+    travels, so the app keeps the calibration (it restarted it forever before: "moved! again" on the screen, no dead
+    reckoning at all) and its kernel runs from it, the fixes feeding it."""
+    entry = boards["fused"]
+    world, speed = driving_world(entry["board"], tmp_path, skip_s=60.0, duration=40.0)
+    assert speed > 5.0
+    script = tmp_path / "tap.py"
+    script.write_text(f"DUMP = {str(tmp_path / 'record.bin')!r}\n" + TAP)
+    run = run_app(board_micropython(), entry["out"], world, tmp_path / "w", script=str(script),
+                  extra_path=[natmod(entry)])
+    assert run.returncode == 0, run.stderr + run.stdout[-2000:]
+    lines = run.stdout.splitlines()
+    assert any(line.startswith("CAL moved: travelling at") for line in lines), run.stdout[-3000:]
+    assert not any(line.startswith("CAL moved: restart") for line in lines)
+    assert any(line.startswith("CAL ok") for line in lines)
+    rec = read_record(tmp_path / "record.bin")
+    assert rec.moved == 1
+    samples, _ = rec.stream()
+    assert len(samples) > 20 * entry["board"].imu.achieved_sample_rate_hz  # the kernel ran on the rest of the drive
+    assert sum(f.running for f in rec.fixes) >= 15  # and took the fixes

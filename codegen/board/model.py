@@ -35,6 +35,7 @@ GYRO_LSB_PER_DPS = {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}
 DLPF_BANDWIDTH_HZ = {0: 260, 1: 184, 2: 94, 3: 44, 4: 21, 5: 10, 6: 5}
 
 AXIS_NAMES = ("x", "y", "z", "-x", "-y", "-z")
+FUSED_KEEP_MOVED_FAILED_HEAP_BYTES = 112 * 1024  # Board.keeps_moved_calibration
 
 # Every number a board file gives is finite (YAML's .inf and .nan are refused) and bounded: a field without a
 # physical upper limit of its own takes at most NUMBER_MAX, and a nonzero real number is at least NUMBER_TINY in
@@ -472,6 +473,17 @@ class Board(Part):
 
         kb = self.circuitpython.heap_kb if self.target == "circuitpython" else self.micropython.heap_kb
         return 1024 * (kb if kb is not None else firmware_heap_kb(self.chip, self.psram))
+
+    @property
+    def keeps_moved_calibration(self) -> bool:
+        """Whether the app keeps a calibration the board moved in when the last fix shows it travelling (a device
+        switched on in a moving car): eskf boards, and fused boards with more heap than the smallest (an ESP32
+        without PSRAM, 112 KiB), where the fused fallback kernel with those lines ran out of heap in 1 of 16 heap
+        layouts on the emulated board and without them in none (docs/eskf.md). The seed's windows take the
+        calibration for rest."""
+        if self.algorithm.mode == "eskf":
+            return True
+        return self.algorithm.mode == "fused" and self.heap_bytes > FUSED_KEEP_MOVED_FAILED_HEAP_BYTES
 
     @property
     def drive_button(self) -> Optional[tuple[str, Button]]:

@@ -74,6 +74,13 @@ _WARNINGS_KEPT = const(8)
 # model, codegen/sim/boardclock.py), so it runs on batches of this many samples (~150 ms) rather than whole windows
 # (~0.6 s): the MPU-6050's FIFO (1024 bytes, 85 samples, 425 ms at 200 Hz) holds the samples that arrive meanwhile.
 _FALLBACK_BATCH = const(128)
+# A calibration the device moved in is kept when the last fix shows it travelling at least this fast (m/s): a vehicle
+# that drives will not stand still for it, and the method starts from a calibration in motion (eskf: its tilt
+# levelled by the yaw fit, its gyro bias less sure; fused: its speed unknown until the next fix, its tilt and
+# along-track bias learnt at the fixes). Slower, it restarts. (Not on a fused board with the smallest heap, where
+# these lines took the fallback kernel over it, nor on a seed board, whose windows take the calibration for rest.)
+_CAL_TRAVELLING_MS = 2.0
+_CAL_FIX_FRESH_MS = const(2000)  # that fix is at most this old
 
 
 def _deg_e7(value, pos, neg):
@@ -268,6 +275,10 @@ class App:
             moved = dr.calibrate(self.state, self.calib)
         if self.on_calibrated is not None:
             self.on_calibrated(self, self.calib, moved)
+        if moved and self._travelling():
+            print("CAL moved: travelling at %.1f m/s, kept" % self.gps_fix.speed_ms)
+            self.log.event("calibration in motion")
+            moved = False
         if moved:
             self.status = "moved! again"
             print("CAL moved: restart")
@@ -429,6 +440,13 @@ class App:
                 self.warn("GPS back")
             self.nmea.feed(data)  # calls _on_epoch and _on_fix as epochs begin and end, every one of them
         return True
+
+    def _travelling(self):
+        """Whether the last fix, fresh and not ignored (test mode), is a vehicle's speed: calibration in motion."""
+        fix = self.gps_fix
+        return (fix is not None and not self.test_mode and fix.speed_ms is not None
+                and fix.speed_ms >= _CAL_TRAVELLING_MS
+                and time.ticks_diff(time.ticks_ms(), self.last_fix_ms) < _CAL_FIX_FRESH_MS)
 
     def _on_epoch(self):
         self.epoch_k = self.k if self.state_id == _STATE_RUN else -1  # valid while nmea.receiving
