@@ -8,11 +8,12 @@ directory's path in the scenario and the environment, for one. The emulated boar
 randomisation off (codegen/sim/harness.py), so each such layout is reproducible; this runs the same drive in
 `--layouts` of them (work directories whose names differ in length) per configuration and heap, and prints how many
 ran through (a MemoryError, or any failure, counts against). The configurations are the ones tests/test_app_boards.py
-holds at the edge: esp32-devkitc-gy521 with mode eskf, with its native module and with the fused fallback that runs
-when the module is refused. "least heap_free" is the least gc.mem_free() the app's DIAG lines printed, without a
+holds at the edge: the bundled esp32-devkitc-gy521 (fused) on its fallback kernel, walking (its smallest-heap test),
+and the same board with mode eskf, driving, with its native module and with the fused fallback that runs when the
+module is refused. "least heap_free" is the least gc.mem_free() the app's DIAG lines printed, without a
 collection first: garbage not yet collected counts as used, so it is no margin, only a hint.
 Conditions: x86-64 host, the 32-bit unix-port MicroPython built from ../shared/micropython (the board's float and
-pointer size), the board's heap and clock; a simulated car, 40 s, one 10 s outage.
+pointer size), the board's heap and clock; 40 s, one 10 s outage.
 """
 
 from __future__ import annotations
@@ -28,11 +29,14 @@ sys.path[:0] = [str(ROOT / "tests"), str(ROOT)]
 
 
 def one(kernel: str, heap_kib: int, layout: int, base: Path) -> tuple[bool, int | None]:
-    from test_app_boards import _eskf_devkitc_run
+    from test_app_boards import _eskf_devkitc_run, smallest_heap_run
 
     work = base / ("w" + "x" * (3 * layout))
     shutil.rmtree(work, ignore_errors=True)
-    _, run = _eskf_devkitc_run(work, kernel, heap_kib * 1024)
+    if kernel == "fused fallback":  # the bundled board itself, on its own heap
+        _, run = smallest_heap_run("esp32-devkitc-gy521", work)
+    else:
+        _, run = _eskf_devkitc_run(work, kernel, heap_kib * 1024)
     free = [int(line.split("heap_free=")[1].split()[0]) for line in run.stdout.splitlines() if "heap_free=" in line]
     ran = run.returncode == 0 and "MemoryError" not in run.stdout + run.stderr
     return ran, (min(free) if free else None)
@@ -44,16 +48,18 @@ def main() -> None:
     parser.add_argument("--heaps", default="112,116,120", help="KiB, comma-separated")
     args = parser.parse_args()
     base = Path(tempfile.mkdtemp(prefix="app-heap-"))
-    print(f"## the eskf app on esp32-devkitc-gy521's configuration, {args.layouts} layouts per row")
+    print(f"## esp32-devkitc-gy521's app, {args.layouts} layouts per row")
     print()
-    print("| kernel | heap [KiB] | ran | least heap_free [B] per layout |")
+    print("| app | heap [KiB] | ran | least heap_free [B] per layout |")
     print("|---|---|---|---|")
-    for kernel in ("native", "python"):
-        for heap in (int(h) for h in args.heaps.split(",")):
-            results = [one(kernel, heap, layout, base) for layout in range(args.layouts)]
-            ran = sum(r for r, _ in results)
-            frees = ", ".join("-" if f is None else str(f) for _, f in results)
-            print(f"| {kernel} | {heap} | {ran}/{args.layouts} | {frees} |", flush=True)
+    rows = [("fused fallback", 112)] + [(kernel, int(h)) for kernel in ("native", "python")
+                                        for h in args.heaps.split(",")]
+    for kernel, heap in rows:
+        results = [one(kernel, heap, layout, base) for layout in range(args.layouts)]
+        ran = sum(r for r, _ in results)
+        frees = ", ".join("-" if f is None else str(f) for _, f in results)
+        app = "fused, its fallback (a walk)" if kernel == "fused fallback" else f"eskf, {kernel} (a drive)"
+        print(f"| {app} | {heap} | {ran}/{args.layouts} | {frees} |", flush=True)
     shutil.rmtree(base, ignore_errors=True)
 
 

@@ -85,13 +85,12 @@ def test_display_on_its_own_bus_uses_that_bus_pins(tmp_path):
     assert screen[0].startswith("GPS fix") and screen[1] == "51.4778000 N"
 
 
-@pytest.mark.parametrize("name", ["esp32-devkitc-gy521", "pico-gy521"])
-def test_smallest_heaps_boot_calibrate_log_and_carry_an_outage(name, tmp_path):
-    """The boards with the least heap (an ESP32 without PSRAM: 112 KiB; the RP2040: 205 KiB), on the board's heap
-    and clock: the app boots, calibrates, logs and dead-reckons through a GPS outage."""
-    micropython = board_micropython()
+def smallest_heap_run(name, tmp_path):
+    """The bundled board `name`'s app (its fallback kernel: no native module) on its heap and clock, walking, with a
+    10 s GPS outage."""
     from appkit import outage_world
 
+    tmp_path.mkdir(parents=True, exist_ok=True)
     board = load_board(name).board
     out = generate_app(name, tmp_path / "out")
     spec, _, _ = outage_world(board, "walk", 3, 40.0, [(26.5, 36.5)], tmp_path)
@@ -99,7 +98,14 @@ def test_smallest_heaps_boot_calibrate_log_and_carry_an_outage(name, tmp_path):
     for button in (board.buttons.calibrate, board.buttons.test_mode):
         if button is not None:
             spec["pins"][str(pin_number(button.pin))] = [[0, 1 if button.active == "low" else 0]]
-    run = run_app(micropython, out, spec, tmp_path / "w")
+    return out, run_app(board_micropython(), out, spec, tmp_path / "w")
+
+
+@pytest.mark.parametrize("name", ["esp32-devkitc-gy521", "pico-gy521"])
+def test_smallest_heaps_boot_calibrate_log_and_carry_an_outage(name, tmp_path):
+    """The boards with the least heap (an ESP32 without PSRAM: 112 KiB; the RP2040: 205 KiB), on the board's heap
+    and clock: the app boots, calibrates, logs and dead-reckons through a GPS outage."""
+    out, run = smallest_heap_run(name, tmp_path)
     assert run.returncode == 0 and "MemoryError" not in run.stdout, run.stdout[-2000:] + run.stderr[-2000:]
     assert any(line.startswith("CAL ok") for line in run.stdout.splitlines())
     assert any(line.startswith("MODE GPS -> IMU") for line in run.stdout.splitlines())
