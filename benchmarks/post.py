@@ -381,7 +381,8 @@ def emulated_device_matrices(seeds: tuple[int, ...] = (0, 1, 4)) -> None:
                 print(f"| {scenario} | {seed} | {name} | {np.degrees(error.magnitude()):.2f} | "
                       f"{' / '.join(f'{x:+.2f}' for x in np.degrees(error.as_rotvec()))} | "
                       f"{' / '.join(f'{x:.2f}' for x in np.degrees(m.sigma_euler))} | "
-                      f"{(p.result.delay - truth) * 1e3:+.1f} | {p.result.delay_estimate.sigma * 1e3:.1f} |", flush=True)
+                      f"{(p.result.delay - truth) * 1e3:+.1f} | {p.result.delay_estimate.sigma * 1e3:.1f} |",
+                      flush=True)
     print()
 
 

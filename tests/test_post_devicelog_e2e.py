@@ -7,8 +7,9 @@ The truth of the delay is found record by record: each logged IMU record is the 
 counts the emulated chip served, so matching the record against the box means of the served counts names the
 samples it averages, and their truth times (on UTC: neo6m.DEFAULT_EPOCH + t), less the chip's low-pass filter's
 delay (5.1 ms at the T-Beam's DLPF_CFG 3: what a sample holds happened that long before it was read), against the
-record's time on `post`'s axis give the delay `post` should find. The mounting's truth is the board's rotation in the vehicle frame `post`
-fits (along the track, pitched with its grade), with the accelerometer's own cross-axis rotation.
+record's time on `post`'s axis give the delay `post` should find. The mounting's truth is the board's rotation in
+the vehicle frame `post` fits (along the track, pitched with its grade), with the accelerometer's own cross-axis
+rotation.
 
 Neither run sits rigidly enough for post's rigid mounting fit (its chi2: ~12 on the drive, where GGA climb rates
 weighed as Doppler meet a tilt that a level-road fit cannot tell from a horizontal bias; ~36 on the walk, whose hand
