@@ -159,7 +159,7 @@ def _linked(work: Path, target: Path, name: str) -> str:
     return name
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _fixed_addresses() -> tuple[str, ...]:
     """A prefix that runs a command with address-space randomisation off (util-linux setarch -R), where the system
     allows it, else none. MicroPython's collector scans the C stack conservatively: with the heap at another address
