@@ -18,7 +18,7 @@ tilts the device by ~6 deg RMS within seconds): post orients both with the gyro'
 What is not reached yet is marked xfail (strict: the mark fails once it passes): the walk's mean mounting (3.1 deg
 off here, 1.4-3.9 deg on tuning seeds 100-103, its yaw 1-sigma 2.0-2.7 deg: the GPS fixes the gyro frame's yaw through
 a walker's small accelerations, 0.14 m/s^2 of Doppler noise per interval against a few tenths of turns and steps).
-The drive's mounting passes here (0.91 deg) but is 1.2-1.8 deg off on other seeds, in tilt: the MPU-6050 model's
+The drive's mounting passes here (0.91 deg) but is 1.1-1.8 deg off on other seeds, in tilt: the MPU-6050 model's
 gyro cross-axis error, which 1 Hz GPS cannot see (docs/post.md, `benchmarks/post.py device-matrices`).
 Runtime: about 25 s for the drive and 15 s for the walk (the app's run, then post), x86-64.
 """
