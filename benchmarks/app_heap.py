@@ -37,7 +37,7 @@ def one(kernel: str, heap_kib: int, layout: int, base: Path) -> tuple[bool, int 
         _, run = smallest_heap_run("esp32-devkitc-gy521", work)
     else:
         _, run = _eskf_devkitc_run(work, kernel, heap_kib * 1024)
-    free = [int(line.split("heap_free=")[1].split()[0]) for line in run.stdout.splitlines() if "heap_free=" in line]
+    free = run.heap_free()
     ran = run.returncode == 0 and "MemoryError" not in run.stdout + run.stderr
     return ran, (min(free) if free else None)
 

@@ -131,7 +131,7 @@ def loop(micropython: str) -> None:
                         re.finditer(r"^WIN \d+ mode=\w+ n=(\d+) .* us=(\d+) ", run.stdout, re.M)]
                 diag = run.console("DIAG")
                 dropped = int(diag[-1].split("dropped=")[1].split()[0]) if diag else -1
-                heap = min((int(line.split("heap_free=")[1].split()[0]) for line in diag), default=-1)
+                heap = min(run.heap_free(), default=-1)
                 full = [us for n, us in wins if n == max(n for n, _ in wins)] if wins else [0]
                 n_max = max((n for n, _ in wins), default=0)
                 print(f"{name:38s} {rate:7d} {np.median(full) / 1000:16.1f} {n_max:14d} {dropped:8d} {heap:16d}"

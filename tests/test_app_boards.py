@@ -111,7 +111,7 @@ def test_smallest_heaps_boot_calibrate_log_and_carry_an_outage(name, tmp_path):
     assert any(line.startswith("MODE GPS -> IMU") for line in run.stdout.splitlines())
     imu_windows = [line for line in run.stdout.splitlines() if line.startswith("WIN") and "mode=IMU" in line]
     assert len(imu_windows) >= 5
-    free = [int(line.split("heap_free=")[1].split()[0]) for line in run.console("DIAG")]
+    free = run.heap_free()
     print(f"{name}: heap free {min(free)}..{max(free)} B of {run_heap(out)} B")
     files = sorted((tmp_path / "fs").glob("dr*.bin"))
     assert files and files[0].stat().st_size >= 3 * 4096  # blocks logged through the run
@@ -149,7 +149,7 @@ def test_eskf_heap_rule_holds_on_the_emulated_board(tmp_path):
     _, run = _eskf_devkitc_run(tmp_path / "ok", "native", rules.ESKF_MEASURED_OK_HEAP_BYTES)
     assert run.returncode == 0 and "MemoryError" not in run.stdout, run.stdout[-1500:]
     assert any(line.startswith("MODE GPS -> IMU") for line in run.stdout.splitlines())
-    free = [int(line.split("heap_free=")[1].split()[0]) for line in run.console("DIAG")]
+    free = run.heap_free()
     print(f"eskf app in {rules.ESKF_MEASURED_OK_HEAP_BYTES // 1024} KiB: heap free {min(free)}..{max(free)} B")
     _, run = _eskf_devkitc_run(tmp_path / "failed", "native", rules.ESKF_FAILED_HEAP_BYTES)
     assert "MemoryError" in run.stdout + run.stderr, run.stdout[-1500:]
@@ -177,7 +177,7 @@ def test_smallest_heap_runs_eskf_through_an_outage(kernel, tmp_path):
         assert any(line.startswith("ESKF started") for line in lines)
     imu_windows = [line for line in lines if line.startswith("WIN") and "mode=IMU" in line]
     assert len(imu_windows) >= 3
-    free = [int(line.split("heap_free=")[1].split()[0]) for line in run.console("DIAG")]
+    free = run.heap_free()
     heap = run_heap(out) if kernel == "native" else FALLBACK_ESKF_HEAP_BYTES
     print(f"devkitc eskf ({kernel}): heap free {min(free)}..{max(free)} B of {heap} B")
     from codegen.sim.harness import read_log

@@ -61,6 +61,10 @@ class Run:
     def console(self, prefix: str) -> list[str]:
         return [line for line in self.stdout.splitlines() if line.startswith(prefix)]
 
+    def heap_free(self) -> list[int]:
+        """The heap_free figure of each DIAG line the app printed (gc.mem_free(), bytes, without a collection)."""
+        return [int(line.split("heap_free=")[1].split()[0]) for line in self.console("DIAG") if "heap_free=" in line]
+
 
 def app_constants(out: Path) -> dict:
     """CHIP, HEAP_BYTES and the other constants of OUT/app/board_config.py (what the generated app was built for)."""
