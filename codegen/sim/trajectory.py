@@ -569,6 +569,7 @@ TOWN_BUMP_M = (0.05, 0.08)  # speed bumps' height (m) over 2.5-4 m; one in every
 TOWN_PARK_GD = (256e-6, 1024e-6)  # m^3: car park lanes, ISO 8608 class C..D
 TOWN_PEDAL_MS2 = 0.8  # m/s^2 rms, a creeping driver's surge: a real car park's share (0.02-0.04, fused's statistic)
 TOWN_ROAD_GD = (16e-6, 64e-6)  # m^3: streets, ISO 8608 class A..B (car-comma2k19's shaking at 8-20 m/s)
+ENGINE_START_S = 0.5  # s: an idling engine's shake grows from nothing to its own as the engine starts
 
 
 def car_town(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ) -> Trajectory:
@@ -601,17 +602,20 @@ def car_town(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate:
         k += m
     a_cmd = gaussian_filter1d(a_cmd, 0.3 * rate, mode="nearest")
     w_cmd = gaussian_filter1d(w_cmd, 0.5 * rate, mode="nearest")
-    # creeping (a car park, a queue), the driver plays the pedals: a zero-mean surge of TOWN_PEDAL_MS2 rms at
-    # 0.2-1.5 Hz on top of the steady speed, which the body answers by pitching on its springs
+    # creeping (a car park, a queue), the driver plays the pedals: a surge of TOWN_PEDAL_MS2 rms at 0.2-1.5 Hz on
+    # top of the scripted speed, which the body answers by pitching on its springs. It is a speed that comes and
+    # goes within the creep (faded in with the speed up to 1 m/s and out at the span's ends), so the script's speeds
+    # hold outside it: a stand stands. (Integrated as an acceleration, its mean over a span carried over into the
+    # stand after it: cars crept through "stands" at up to 2.6 m/s.)
     creep = np.zeros(n)
     for begin, end, kind in spans:
         if kind in ("park", "queue") and end - begin > 2.0:
             creep[int(begin * rate) : int(end * rate)] = 1.0
     creep = gaussian_filter1d(creep, 0.5 * rate, mode="nearest")
-    surge = _band_noise(rng, n, rate, 0.2, 1.5) * TOWN_PEDAL_MS2
-    moving = np.cumsum(a_cmd) / rate > 1.0
-    a_cmd = a_cmd + creep * moving * (surge - np.mean(surge))
-    speed = np.maximum(np.cumsum(a_cmd) / rate, 0.0)
+    scripted = np.maximum(np.cumsum(a_cmd) / rate, 0.0)
+    wobble = _band_noise(rng, n, rate, 0.2, 1.5)
+    wobble *= TOWN_PEDAL_MS2 / float(np.std(np.gradient(wobble, 1.0 / rate)))
+    speed = np.maximum(scripted + creep * np.minimum(scripted, 1.0) * wobble, 0.0)
     speed[speed < 1e-6] = 0.0
     course = rng.uniform(0, 2 * np.pi) + np.cumsum(w_cmd) / rate
     distance = np.cumsum(speed) / rate
@@ -645,7 +649,10 @@ def car_town(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate:
     # an idling inline four shakes vertically at its firing frequency; the DLPF and the harmonics take a little:
     # the linear amplitude is the idle |f| shaking drawn, in m/s^2 rms
     engine = vib.Engine(accel_rms_ms2=stand_mg * 1e-3 * STANDARD_GRAVITY, vertical=True)
-    angles, _, _, engine_vel = vib.engine_shake(t, engine.rpm(speed), t >= engine_on, engine, rng)
+    # the engine spins up over ENGINE_START_S: switched on at full amplitude its shake's velocity would step, a jolt
+    # of up to 0.9 m/s^2 at the truth's 1 kHz depending on its phase
+    starting = np.clip((t - engine_on) / ENGINE_START_S, 0.0, 1.0)
+    angles, _, _, engine_vel = vib.engine_shake(t, engine.rpm(speed), starting, engine, rng)
     extra = np.zeros((n, 3))
     extra[:, 2] += np.gradient(heave - heave[0], 1.0 / rate, edge_order=2)
     extra += engine_vel

@@ -157,7 +157,8 @@ class Engine:
 
 def engine_shake(t: np.ndarray, rpm: np.ndarray, running: np.ndarray, engine: Engine, rng: np.random.Generator):
     """Angles (n, 3) rad and displacements (n, 3) m of the engine's shake felt by the body, with their exact
-    derivatives (rates rad/s, velocities m/s): sums of firing-order sinusoids with random fixed directions."""
+    derivatives (rates rad/s, velocities m/s): sums of firing-order sinusoids with random fixed directions.
+    `running` scales the amplitude (booleans, or 0..1 for an engine spinning up: its own derivative is left out)."""
     n = len(t)
     dt = t[1] - t[0]
     firing_hz = rpm / 60.0 * engine.cylinders / 2.0
