@@ -556,6 +556,7 @@ typedef struct {
     int driven;
     int fast;
     int walked;   /* DR_FUSED_WALKED or 0 */
+    int drove;    /* DR_FUSED_DROVE or 0 */
     int platform; /* DR_FUSED_PLATFORM_* */
     int32_t median; /* the median option's b, or 0 */
     float db2;    /* (m/s^2)^2: the kernel's deadband squared */
@@ -680,7 +681,8 @@ static inline void dr_fused_rest(const dr_fused_config *cfg, dr_fused_state *st,
 }
 
 /* Steps or a vehicle (codegen.fused's _platform): walking when shaken, not at rest, in the gait band (auto) for
- * walk_time_s and nothing says a vehicle (a fast fix since the last rest, its own speed beyond a runner's); a
+ * walk_time_s (vehicle_walk_time_s after a fast fix: a queue creeps in the gait band for seconds) and nothing says
+ * a vehicle (a fast fix since the last rest, its own speed beyond a runner's); a
  * vehicle when shaken above it, a fast fix, or the platform. The steps stopped: so did the walker (speed 0). */
 static inline void dr_fused_platform(const dr_fused_config *cfg, dr_fused_state *st, dr_fused_loop *lp) {
     const int platform = lp->platform, shaken = lp->shaken, broadband = lp->broadband, rest = lp->rest;
@@ -688,9 +690,11 @@ static inline void dr_fused_platform(const dr_fused_config *cfg, dr_fused_state 
                 (platform == DR_FUSED_PLATFORM_PEDESTRIAN ||
                  !(broadband || lp->fast || (lp->vehicle && st->speed > cfg->pedestrian_max_ms)));
     st->walk_s = steps ? st->walk_s + lp->dt : 0.0f;
-    lp->walking = steps && ((lp->flags & DR_FUSED_WALKING) || st->walk_s >= cfg->walk_time_s);
+    lp->walking = steps && ((lp->flags & DR_FUSED_WALKING) ||
+                            st->walk_s >= (lp->drove ? cfg->vehicle_walk_time_s : cfg->walk_time_s));
     if (lp->walking) {
         lp->vehicle = 0;
+        lp->drove = 0;
         lp->walked = DR_FUSED_WALKED;
     } else if (lp->fast || (shaken && broadband && platform != DR_FUSED_PLATFORM_PEDESTRIAN && !lp->walked)) {
         lp->vehicle = 1;
@@ -735,7 +739,8 @@ static inline void dr_fused_travel_direction(const dr_fused_config *cfg, dr_fuse
         st->held = 0.0f;
     }
     lp->flags = (lp->rest ? DR_FUSED_AT_REST : 0) | (lp->walking ? DR_FUSED_WALKING : 0) | lp->turning |
-                (lp->vehicle ? DR_FUSED_VEHICLE : 0) | lp->driven | (lp->fast ? DR_FUSED_FAST : 0) | lp->walked;
+                (lp->vehicle ? DR_FUSED_VEHICLE : 0) | lp->driven | (lp->fast ? DR_FUSED_FAST : 0) | lp->walked |
+                lp->drove;
     {
         float cd = 1.0f - 0.5f * da * da, sd = da * (1.0f - da * da * (1.0f / 6.0f));
         ux = cd * st->ux - sd * st->uy;
@@ -1003,6 +1008,7 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
     lp.driven = lp.flags & DR_FUSED_SHAKEN;
     lp.fast = (lp.flags & DR_FUSED_FAST) && lp.platform != DR_FUSED_PLATFORM_PEDESTRIAN;
     lp.walked = lp.flags & DR_FUSED_WALKED;
+    lp.drove = lp.platform != DR_FUSED_PLATFORM_PEDESTRIAN ? lp.flags & DR_FUSED_DROVE : 0;
     lp.median = cfg->median > 0.0f && kcfg->block > 1 ? kcfg->block : 0;
     lp.db2 = kcfg->deadband_ms2 * kcfg->deadband_ms2;
     if (count < 1) {
@@ -1284,9 +1290,10 @@ static inline void dr_fused_fix_restart(const dr_fused_config *cfg, dr_fused_sta
     st->gps_vn = vn;
     st->gps_speed = speed;
     st->gps_ok = speed - cfg->min_speed_ms;
-    /* faster than people run, or than people move without steps: a vehicle until it rests */
+    /* faster than people run, or than people move without steps: a vehicle until it rests, one that drove until
+     * it walks */
     if (speed > cfg->pedestrian_max_ms || (speed > cfg->carried_ms && !((int)st->flags & DR_FUSED_WALKING))) {
-        st->flags = (float)((int)st->flags | DR_FUSED_FAST);
+        st->flags = (float)((int)st->flags | DR_FUSED_FAST | DR_FUSED_DROVE);
     }
     st->dvx = 0.0f;
     st->dvy = 0.0f;

@@ -555,6 +555,36 @@ def test_steps_are_a_walk_and_broadband_shaking_a_vehicle(impl, tmp_path, platfo
             assert trace.at(-1, "speed") == pytest.approx(1.2)
 
 
+
+def test_a_vehicle_that_creeps_on_after_a_stop_steps_for_seconds_before_it_is_a_pedestrian(impl, tmp_path):
+    """A car that drove (a fast fix since its last walk: DROVE) and has rested since (FAST cleared) moves on in an
+    outage, its queue's surface shaking it in the gait band (2 Hz, 0.1 g rms). A car creeping in a queue shakes like
+    that for seconds at a time; a passenger who got out walks on: it is a pedestrian after vehicle_walk_time_s (10 s)
+    of steps, not walk_time_s (1 s). A device that is a vehicle only by its broadband shaking (a hand's tremor is
+    broadband too) walks after walk_time_s; so does a pedestrian platform, whatever the flags say."""
+    samples, dt = _shaken("steps", 2600)
+    pedestrian = replace(FCFG, platform=float(FUSED_PLATFORM.code("pedestrian")))
+    for flags, params, walk_after in ((F.VEHICLE | F.DROVE, FCFG, 10.0), (F.VEHICLE, FCFG, 1.0), (0, FCFG, 1.0),
+                                      (F.VEHICLE | F.DROVE, replace(FCFG, vehicle_walk_time_s=1.0), 1.0),
+                                      (F.DROVE, pedestrian, 1.0)):
+        trace = run(impl, chunks(samples, dt, 20), tmp_path, params=params,
+                    start=_still(flags=float(flags), speed=2.0, walk_speed=1.2))
+        seen = trace.series("flags").astype(int)
+        walking = seen & F.WALKING
+        assert walking[-1] and not seen[-1] & F.DROVE, flags
+        first = int(np.argmax(walking)) * 20 * 0.005
+        assert walk_after <= first < walk_after + 0.5, (flags, first)
+
+
+def test_a_fast_fix_marks_a_device_that_drove_until_it_walks(impl, tmp_path):
+    """A fix at 8 m/s (faster than people run) sets FAST and DROVE; the rest that follows clears FAST only."""
+    quiet = _samples(400, accel_g=(0.0, 0.0, 1.0))
+    steps = [("p", *quiet), ("g", 8.0, 0.0, 8.0, 0.0), ("p", *quiet), ("g", 0.0, 0.0, 0.0, 0.0), ("p", *quiet)] + [("p", *quiet)] * 2
+    trace = run(impl, steps, tmp_path, start=_still(since_fix=0.5, speed=8.0, walk_speed=1.2))
+    flags = trace.series("flags").astype(int)
+    assert flags[-1] & F.AT_REST and flags[-1] & F.DROVE and not flags[-1] & F.FAST, flags[-1]
+
+
 # ------------------------------------------------------------------------------------------------ travel direction
 def test_turn_rotates_the_travel_direction(impl, tmp_path):
     """A turn of 90 degrees (counter-clockwise) about Up at 0.5 rad/s turns the travel direction with it."""

@@ -32,9 +32,9 @@ from codegen.kernel.reference import (
     tilt_from_gravity,
 )
 
-AT_REST, WALKING, TURNING, VEHICLE, SHAKEN, FAST, WALKED = (
+AT_REST, WALKING, TURNING, VEHICLE, SHAKEN, FAST, WALKED, DROVE = (
     next(f.value for f in FUSED.flags if f.name == name)
-    for name in ("AT_REST", "WALKING", "TURNING", "VEHICLE", "SHAKEN", "FAST", "WALKED"))
+    for name in ("AT_REST", "WALKING", "TURNING", "VEHICLE", "SHAKEN", "FAST", "WALKED", "DROVE"))
 PLATFORM_PEDESTRIAN, PLATFORM_VEHICLE = (FUSED.param("platform").code(name) for name in ("pedestrian", "vehicle"))
 FILTER_TILT, FILTER_LATERAL, FILTER_POSITION, FILTER_SPEED = (
     COVARIANCE_FILTERS.index(n) for n in ("TILT", "LATERAL", "POSITION", "SPEED"))
@@ -133,7 +133,7 @@ class _Loop:
         "inv_stand", "rest_w2", "walk_var", "vib_rate", "inv_vib", "platform", "inv_stat", "inv_speed", "inv_acc",
         "nhc_r", "median", "ring", "hold_rate", "turn_start", "turn_end",
         # the decisions carried between samples
-        "was_walking", "vehicle", "driven", "fast", "walked", "turning",
+        "was_walking", "vehicle", "driven", "fast", "walked", "drove", "turning",
         # this sample: its interval, specific force and rate, their statistics, R(q)'s rows, the horizontal force
         "dt", "fx", "fy", "fz", "wx", "wy", "wz", "nf", "d", "alpha", "shaken", "broadband",
         "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22", "ae", "an", "rest", "walking", "r",
@@ -175,6 +175,7 @@ class _Loop:
         self.driven = bool(flags & SHAKEN)
         self.fast = bool(flags & FAST) and self.platform != PLATFORM_PEDESTRIAN
         self.walked = bool(flags & WALKED)
+        self.drove = bool(flags & DROVE) and self.platform != PLATFORM_PEDESTRIAN
         self.turning = bool(flags & TURNING)
         self.sp = st.speed
 
@@ -182,7 +183,7 @@ class _Loop:
         """The sample's flags (AT_REST | WALKING | ...), as the state keeps the last one's."""
         return ((AT_REST if self.rest else 0) | (WALKING if self.walking else 0) | (TURNING if self.turning else 0)
                 | (VEHICLE if self.vehicle else 0) | (SHAKEN if self.driven else 0) | (FAST if self.fast else 0)
-                | (WALKED if self.walked else 0))
+                | (WALKED if self.walked else 0) | (DROVE if self.drove else 0))
 
 
 def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfig):
@@ -194,7 +195,7 @@ def process(st: FusedState, samples, dt_us, kcfg: KernelConfig, fcfg: FusedConfi
     gyr = body[:, 3:].tolist()
     dts = (np.asarray(dt_us, dtype=np.float64) * 1e-6).tolist()
     lp = _Loop(st, kcfg, fcfg)
-    flags = np.zeros(len(dts), dtype=np.int8)
+    flags = np.zeros(len(dts), dtype=np.uint8)
     pe0, pn0 = st.pe, st.pn
     for k, dt in enumerate(dts):
         _sample_in(lp, st, acc[k], gyr[k], dt)
@@ -315,7 +316,8 @@ def _rest(lp: _Loop, st: FusedState) -> None:
 
 
 def _platform(lp: _Loop, st: FusedState) -> None:
-    """Steps or a vehicle. Walking: shaken (the steps), by a pedestrian, not at rest, for walk_time_s; on auto only
+    """Steps or a vehicle. Walking: shaken (the steps), by a pedestrian, not at rest, for walk_time_s (after a fast
+    fix, vehicle_walk_time_s: a car creeping on in a queue shakes in the gait band for seconds); on auto only
     while the shaking stays in the gait band and nothing says a vehicle: a fix faster than people run since the
     last rest (fast), or the vehicle's own speed beyond that (a vehicle does not become a pedestrian without
     stopping). A vehicle: shaken far above the gait band unless it walked (a hand's tremor is broadband too: a
@@ -326,9 +328,10 @@ def _platform(lp: _Loop, st: FusedState) -> None:
     steps = platform != PLATFORM_VEHICLE and shaken and not rest and (platform == PLATFORM_PEDESTRIAN or not (
         broadband or lp.fast or lp.vehicle and st.speed > fcfg.pedestrian_max_ms))
     st.walk_s = st.walk_s + lp.dt if steps else 0.0
-    walking = steps and (lp.was_walking or st.walk_s >= fcfg.walk_time_s)
+    walk_time = fcfg.vehicle_walk_time_s if lp.drove else fcfg.walk_time_s
+    walking = steps and (lp.was_walking or st.walk_s >= walk_time)
     if walking:
-        lp.vehicle = False
+        lp.vehicle = lp.drove = False
         lp.walked = True
     elif lp.fast or shaken and broadband and platform != PLATFORM_PEDESTRIAN and not lp.walked:
         lp.vehicle = True  # a walker's hand tremor (8-12 Hz) is broadband too
@@ -942,7 +945,7 @@ def _fix_restart(st: FusedState, ve: float, vn: float, speed: float, ae: float, 
     st.gps_speed = speed
     st.gps_ok = speed - fcfg.min_speed_ms
     if speed > fcfg.pedestrian_max_ms or speed > fcfg.carried_ms and not int(st.flags) & WALKING:
-        st.flags = float(int(st.flags) | FAST)
+        st.flags = float(int(st.flags) | FAST | DROVE)
     st.dvx = st.dvy = st.dpx = st.dpy = 0.0
     st.m00 = st.m01 = st.m10 = st.m11 = st.m02 = st.m12 = st.turn = 0.0
     st.zr_t = st.zr_pe = st.zr_pn = st.zr_ce = st.zr_cn = st.zr_turn = 0.0

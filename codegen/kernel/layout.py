@@ -538,6 +538,10 @@ FUSED = Kernel(
         Param("carried_ms", "m/s", "auto: a fix faster than this while no steps are seen makes the device a vehicle "
               "until it rests, as a fix faster than fused_pedestrian_max_ms does (a pedestrian who moves that fast "
               "steps; slow traffic does not)", Store("carried_ms", "m/s"), 2.5, gt=0),
+        Param("vehicle_walk_time_s", "s", "auto: steps this long make a pedestrian of a device that drove (a fix "
+              "faster than fused_pedestrian_max_ms, or than fused_carried_ms without steps, since its last walk; a "
+              "rest does not end it): a car creeping on in a queue shakes in the gait band for seconds at a time",
+              Store("vehicle_walk_time_s", "s"), 10.0, ge=0),
     ),
     flags=(
         Flag("AT_REST", 1, "the last sample was at rest"),
@@ -547,6 +551,8 @@ FUSED = Kernel(
         Flag("SHAKEN", 16, "a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped"),
         Flag("FAST", 32, "a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests"),
         Flag("WALKED", 64, "a pedestrian: walked, and no fast fix since (a walker's stops keep it)"),
+        Flag("DROVE", 128, "a fix since the last walk was FAST's: a vehicle's, whose rests keep it (steps must last "
+             "vehicle_walk_time_s to make a pedestrian of it)"),
     ),
 )
 

@@ -379,8 +379,8 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(219)
-_F_KCFG = const(207)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(220)
+_F_KCFG = const(208)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
@@ -575,6 +575,7 @@ _FC_SPEED_BIAS_Q = const(203)  # (m/s^2)^2/s, from speed_bias_noise (m/s^2/sqrt(
 _FC_KEEP_Q = const(204)  # (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s))
 _FC_MAX_ACCEL_MS2 = const(205)  # m/s^2, from max_accel_ms2 (m/s^2)
 _FC_CARRIED_MS = const(206)  # m/s, from carried_ms (m/s)
+_FC_VEHICLE_WALK_TIME_S = const(207)  # s, from vehicle_walk_time_s (s)
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
@@ -582,6 +583,7 @@ _VEHICLE = const(8)  # flags bit: the last shaking was a vehicle's (above vibrat
 _SHAKEN = const(16)  # flags bit: a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped
 _FAST = const(32)  # flags bit: a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests
 _WALKED = const(64)  # flags bit: a pedestrian: walked, and no fast fix since (a walker's stops keep it)
+_DROVE = const(128)  # flags bit: a fix since the last walk was FAST's: a vehicle's, whose rests keep it (steps must last vehicle_walk_time_s to make a pedestrian of it)
 _PLATFORM_PEDESTRIAN = const(0)  # platform: pedestrian
 _PLATFORM_VEHICLE = const(1)  # platform: vehicle
 _PLATFORM_AUTO = const(2)  # platform: auto
@@ -656,11 +658,12 @@ _FUSED_PARAMS = (
     1.0,  # keep_speed_noise, m/s/sqrt(s)
     4.0,  # max_accel_ms2, m/s^2
     2.5,  # carried_ms, m/s
+    10.0,  # vehicle_walk_time_s, s
 )
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 57 values in the
+    """Reset the fused state and store the configuration: the board's, or 58 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -777,6 +780,8 @@ def fused_init(fstate, params=_FUSED_PARAMS):
         raise ValueError("max_accel_ms2 must be > 0")
     if not (p[56] > 0):
         raise ValueError("carried_ms must be > 0")
+    if not (p[57] >= 0):
+        raise ValueError("vehicle_walk_time_s must be >= 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
     fstate[_F_Q + 0] = 1.0
@@ -840,6 +845,7 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_KEEP_Q] = p[54] * p[54]
     fstate[_FC_MAX_ACCEL_MS2] = p[55]
     fstate[_FC_CARRIED_MS] = p[56]
+    fstate[_FC_VEHICLE_WALK_TIME_S] = p[57]
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -1035,6 +1041,7 @@ def fused_process(fstate, samples, dt_us, out):
     driven = flags & _SHAKEN
     fast = flags & _FAST if platform != _PLATFORM_PEDESTRIAN else 0
     walked = flags & _WALKED
+    drove = flags & _DROVE if platform != _PLATFORM_PEDESTRIAN else 0
     for k in range(count):
         # step: sample_in
         i = 6 * k
@@ -1115,17 +1122,18 @@ def fused_process(fstate, samples, dt_us, out):
         else:
             rest_s = 0.0
         rest = rest_s >= rest_time
-        # step: platform (walking: shaken, not at rest, in the gait band on auto, for walk_time_s, and nothing
-        # says a vehicle; a vehicle: shaken above it, a fast fix, or the platform)
+        # step: platform (walking: shaken, not at rest, in the gait band on auto, for walk_time_s or after a fast fix
+        # vehicle_walk_time_s, and nothing says a vehicle; a vehicle: shaken above it, a fast fix, or the platform)
         if shaken and not rest and platform != _PLATFORM_VEHICLE and (platform == _PLATFORM_PEDESTRIAN or not (
                 broadband or fast or vehicle and speed > pedestrian_max)):
             walk_s += dt
-            now_walking = walking or walk_s >= walk_time
+            now_walking = walking or walk_s >= (st[_FC_VEHICLE_WALK_TIME_S] if drove else walk_time)
         else:
             walk_s = 0.0
             now_walking = False
         if now_walking:
             vehicle = False
+            drove = 0
             walked = _WALKED
         elif fast or shaken and broadband and platform != _PLATFORM_PEDESTRIAN and not walked:
             vehicle = True  # a walker's hand tremor is broadband too: a fast fix or a rest ends a walker
@@ -1445,7 +1453,7 @@ def fused_process(fstate, samples, dt_us, out):
     st[_F_KEEP_V] = keep_v
     st[_F_SB_LOST] = sb_lost
     st[_F_FLAGS] = ((_AT_REST if rest else 0) | (_WALKING if walking else 0) | turning | (_VEHICLE if vehicle else 0)
-                    | driven | (_FAST if fast else 0) | walked)  # the last sample's
+                    | driven | (_FAST if fast else 0) | walked | drove)  # the last sample's
     out[0] = st[_F_PE] - pe0
     out[1] = st[_F_PN] - pn0
     out[2] = 0.0
@@ -1984,9 +1992,10 @@ def fused_gps(fstate, ve, vn):
     st[_F_GPS_VN] = vn
     st[_F_GPS_SPEED] = speed
     st[_F_GPS_OK] = speed - min_speed
-    # faster than people run, or than people move without steps: a vehicle until it rests
+    # faster than people run, or than people move without steps: a vehicle until it rests, one that drove until it
+    # walks
     if speed > st[_FC_PEDESTRIAN_MAX_MS] or speed > st[_FC_CARRIED_MS] and not int(st[_F_FLAGS]) & _WALKING:
-        st[_F_FLAGS] = float(int(st[_F_FLAGS]) | _FAST)
+        st[_F_FLAGS] = float(int(st[_F_FLAGS]) | _FAST | _DROVE)
     st[_F_DVX] = 0.0
     st[_F_DVY] = 0.0
     st[_F_DPX] = 0.0

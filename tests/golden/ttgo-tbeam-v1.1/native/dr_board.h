@@ -86,6 +86,7 @@
 #define DR_FUSED_KEEP_SPEED_NOISE (1.0f) /* m/s/sqrt(s) */
 #define DR_FUSED_MAX_ACCEL_MS2 (4.0f) /* m/s^2 */
 #define DR_FUSED_CARRIED_MS (2.5f) /* m/s */
+#define DR_FUSED_VEHICLE_WALK_TIME_S (10.0f) /* s */
 
 /* algorithm: eskf (dr_eskf.c; codegen/kernel/eskf.py): board algorithm.eskf_*, declared in codegen/kernel/layout.py */
 #define DR_WITH_ESKF (0) /* 1: dr_native carries the filter */

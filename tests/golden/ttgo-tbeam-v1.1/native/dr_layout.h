@@ -132,6 +132,7 @@ static inline void dr_state_start(dr_state *st) {
 #define DR_FUSED_SHAKEN (16) /* dr_fused_state.flags bit: a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped */
 #define DR_FUSED_FAST (32) /* dr_fused_state.flags bit: a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests */
 #define DR_FUSED_WALKED (64) /* dr_fused_state.flags bit: a pedestrian: walked, and no fast fix since (a walker's stops keep it) */
+#define DR_FUSED_DROVE (128) /* dr_fused_state.flags bit: a fix since the last walk was FAST's: a vehicle's, whose rests keep it (steps must last vehicle_walk_time_s to make a pedestrian of it) */
 
 /* The configuration the loop reads, each parameter in the form it is used in. */
 typedef struct {
@@ -192,6 +193,7 @@ typedef struct {
     float keep_q; /* (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s)) */
     float max_accel_ms2; /* m/s^2, from max_accel_ms2 (m/s^2) */
     float carried_ms; /* m/s, from carried_ms (m/s) */
+    float vehicle_walk_time_s; /* s, from vehicle_walk_time_s (s) */
 } dr_fused_config;
 
 /* The state, by concern. */
@@ -304,8 +306,8 @@ typedef struct {
 } dr_fused_state;
 
 #define DR_FUSED_STATE_FLOATS (150) /* floats in dr_fused_state */
-#define DR_FUSED_CONFIG_FLOATS (57) /* floats in dr_fused_config */
-#define DR_FUSED_PARAMS (57) /* parameters dr_fused_config_set takes */
+#define DR_FUSED_CONFIG_FLOATS (58) /* floats in dr_fused_config */
+#define DR_FUSED_PARAMS (58) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
 #define DR_FUSED_STATE_Q (0)
 #define DR_FUSED_STATE_GYRO_BIAS_LSB (4)
@@ -445,8 +447,8 @@ typedef struct {
 #define DR_FUSED_SB_PBB (2) /* sb_p[2] */
 typedef char dr_fused_state_is_150_floats[
     sizeof(dr_fused_state) == 150 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_57_floats[
-    sizeof(dr_fused_config) == 57 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_58_floats[
+    sizeof(dr_fused_config) == 58 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
     ? 1 : -1];
@@ -567,6 +569,10 @@ typedef char dr_fused_cov_repairs_at_142[
 /* m/s: auto: a fix faster than this while no steps are seen makes the device a vehicle until it rests, as a fix
  * faster than fused_pedestrian_max_ms does (a pedestrian who moves that fast steps; slow traffic does not) */
 #define DR_FUSED_P_CARRIED_MS (56)
+/* s: auto: steps this long make a pedestrian of a device that drove (a fix faster than fused_pedestrian_max_ms, or
+ * than fused_carried_ms without steps, since its last walk; a rest does not end it): a car creeping on in a queue
+ * shakes in the gait band for seconds at a time */
+#define DR_FUSED_P_VEHICLE_WALK_TIME_S (57)
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
@@ -746,6 +752,9 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     if (!(p[DR_FUSED_P_CARRIED_MS] > 0.0f)) { /* carried_ms must be > 0 */
         return DR_ERR_RANGE;
     }
+    if (!(p[DR_FUSED_P_VEHICLE_WALK_TIME_S] >= 0.0f)) { /* vehicle_walk_time_s must be >= 0 */
+        return DR_ERR_RANGE;
+    }
     return DR_OK;
 }
 
@@ -808,6 +817,7 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->keep_q = p[DR_FUSED_P_KEEP_SPEED_NOISE] * p[DR_FUSED_P_KEEP_SPEED_NOISE];
     cfg->max_accel_ms2 = p[DR_FUSED_P_MAX_ACCEL_MS2];
     cfg->carried_ms = p[DR_FUSED_P_CARRIED_MS];
+    cfg->vehicle_walk_time_s = p[DR_FUSED_P_VEHICLE_WALK_TIME_S];
 }
 
 /* p <- the board's parameters (dr_board.h), in the order of DR_FUSED_P_*. */
@@ -869,6 +879,7 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_KEEP_SPEED_NOISE] = DR_FUSED_KEEP_SPEED_NOISE;
     p[DR_FUSED_P_MAX_ACCEL_MS2] = DR_FUSED_MAX_ACCEL_MS2;
     p[DR_FUSED_P_CARRIED_MS] = DR_FUSED_CARRIED_MS;
+    p[DR_FUSED_P_VEHICLE_WALK_TIME_S] = DR_FUSED_VEHICLE_WALK_TIME_S;
 }
 
 /* st <- every field 0, then the declared starting values. */
@@ -888,8 +899,8 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
 #define DR_FUSED_CONFIG_AT (150)
-#define DR_FUSED_KERNEL_CONFIG_AT (207)
-#define DR_FUSED_BUFFER_FLOATS (219)
+#define DR_FUSED_KERNEL_CONFIG_AT (208)
+#define DR_FUSED_BUFFER_FLOATS (220)
 
 /* ---- the error-state filter (dr_eskf.c, codegen/kernel/eskf.py) ----
  * Its structs are dr_eskf.h's, written by hand; these are their lengths and offsets as codegen/kernel/layout.py
