@@ -551,8 +551,8 @@ FUSED = Kernel(
         Flag("SHAKEN", 16, "a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped"),
         Flag("FAST", 32, "a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests"),
         Flag("WALKED", 64, "a pedestrian: walked, and no fast fix since (a walker's stops keep it)"),
-        Flag("DROVE", 128, "a fix since the last walk was FAST's: a vehicle's, whose rests keep it (steps must last "
-             "vehicle_walk_time_s to make a pedestrian of it)"),
+        Flag("DROVE", 128, "a fix since the last walk set FAST: the device drove; its rests keep this, and its steps "
+             "must last vehicle_walk_time_s to make a pedestrian of it"),
     ),
 )
 

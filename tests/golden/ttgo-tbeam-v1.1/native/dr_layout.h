@@ -132,7 +132,7 @@ static inline void dr_state_start(dr_state *st) {
 #define DR_FUSED_SHAKEN (16) /* dr_fused_state.flags bit: a vehicle shaken (beyond walk_accel_g) since its last rest: if it goes quiet, it stopped */
 #define DR_FUSED_FAST (32) /* dr_fused_state.flags bit: a fix since the last rest was faster than pedestrian_max_ms: a vehicle, until it rests */
 #define DR_FUSED_WALKED (64) /* dr_fused_state.flags bit: a pedestrian: walked, and no fast fix since (a walker's stops keep it) */
-#define DR_FUSED_DROVE (128) /* dr_fused_state.flags bit: a fix since the last walk was FAST's: a vehicle's, whose rests keep it (steps must last vehicle_walk_time_s to make a pedestrian of it) */
+#define DR_FUSED_DROVE (128) /* dr_fused_state.flags bit: a fix since the last walk set FAST: the device drove; its rests keep this, and its steps must last vehicle_walk_time_s to make a pedestrian of it */
 
 /* The configuration the loop reads, each parameter in the form it is used in. */
 typedef struct {
