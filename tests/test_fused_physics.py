@@ -577,9 +577,10 @@ def test_a_vehicle_that_creeps_on_after_a_stop_steps_for_seconds_before_it_is_a_
 
 
 def test_a_fast_fix_marks_a_device_that_drove_until_it_walks(impl, tmp_path):
-    """A fix at 8 m/s (faster than people run) sets FAST and DROVE; the rest that follows clears FAST only."""
+    """A fix at 8 m/s (faster than people run) sets FAST and DROVE; a fix at 0 m/s and the rest that follows (6 s
+    of a level, quiet device) clear FAST only."""
     quiet = _samples(400, accel_g=(0.0, 0.0, 1.0))
-    steps = [("p", *quiet), ("g", 8.0, 0.0, 8.0, 0.0), ("p", *quiet), ("g", 0.0, 0.0, 0.0, 0.0), ("p", *quiet)] + [("p", *quiet)] * 2
+    steps = [("p", *quiet), ("g", 8.0, 0.0, 8.0, 0.0), ("p", *quiet), ("g", 0.0, 0.0, 0.0, 0.0)] + [("p", *quiet)] * 3
     trace = run(impl, steps, tmp_path, start=_still(since_fix=0.5, speed=8.0, walk_speed=1.2))
     flags = trace.series("flags").astype(int)
     assert flags[-1] & F.AT_REST and flags[-1] & F.DROVE and not flags[-1] & F.FAST, flags[-1]
