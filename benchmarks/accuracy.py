@@ -192,6 +192,9 @@ def platform_goal_lines(results) -> list[str]:
                 if name == "fused" and forced:
                     best = np.min([np.nanmedian(f, axis=0) for f in forced], axis=0)
                     checks.append(("auto within 10 % of the better forced", bool(np.all(med <= 1.1 * best))))
+            elif "hold-last-fix" not in res.errors:
+                lines.append(f"  {res.scenario:16s} {name:17s} not judged: hold-last-fix was not run (--method)")
+                continue
             else:
                 hold = res.errors["hold-last-fix"][:, 1:]
                 checks = [("median below hold-last-fix", bool(np.all(med < np.nanmedian(hold, axis=0)))),

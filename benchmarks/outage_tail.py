@@ -36,7 +36,7 @@ from codegen.kernel import fused as F  # noqa: E402
 from codegen.kernel.layout import FUSED  # noqa: E402
 from codegen.kernel.reference import STANDARD_GRAVITY, quat_to_matrix  # noqa: E402
 from codegen.sim.mpu6050 import MpuErrors, draw_device  # noqa: E402
-from codegen.sim.run import TUNING_SEEDS, build_run, outage_starts  # noqa: E402
+from codegen.sim.run import SCENARIOS, TUNING_SEEDS, build_run, outage_starts  # noqa: E402
 
 STEP_S = 0.5
 OUTAGE_S = 60.0  # the accuracy benchmark's longest horizon: the same outage starts
@@ -123,7 +123,8 @@ def report(data: np.ndarray, horizon: float) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenario", default="car", choices=("car", "bike", "walk", "walk-pocket", "walk-backpack"))
+    parser.add_argument("--scenario", default="car",
+                        choices=[s for s in SCENARIOS if s not in ("static", "push", "replay-walk")])
     parser.add_argument("--seeds", type=int, default=20, help="tuning seeds from 100 (default 20)")
     parser.add_argument("--horizon", type=float, default=30.0, help="seconds into the outage (at most 60)")
     parser.add_argument("--jobs", type=int, default=2)

@@ -297,13 +297,11 @@ static inline void dr_fused_kf_feed_back(dr_fused_state *st, const float x[5]) {
  * once (codegen.fused's _kf_update): b into bax, bay, baz, d as a small rotation of q about the kernel frame's
  * horizontal axes. x: the correction. Returns 0 if the covariance went wrong (reset to the prior, nothing fed back,
  * x unset). */
-int dr_fused_kf_update(const dr_fused_config *cfg, dr_fused_state *st, float z0, float z1, const float h[2][3],
-                       float r, float x[5]) {
-    float pm[5][5], pht[5][2], gain[5][2];
-    float s00, s01, s11, inv_det, i00, i01, i11;
+/* The filter's P H^T and innovation covariance S = H P H^T + r I (s: s00, s01, s11) for z = d + h b + noise,
+ * H = [I2 | h] (codegen.fused's _kf_innovation). */
+static void dr_fused_kf_innovation(const float pm[5][5], const float h[2][3], float r, float pht[5][2], float s[3]) {
     int i, j, c;
-    dr_fused_p_load(st, pm);
-    for (i = 0; i < 5; i++) { /* P H^T, H = [I2 | h] */
+    for (i = 0; i < 5; i++) {
         for (j = 0; j < 2; j++) {
             pht[i][j] = pm[i][j];
             for (c = 0; c < 3; c++) {
@@ -311,14 +309,26 @@ int dr_fused_kf_update(const dr_fused_config *cfg, dr_fused_state *st, float z0,
             }
         }
     }
-    s00 = pht[0][0] + r;
-    s01 = pht[0][1];
-    s11 = pht[1][1] + r;
+    s[0] = pht[0][0] + r;
+    s[1] = pht[0][1];
+    s[2] = pht[1][1] + r;
     for (c = 0; c < 3; c++) {
-        s00 += h[0][c] * pht[2 + c][0];
-        s01 += h[0][c] * pht[2 + c][1];
-        s11 += h[1][c] * pht[2 + c][1];
+        s[0] += h[0][c] * pht[2 + c][0];
+        s[1] += h[0][c] * pht[2 + c][1];
+        s[2] += h[1][c] * pht[2 + c][1];
     }
+}
+
+int dr_fused_kf_update(const dr_fused_config *cfg, dr_fused_state *st, float z0, float z1, const float h[2][3],
+                       float r, float x[5]) {
+    float pm[5][5], pht[5][2], gain[5][2], sv[3];
+    float s00, s01, s11, inv_det, i00, i01, i11;
+    int i, j;
+    dr_fused_p_load(st, pm);
+    dr_fused_kf_innovation((const float(*)[5])pm, h, r, pht, sv);
+    s00 = sv[0];
+    s01 = sv[1];
+    s11 = sv[2];
     if (!(s00 > 0.0f && s00 <= DR_FUSED_COV_MAX && s00 * s11 - s01 * s01 > 0.0f &&
           s00 * s11 - s01 * s01 <= DR_FUSED_COV_MAX)) {
         return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_UPDATE, 0);
@@ -653,10 +663,41 @@ static inline void dr_fused_horizontal_force(dr_fused_state *st, dr_fused_loop *
     st->ah[DR_FUSED_AH_N] += lp->alpha * (lp->an - st->ah[DR_FUSED_AH_N]);
 }
 
+/* Can the tilt/offset filter take a quiet vehicle's steady horizontal specific force for its own error, as the rest
+ * update would (codegen.fused's _rest_explained)? Its normalised square below rest_gate, S with the predict due
+ * since the filter's last one counted, not stored: a smooth start from a stand is no rest. Before the filter's
+ * start (or with rest_gate 0): any force. */
+static int dr_fused_rest_explained(const dr_fused_config *cfg, dr_fused_state *st, const dr_fused_loop *lp) {
+    float pm[5][5], pht[5][2], sv[3], h[2][3], qd, qb, det, ze, zn;
+    if (!(cfg->rest_gate > 0.0f) || !(st->p[DR_FUSED_P22] > 0.0f) || !(cfg->kf_rest_r > 0.0f)) {
+        return 1;
+    }
+    h[0][0] = lp->r00;
+    h[0][1] = lp->r01;
+    h[0][2] = lp->r02;
+    h[1][0] = lp->r10;
+    h[1][1] = lp->r11;
+    h[1][2] = lp->r12;
+    dr_fused_p_load(st, pm);
+    dr_fused_kf_innovation((const float(*)[5])pm, (const float(*)[3])h, cfg->kf_rest_r, pht, sv);
+    qd = cfg->kf_tilt_q * st->kf_t + cfg->kf_turn_q * st->turn * st->turn;
+    qb = cfg->kf_bias_q * st->kf_t;
+    sv[0] += qd + qb * (h[0][0] * h[0][0] + h[0][1] * h[0][1] + h[0][2] * h[0][2]);
+    sv[1] += qb * (h[0][0] * h[1][0] + h[0][1] * h[1][1] + h[0][2] * h[1][2]);
+    sv[2] += qd + qb * (h[1][0] * h[1][0] + h[1][1] * h[1][1] + h[1][2] * h[1][2]);
+    det = sv[0] * sv[2] - sv[1] * sv[1];
+    if (!(det > 0.0f)) {
+        return 1; /* a broken covariance says nothing (its next step repairs it) */
+    }
+    ze = st->ah[DR_FUSED_AH_E];
+    zn = st->ah[DR_FUSED_AH_N];
+    return sv[2] * ze * ze - 2.0f * sv[1] * ze * zn + sv[0] * zn * zn < cfg->rest_gate * det;
+}
+
 /* Rest (codegen.fused's _rest): still (below rest_accel_g, or still_accel_g for a pedestrian's hand, idle_accel_g
  * for a vehicle's idling engine: broadband, slower than rest_speed_ms), the smoothed rate below rest_gyro_dps, the
  * horizontal force steady within the deadband and itself within it (a vehicle quiet after shaking, or below
- * rest_speed_ms: any), no fix saying it moves; for rest_time_s. */
+ * rest_speed_ms: any the tilt/offset filter can take for its error), no fix saying it moves; for rest_time_s. */
 static inline void dr_fused_rest(const dr_fused_config *cfg, dr_fused_state *st, dr_fused_loop *lp) {
     const float ae = lp->ae, an = lp->an;
     const float de = ae - st->ah[DR_FUSED_AH_E], dn = an - st->ah[DR_FUSED_AH_N];
@@ -671,7 +712,8 @@ static inline void dr_fused_rest(const dr_fused_config *cfg, dr_fused_state *st,
                 st->ws[DR_FUSED_WSZ] * st->ws[DR_FUSED_WSZ] <
             cfg->rest_w2 &&
         de * de + dn * dn < lp->db2 &&
-        (ae * ae + an * an < lp->db2 || (lp->vehicle && (lp->driven || st->speed < cfg->rest_speed_ms))) &&
+        (ae * ae + an * an < lp->db2 ||
+         (lp->vehicle && (lp->driven || st->speed < cfg->rest_speed_ms) && dr_fused_rest_explained(cfg, st, lp))) &&
         !(st->since_fix < cfg->gps_timeout_s && st->gps_ok > 0.0f)) {
         st->rest_s += lp->dt;
     } else {

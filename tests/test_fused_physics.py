@@ -386,6 +386,33 @@ def test_a_vehicle_quiet_after_shaking_comes_to_rest_and_levels_its_tilt(impl, t
     assert not int(plain.at(-1, "flags")) & F.AT_REST
 
 
+def test_a_car_pulling_away_smoothly_from_a_stand_leaves_rest(impl, tmp_path):
+    """A vehicle stands at rest in an outage (shaken since its last rest, level, quiet), its tilt/offset filter
+    converged (0.03 m/s^2 per state: it has seen turns). It pulls away as gently as a town car does: the
+    acceleration ramps up over 2.5 s (0.4 m/s^3, slow enough that the smoothed force follows within the deadband)
+    to 1 m/s^2 and holds it for 3 s, with no more shaking than the stand had: still and steady. The filter cannot
+    take that force for its tilt error (rest_gate), so the rest ends 0.9 s into the ramp and the speed integrates:
+    3.85 of the true 4.25 m/s by the end (what came before and what the deadband keeps out are lost). Without the
+    gate (rest_gate 0) it stays at rest and every rest update levels the acceleration away as tilt: speed 0."""
+    t = np.arange(1100) * 0.005
+    accel = np.minimum(t / 2.5, 1.0) / G  # g along the body's x axis (forward, level)
+    samples = np.zeros((len(t), 6), dtype=np.int16)
+    samples[:, 0] = np.round(accel * ONE_G)
+    samples[:, 2] = ONE_G
+    dt = np.full(len(t), DT_US, dtype=np.int32)
+    fields = {name: 0.0 for name in F.COVARIANCE_FIELDS}
+    for i in range(4):  # tilt East, North; offsets x, y (the one along gravity unseen: 0)
+        fields[F._PIJ[(i, i)]] = 0.03 ** 2
+    start = _still(**fields, flags=float(F.AT_REST | F.VEHICLE | F.SHAKEN), rest_s=2.0)
+    trace = run(impl, chunks(samples, dt, 20), tmp_path, start=start)
+    flags = trace.series("flags").astype(int)
+    assert not flags[-1] & F.AT_REST
+    assert trace.at(-1, "speed") > 3.5
+    assert int(np.argmin(flags & F.AT_REST)) * 20 * 0.005 < 1.5  # left rest early in the ramp
+    ungated = run(impl, chunks(samples, dt, 20), tmp_path, start=start, params=replace(FCFG, rest_gate=0.0))
+    assert np.all(ungated.series("flags").astype(int) & F.AT_REST) and ungated.at(-1, "speed") == 0.0
+
+
 def test_a_calibration_that_moved_leaves_the_speed_to_the_first_fix_not_to_a_bias(impl, tmp_path):
     """A car calibrated while it drives (its speed taken as 0, not known: sb_pss large) keeps an even 20 m/s for
     1 s, then a fix says so: the speed/bias filter takes the 20 m/s for the speed (gain ~1) and leaves the

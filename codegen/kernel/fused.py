@@ -292,7 +292,8 @@ def _rest(lp: _Loop, st: FusedState) -> None:
     idle_accel_g for a vehicle's idling engine: its shaking above the gait band, its speed below rest_speed_ms, as
     creeping traffic's is not), the smoothed rate below rest_gyro_dps, the horizontal force steady within the
     deadband of its average (a push, a start or a stop is no rest) and itself within it, unless a vehicle that shook
-    since its last rest or is slower than rest_speed_ms (its tilt error in an outage), never while fixes arrive that
+    since its last rest or is slower than rest_speed_ms (its tilt error in an outage) and the tilt/offset filter can
+    take it for its error (_rest_explained: a smooth start from a stand is no rest), never while fixes arrive that
     say the device moves (a smooth cruise is no rest); all for rest_time_s."""
     fcfg = lp.fcfg
     ae, an = lp.ae, lp.an
@@ -307,7 +308,8 @@ def _rest(lp: _Loop, st: FusedState) -> None:
         still = st.var_f < lp.rest_var or st.var_f < lp.still_var
     if (still and st.wsx * st.wsx + st.wsy * st.wsy + st.wsz * st.wsz < lp.rest_w2
             and de * de + dn * dn < deadband * deadband
-            and (ah2 < deadband * deadband or vehicle and (lp.driven or st.speed < fcfg.rest_speed_ms))
+            and (ah2 < deadband * deadband
+                 or vehicle and (lp.driven or st.speed < fcfg.rest_speed_ms) and _rest_explained(st, fcfg))
             and not gps_moving):
         st.rest_s += lp.dt
     else:
@@ -1117,19 +1119,50 @@ def _kf_predict(st: FusedState, fcfg: FusedConfig) -> bool:
     return _covariance_checked(st, FILTER_TILT, STEP_PREDICT, fcfg)
 
 
+def _kf_innovation(st: FusedState, h, r: float):
+    """The tilt/offset filter's P H^T (5 x 2) and innovation covariance S = H P H^T + r I (s00, s01, s11) for
+    z = d + h b + noise, H = [I2 | h], h 2 x 3."""
+    n = KF_STATES
+    p = [[getattr(st, _PIJ[(min(i, j), max(i, j))]) for j in range(n)] for i in range(n)]
+    pht = [[p[i][a] + sum(p[i][2 + c] * h[a][c] for c in range(3)) for a in range(2)] for i in range(n)]
+    s00 = pht[0][0] + sum(h[0][c] * pht[2 + c][0] for c in range(3)) + r
+    s01 = pht[0][1] + sum(h[0][c] * pht[2 + c][1] for c in range(3))
+    s11 = pht[1][1] + sum(h[1][c] * pht[2 + c][1] for c in range(3)) + r
+    return pht, s00, s01, s11
+
+
+def _rest_explained(st: FusedState, fcfg: FusedConfig) -> bool:
+    """Can the tilt/offset filter take a quiet vehicle's steady horizontal specific force for its own error, as
+    rest_update would (z = ah = d + R_h b)? Its normalised square z^T S^-1 z below rest_gate, S the innovation
+    covariance with the predict due since the filter's last one (_kf_predict's Q) counted, not stored. A car
+    pulling away smoothly from a stand is as quiet and steady as one that stands, but its acceleration is beyond
+    the tilt error a filter that has seen turns allows; taken for rest, each rest update would level it away as
+    tilt. Before the filter's start (and with rest_gate 0) any force is explained."""
+    if fcfg.rest_gate <= 0.0 or st.p22 <= 0.0 or fcfg.kf_rest_sigma_ms2 <= 0.0:
+        return True
+    qw, qx, qy, qz = st.qw, st.qx, st.qy, st.qz
+    h = ((1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)),
+         (2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)))
+    _, s00, s01, s11 = _kf_innovation(st, h, fcfg.kf_rest_sigma_ms2 * fcfg.kf_rest_sigma_ms2)
+    qd = fcfg.kf_tilt_noise * fcfg.kf_tilt_noise * st.kf_t + (fcfg.kf_turn_noise * st.turn) ** 2
+    qb = fcfg.kf_bias_noise * fcfg.kf_bias_noise * st.kf_t
+    s00 += qd + qb * (h[0][0] * h[0][0] + h[0][1] * h[0][1] + h[0][2] * h[0][2])
+    s01 += qb * (h[0][0] * h[1][0] + h[0][1] * h[1][1] + h[0][2] * h[1][2])
+    s11 += qd + qb * (h[1][0] * h[1][0] + h[1][1] * h[1][1] + h[1][2] * h[1][2])
+    det = s00 * s11 - s01 * s01
+    if not det > 0.0:
+        return True  # a broken covariance says nothing (its next step repairs it)
+    ze, zn = st.ah_e, st.ah_n
+    return s11 * ze * ze - 2.0 * s01 * ze * zn + s00 * zn * zn < fcfg.rest_gate * det
+
+
 def _kf_update(st: FusedState, z0: float, z1: float, h, r: float, fcfg: FusedConfig):
     """The filter's update with z = d + h b + noise (variance r per axis), h 2 x 3, H = [I2 | h]: P <- P - K S K^T
     (the Joseph form's value for the optimal gain K = P H^T S^-1), fed back at once: b into bax, bay, baz, d as a
     small rotation of q about the kernel frame's horizontal axes; the error state returns to 0. Returns the
     correction x (d East, North, b x, y, z), or None if the covariance went wrong (reset to the prior, nothing fed
     back)."""
-    n = KF_STATES
-    p = [[getattr(st, _PIJ[(min(i, j), max(i, j))]) for j in range(n)] for i in range(n)]
-    # PH^T (5 x 2): H = [I2 | h]
-    pht = [[p[i][a] + sum(p[i][2 + c] * h[a][c] for c in range(3)) for a in range(2)] for i in range(n)]
-    s00 = pht[0][0] + sum(h[0][c] * pht[2 + c][0] for c in range(3)) + r
-    s01 = pht[0][1] + sum(h[0][c] * pht[2 + c][1] for c in range(3))
-    s11 = pht[1][1] + sum(h[1][c] * pht[2 + c][1] for c in range(3)) + r
+    pht, s00, s01, s11 = _kf_innovation(st, h, r)
     det = s00 * s11 - s01 * s01
     if not (0.0 < s00 <= COV_MAX and 0.0 < det <= COV_MAX):
         _covariance_checked(st, FILTER_TILT, STEP_UPDATE, fcfg, innovation_ok=False)

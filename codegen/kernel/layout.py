@@ -484,6 +484,10 @@ FUSED = Kernel(
         Param("rest_speed_ms", "m/s", "a quiet vehicle comes to rest with any steady horizontal specific force (its "
               "tilt error in an outage) while its speed is below this, or after it shook",
               Store("rest_speed_ms", "m/s"), 1.0, ge=0),
+        Param("rest_gate", "", "and only if the tilt/offset filter can take that force for its own error: its "
+              "normalised square below this (chi-square, 2 degrees of freedom; 13.8: 99.9 %). A car pulling away "
+              "smoothly from a stand is as quiet and steady as one that stands (0: any force)",
+              Store("rest_gate", ""), 13.8, ge=0),
         Param("rest_update_s", "s", "at rest, every this long (after the first), the gyro bias and the tilt/offset "
               "filter take the smoothed rate and horizontal specific force as their errors",
               Store("rest_update_s", "s"), 1.0, gt=0),

@@ -379,8 +379,8 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(220)
-_F_KCFG = const(208)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(221)
+_F_KCFG = const(209)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
@@ -554,28 +554,29 @@ _FC_VIB_RATIO = const(182)  # , from vibration_ratio
 _FC_INV_VIB_TAU = const(183)  # 1/s, from vibration_tau_s (s)
 _FC_WALK_TIME_S = const(184)  # s, from walk_time_s (s)
 _FC_REST_SPEED_MS = const(185)  # m/s, from rest_speed_ms (m/s)
-_FC_REST_UPDATE_S = const(186)  # s, from rest_update_s (s)
-_FC_KF_REST_R = const(187)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
-_FC_ZUPT_TURN_WEIGHT = const(188)  # 1/rad, from zupt_turn_weight (1/rad)
-_FC_INV_ACCEL_TAU = const(189)  # 1/s, from accel_tau_s (s)
-_FC_NHC_VAR = const(190)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
-_FC_NHC_PERIOD_S = const(191)  # s, from nhc_period_s (s)
-_FC_NHC_SPEED_Q = const(192)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
-_FC_NHC_LEAK_VAR = const(193)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
-_FC_NHC_MIN_RATE = const(194)  # rad/s, from nhc_min_rate (rad/s)
-_FC_NHC_POSITION = const(195)  # , from nhc_position
-_FC_NHC_LEAK_TURN = const(196)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
-_FC_NHC_FOLD_SCALE = const(197)  # , from nhc_fold_scale
-_FC_PEDESTRIAN_MAX_MS = const(198)  # m/s, from pedestrian_max_ms (m/s)
-_FC_STILL_VAR = const(199)  # (m/s^2)^2, from still_accel_g (g)
-_FC_IDLE_VAR = const(200)  # (m/s^2)^2, from idle_accel_g (g)
-_FC_INV_STAND_TAU = const(201)  # 1/s, from stand_tau_s (s)
-_FC_SPEED_Q = const(202)  # (m/s)^2/s, from speed_noise (m/s/sqrt(s))
-_FC_SPEED_BIAS_Q = const(203)  # (m/s^2)^2/s, from speed_bias_noise (m/s^2/sqrt(s))
-_FC_KEEP_Q = const(204)  # (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s))
-_FC_MAX_ACCEL_MS2 = const(205)  # m/s^2, from max_accel_ms2 (m/s^2)
-_FC_CARRIED_MS = const(206)  # m/s, from carried_ms (m/s)
-_FC_VEHICLE_WALK_TIME_S = const(207)  # s, from vehicle_walk_time_s (s)
+_FC_REST_GATE = const(186)  # , from rest_gate
+_FC_REST_UPDATE_S = const(187)  # s, from rest_update_s (s)
+_FC_KF_REST_R = const(188)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
+_FC_ZUPT_TURN_WEIGHT = const(189)  # 1/rad, from zupt_turn_weight (1/rad)
+_FC_INV_ACCEL_TAU = const(190)  # 1/s, from accel_tau_s (s)
+_FC_NHC_VAR = const(191)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
+_FC_NHC_PERIOD_S = const(192)  # s, from nhc_period_s (s)
+_FC_NHC_SPEED_Q = const(193)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
+_FC_NHC_LEAK_VAR = const(194)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
+_FC_NHC_MIN_RATE = const(195)  # rad/s, from nhc_min_rate (rad/s)
+_FC_NHC_POSITION = const(196)  # , from nhc_position
+_FC_NHC_LEAK_TURN = const(197)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
+_FC_NHC_FOLD_SCALE = const(198)  # , from nhc_fold_scale
+_FC_PEDESTRIAN_MAX_MS = const(199)  # m/s, from pedestrian_max_ms (m/s)
+_FC_STILL_VAR = const(200)  # (m/s^2)^2, from still_accel_g (g)
+_FC_IDLE_VAR = const(201)  # (m/s^2)^2, from idle_accel_g (g)
+_FC_INV_STAND_TAU = const(202)  # 1/s, from stand_tau_s (s)
+_FC_SPEED_Q = const(203)  # (m/s)^2/s, from speed_noise (m/s/sqrt(s))
+_FC_SPEED_BIAS_Q = const(204)  # (m/s^2)^2/s, from speed_bias_noise (m/s^2/sqrt(s))
+_FC_KEEP_Q = const(205)  # (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s))
+_FC_MAX_ACCEL_MS2 = const(206)  # m/s^2, from max_accel_ms2 (m/s^2)
+_FC_CARRIED_MS = const(207)  # m/s, from carried_ms (m/s)
+_FC_VEHICLE_WALK_TIME_S = const(208)  # s, from vehicle_walk_time_s (s)
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
@@ -637,6 +638,7 @@ _FUSED_PARAMS = (
     2.0,  # vibration_tau_s, s
     1.0,  # walk_time_s, s
     1.0,  # rest_speed_ms, m/s
+    13.8,  # rest_gate
     1.0,  # rest_update_s, s
     0.03,  # kf_rest_sigma_ms2, m/s^2
     3.0,  # zupt_turn_weight, 1/rad
@@ -663,7 +665,7 @@ _FUSED_PARAMS = (
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 58 values in the
+    """Reset the fused state and store the configuration: the board's, or 59 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -738,49 +740,51 @@ def fused_init(fstate, params=_FUSED_PARAMS):
         raise ValueError("walk_time_s must be >= 0")
     if not (p[35] >= 0):
         raise ValueError("rest_speed_ms must be >= 0")
-    if not (p[36] > 0):
+    if not (p[36] >= 0):
+        raise ValueError("rest_gate must be >= 0")
+    if not (p[37] > 0):
         raise ValueError("rest_update_s must be > 0")
-    if not (p[37] >= 0):
-        raise ValueError("kf_rest_sigma_ms2 must be >= 0")
     if not (p[38] >= 0):
-        raise ValueError("zupt_turn_weight must be >= 0")
+        raise ValueError("kf_rest_sigma_ms2 must be >= 0")
     if not (p[39] >= 0):
-        raise ValueError("accel_tau_s must be >= 0")
+        raise ValueError("zupt_turn_weight must be >= 0")
     if not (p[40] >= 0):
+        raise ValueError("accel_tau_s must be >= 0")
+    if not (p[41] >= 0):
         raise ValueError("nhc_sigma_ms2 must be >= 0")
-    if not (p[41] > 0):
+    if not (p[42] > 0):
         raise ValueError("nhc_period_s must be > 0")
-    if not (p[42] >= 0):
-        raise ValueError("nhc_speed_noise must be >= 0")
     if not (p[43] >= 0):
-        raise ValueError("nhc_leak_sigma_ms2 must be >= 0")
+        raise ValueError("nhc_speed_noise must be >= 0")
     if not (p[44] >= 0):
+        raise ValueError("nhc_leak_sigma_ms2 must be >= 0")
+    if not (p[45] >= 0):
         raise ValueError("nhc_min_rate must be >= 0")
-    if not (p[45] >= 0 and p[45] <= 1):
+    if not (p[46] >= 0 and p[46] <= 1):
         raise ValueError("nhc_position must be >= 0 and <= 1")
-    if not (p[46] >= 0):
-        raise ValueError("nhc_leak_turn must be >= 0")
     if not (p[47] >= 0):
+        raise ValueError("nhc_leak_turn must be >= 0")
+    if not (p[48] >= 0):
         raise ValueError("nhc_fold_scale must be >= 0")
-    if not (p[48] > 0):
+    if not (p[49] > 0):
         raise ValueError("pedestrian_max_ms must be > 0")
-    if not (p[49] >= 0):
-        raise ValueError("still_accel_g must be >= 0")
     if not (p[50] >= 0):
-        raise ValueError("idle_accel_g must be >= 0")
+        raise ValueError("still_accel_g must be >= 0")
     if not (p[51] >= 0):
-        raise ValueError("stand_tau_s must be >= 0")
+        raise ValueError("idle_accel_g must be >= 0")
     if not (p[52] >= 0):
-        raise ValueError("speed_noise must be >= 0")
+        raise ValueError("stand_tau_s must be >= 0")
     if not (p[53] >= 0):
-        raise ValueError("speed_bias_noise must be >= 0")
+        raise ValueError("speed_noise must be >= 0")
     if not (p[54] >= 0):
+        raise ValueError("speed_bias_noise must be >= 0")
+    if not (p[55] >= 0):
         raise ValueError("keep_speed_noise must be >= 0")
-    if not (p[55] > 0):
-        raise ValueError("max_accel_ms2 must be > 0")
     if not (p[56] > 0):
+        raise ValueError("max_accel_ms2 must be > 0")
+    if not (p[57] > 0):
         raise ValueError("carried_ms must be > 0")
-    if not (p[57] >= 0):
+    if not (p[58] >= 0):
         raise ValueError("vehicle_walk_time_s must be >= 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
@@ -824,28 +828,29 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_INV_VIB_TAU] = 1.0 / p[33]
     fstate[_FC_WALK_TIME_S] = p[34]
     fstate[_FC_REST_SPEED_MS] = p[35]
-    fstate[_FC_REST_UPDATE_S] = p[36]
-    fstate[_FC_KF_REST_R] = p[37] * p[37]
-    fstate[_FC_ZUPT_TURN_WEIGHT] = p[38]
-    fstate[_FC_INV_ACCEL_TAU] = 1.0 / p[39] if p[39] > 0 else 0.0
-    fstate[_FC_NHC_VAR] = p[40] * p[40]
-    fstate[_FC_NHC_PERIOD_S] = p[41]
-    fstate[_FC_NHC_SPEED_Q] = p[42] * p[42]
-    fstate[_FC_NHC_LEAK_VAR] = p[43] * p[43]
-    fstate[_FC_NHC_MIN_RATE] = p[44]
-    fstate[_FC_NHC_POSITION] = p[45]
-    fstate[_FC_NHC_LEAK_TURN] = p[46]
-    fstate[_FC_NHC_FOLD_SCALE] = p[47]
-    fstate[_FC_PEDESTRIAN_MAX_MS] = p[48]
-    fstate[_FC_STILL_VAR] = p[49] * p[49] * (_GRAVITY_MS2 * _GRAVITY_MS2)
-    fstate[_FC_IDLE_VAR] = p[50] * p[50] * (_GRAVITY_MS2 * _GRAVITY_MS2)
-    fstate[_FC_INV_STAND_TAU] = 1.0 / p[51] if p[51] > 0 else 0.0
-    fstate[_FC_SPEED_Q] = p[52] * p[52]
-    fstate[_FC_SPEED_BIAS_Q] = p[53] * p[53]
-    fstate[_FC_KEEP_Q] = p[54] * p[54]
-    fstate[_FC_MAX_ACCEL_MS2] = p[55]
-    fstate[_FC_CARRIED_MS] = p[56]
-    fstate[_FC_VEHICLE_WALK_TIME_S] = p[57]
+    fstate[_FC_REST_GATE] = p[36]
+    fstate[_FC_REST_UPDATE_S] = p[37]
+    fstate[_FC_KF_REST_R] = p[38] * p[38]
+    fstate[_FC_ZUPT_TURN_WEIGHT] = p[39]
+    fstate[_FC_INV_ACCEL_TAU] = 1.0 / p[40] if p[40] > 0 else 0.0
+    fstate[_FC_NHC_VAR] = p[41] * p[41]
+    fstate[_FC_NHC_PERIOD_S] = p[42]
+    fstate[_FC_NHC_SPEED_Q] = p[43] * p[43]
+    fstate[_FC_NHC_LEAK_VAR] = p[44] * p[44]
+    fstate[_FC_NHC_MIN_RATE] = p[45]
+    fstate[_FC_NHC_POSITION] = p[46]
+    fstate[_FC_NHC_LEAK_TURN] = p[47]
+    fstate[_FC_NHC_FOLD_SCALE] = p[48]
+    fstate[_FC_PEDESTRIAN_MAX_MS] = p[49]
+    fstate[_FC_STILL_VAR] = p[50] * p[50] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_IDLE_VAR] = p[51] * p[51] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_INV_STAND_TAU] = 1.0 / p[52] if p[52] > 0 else 0.0
+    fstate[_FC_SPEED_Q] = p[53] * p[53]
+    fstate[_FC_SPEED_BIAS_Q] = p[54] * p[54]
+    fstate[_FC_KEEP_Q] = p[55] * p[55]
+    fstate[_FC_MAX_ACCEL_MS2] = p[56]
+    fstate[_FC_CARRIED_MS] = p[57]
+    fstate[_FC_VEHICLE_WALK_TIME_S] = p[58]
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -1106,7 +1111,8 @@ def fused_process(fstate, samples, dt_us, out):
         ah_e += alpha * (ae - ah_e)
         ah_n += alpha * (an - ah_n)
         # step: rest (still: below rest_accel_g, or still_accel_g for a pedestrian's hand, idle_accel_g for a
-        # vehicle's idling engine; the rate, the horizontal force steady and within the deadband, no fix moving)
+        # vehicle's idling engine; the rate, the horizontal force steady and within the deadband or, for a vehicle,
+        # one the tilt/offset filter can take for its error; no fix moving)
         de = ae - ah_e
         dn = an - ah_n
         if var_f < rest_var:
@@ -1116,7 +1122,8 @@ def fused_process(fstate, samples, dt_us, out):
         else:
             still = var_f < still_var
         if (still and wsx * wsx + wsy * wsy + wsz * wsz < rest_w2 and de * de + dn * dn < db2
-                and (ae * ae + an * an < db2 or vehicle and (driven or speed < rest_speed))
+                and (ae * ae + an * an < db2 or vehicle and (driven or speed < rest_speed)
+                     and _rest_explained(st, ah_e, ah_n, (r00, r01, r02, r10, r11, r12), kf_t, turn))
                 and not (since_fix < timeout and gps_ok)):
             rest_s += dt
         else:
@@ -1583,11 +1590,10 @@ def _kf_predict(st):
     return _covariance_checked(st, _FILTER_TILT, _STEP_PREDICT)
 
 
-def _kf_update(st, z0, z1, h, r):
-    # the filter's update with z = d + h b + noise (variance r per axis; h: 6 values, 2 rows), P <- P - K S K^T, fed
-    # back at once; returns the correction x (d East, North, b x, y, z), or None if the covariance went wrong (reset
-    # to the prior, nothing fed back)
-    pht = []  # P H^T, H = [I2 | h]
+def _kf_innovation(st, h, r):
+    # the filter's P H^T (5 x 2) and innovation covariance S = H P H^T + r I (s00, s01, s11) for z = d + h b + noise,
+    # H = [I2 | h] (h: 6 values, 2 rows)
+    pht = []
     for i in range(5):
         p2 = st[_pidx(i, 2)]
         p3 = st[_pidx(i, 3)]
@@ -1597,6 +1603,34 @@ def _kf_update(st, z0, z1, h, r):
     s00 = pht[0][0] + h[0] * pht[2][0] + h[1] * pht[3][0] + h[2] * pht[4][0] + r
     s01 = pht[0][1] + h[0] * pht[2][1] + h[1] * pht[3][1] + h[2] * pht[4][1]
     s11 = pht[1][1] + h[3] * pht[2][1] + h[4] * pht[3][1] + h[5] * pht[4][1] + r
+    return pht, s00, s01, s11
+
+
+def _rest_explained(st, ze, zn, h, kf_t, turn):
+    # can the tilt/offset filter take a quiet vehicle's steady horizontal specific force (ze, zn) for its own error,
+    # as the rest update would (codegen.kernel.fused's _rest_explained)? Its normalised square below rest_gate, S
+    # with the predict due since the filter's last one counted, not stored: a smooth start from a stand is no rest
+    gate = st[_FC_REST_GATE]
+    r = st[_FC_KF_REST_R]
+    if not (gate > 0.0 and st[_F_P22] > 0.0 and r > 0.0):
+        return True
+    _, s00, s01, s11 = _kf_innovation(st, h, r)
+    qd = st[_FC_KF_TILT_Q] * kf_t + st[_FC_KF_TURN_Q] * turn * turn
+    qb = st[_FC_KF_BIAS_Q] * kf_t
+    s00 += qd + qb * (h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
+    s01 += qb * (h[0] * h[3] + h[1] * h[4] + h[2] * h[5])
+    s11 += qd + qb * (h[3] * h[3] + h[4] * h[4] + h[5] * h[5])
+    det = s00 * s11 - s01 * s01
+    if not det > 0.0:
+        return True  # a broken covariance says nothing (its next step repairs it)
+    return s11 * ze * ze - 2.0 * s01 * ze * zn + s00 * zn * zn < gate * det
+
+
+def _kf_update(st, z0, z1, h, r):
+    # the filter's update with z = d + h b + noise (variance r per axis; h: 6 values, 2 rows), P <- P - K S K^T, fed
+    # back at once; returns the correction x (d East, North, b x, y, z), or None if the covariance went wrong (reset
+    # to the prior, nothing fed back)
+    pht, s00, s01, s11 = _kf_innovation(st, h, r)
     det = s00 * s11 - s01 * s01
     if not (0.0 < s00 <= _COV_MAX and 0.0 < det <= _COV_MAX):
         _covariance_checked(st, _FILTER_TILT, _STEP_UPDATE, False)

@@ -65,6 +65,7 @@
 #define DR_FUSED_VIBRATION_TAU_S (2.0f) /* s */
 #define DR_FUSED_WALK_TIME_S (1.0f) /* s */
 #define DR_FUSED_REST_SPEED_MS (1.0f) /* m/s */
+#define DR_FUSED_REST_GATE (13.8f) /* 1: on, 0: off */
 #define DR_FUSED_REST_UPDATE_S (1.0f) /* s */
 #define DR_FUSED_KF_REST_SIGMA_MS2 (0.03f) /* m/s^2 */
 #define DR_FUSED_ZUPT_TURN_WEIGHT (3.0f) /* 1/rad */

@@ -172,6 +172,7 @@ typedef struct {
     float inv_vib_tau; /* 1/s, from vibration_tau_s (s) */
     float walk_time_s; /* s, from walk_time_s (s) */
     float rest_speed_ms; /* m/s, from rest_speed_ms (m/s) */
+    float rest_gate; /* from rest_gate */
     float rest_update_s; /* s, from rest_update_s (s) */
     float kf_rest_r; /* (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2) */
     float zupt_turn_weight; /* 1/rad, from zupt_turn_weight (1/rad) */
@@ -306,8 +307,8 @@ typedef struct {
 } dr_fused_state;
 
 #define DR_FUSED_STATE_FLOATS (150) /* floats in dr_fused_state */
-#define DR_FUSED_CONFIG_FLOATS (58) /* floats in dr_fused_config */
-#define DR_FUSED_PARAMS (58) /* parameters dr_fused_config_set takes */
+#define DR_FUSED_CONFIG_FLOATS (59) /* floats in dr_fused_config */
+#define DR_FUSED_PARAMS (59) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
 #define DR_FUSED_STATE_Q (0)
 #define DR_FUSED_STATE_GYRO_BIAS_LSB (4)
@@ -447,8 +448,8 @@ typedef struct {
 #define DR_FUSED_SB_PBB (2) /* sb_p[2] */
 typedef char dr_fused_state_is_150_floats[
     sizeof(dr_fused_state) == 150 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_58_floats[
-    sizeof(dr_fused_config) == 58 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_59_floats[
+    sizeof(dr_fused_config) == 59 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
     ? 1 : -1];
@@ -513,66 +514,70 @@ typedef char dr_fused_cov_repairs_at_142[
 /* m/s: a quiet vehicle comes to rest with any steady horizontal specific force (its tilt error in an outage) while
  * its speed is below this, or after it shook */
 #define DR_FUSED_P_REST_SPEED_MS (35)
+/* and only if the tilt/offset filter can take that force for its own error: its normalised square below this (chi-
+ * square, 2 degrees of freedom; 13.8: 99.9 %). A car pulling away smoothly from a stand is as quiet and steady as
+ * one that stands (0: any force) */
+#define DR_FUSED_P_REST_GATE (36)
 /* s: at rest, every this long (after the first), the gyro bias and the tilt/offset filter take the smoothed rate and
  * horizontal specific force as their errors */
-#define DR_FUSED_P_REST_UPDATE_S (36)
+#define DR_FUSED_P_REST_UPDATE_S (37)
 /* m/s^2: error of that smoothed horizontal specific force (0: no filter update at rest) */
-#define DR_FUSED_P_KF_REST_SIGMA_MS2 (37)
+#define DR_FUSED_P_KF_REST_SIGMA_MS2 (38)
 /* 1/rad: a vehicle's zero-velocity update takes its speed error as grown at a rate 1 + this x the turn since its
  * speed was last known (turns make the tilt errors) */
-#define DR_FUSED_P_ZUPT_TURN_WEIGHT (38)
+#define DR_FUSED_P_ZUPT_TURN_WEIGHT (39)
 /* s: a vehicle's along-track acceleration passes the deadband while its average over this does (the road's shaking
  * averages out; 0: each sample on its own) */
-#define DR_FUSED_P_ACCEL_TAU_S (39)
+#define DR_FUSED_P_ACCEL_TAU_S (40)
 /* m/s^2: a vehicle in an outage: error of the lateral residual a_lat - speed x rate about Up averaged over 1 s,
  * which sees the speed error in turns (0: no lateral update) */
-#define DR_FUSED_P_NHC_SIGMA_MS2 (40)
-#define DR_FUSED_P_NHC_PERIOD_S (41) /* s: the lateral residual is averaged over this between updates */
-#define DR_FUSED_P_NHC_SPEED_NOISE (42) /* m/s/sqrt(s): random walk of a vehicle's speed error in an outage */
+#define DR_FUSED_P_NHC_SIGMA_MS2 (41)
+#define DR_FUSED_P_NHC_PERIOD_S (42) /* s: the lateral residual is averaged over this between updates */
+#define DR_FUSED_P_NHC_SPEED_NOISE (43) /* m/s/sqrt(s): random walk of a vehicle's speed error in an outage */
 /* m/s^2: the lateral leak's sigma when the outage starts (or after a rest) */
-#define DR_FUSED_P_NHC_LEAK_SIGMA_MS2 (43)
+#define DR_FUSED_P_NHC_LEAK_SIGMA_MS2 (44)
 /* rad/s: the speed error is seen only while the rate about Up averaged over nhc_period_s exceeds this (a turn, not a
  * wobble) */
-#define DR_FUSED_P_NHC_MIN_RATE (44)
+#define DR_FUSED_P_NHC_MIN_RATE (45)
 /* the share of the position error a lateral update's speed correction implies (as the zero-velocity update takes it)
  * that is taken back */
-#define DR_FUSED_P_NHC_POSITION (45)
-#define DR_FUSED_P_NHC_LEAK_TURN (46) /* m/s^2 per rad: lateral leak a turn may add (offsets folded into the tilt) */
+#define DR_FUSED_P_NHC_POSITION (46)
+#define DR_FUSED_P_NHC_LEAK_TURN (47) /* m/s^2 per rad: lateral leak a turn may add (offsets folded into the tilt) */
 /* a vehicle in an outage: the accelerometer offsets the tilt/offset filter has not told apart from the tilt (its
  * covariance, times this) are estimated too; a turn turns them against the tilt, which shows them along and across
  * the track (0: not estimated) */
-#define DR_FUSED_P_NHC_FOLD_SCALE (47)
+#define DR_FUSED_P_NHC_FOLD_SCALE (48)
 /* m/s: auto: a fix faster than this (people walk at up to ~3 m/s and run at up to ~6) makes the device a vehicle,
  * which no steps turn into a pedestrian until it has rested; nor do steps while a vehicle's own speed is above it */
-#define DR_FUSED_P_PEDESTRIAN_MAX_MS (48)
+#define DR_FUSED_P_PEDESTRIAN_MAX_MS (49)
 /* g: |f| standard deviation up to which a pedestrian may still be at rest if the rest is more than quiet: a hand
  * (steady horizontal force, averaged rate below fused_rest_gyro_dps) */
-#define DR_FUSED_P_STILL_ACCEL_G (49)
+#define DR_FUSED_P_STILL_ACCEL_G (50)
 /* g: and a vehicle, if its shaking is above fused_vibration_hz (an idling engine) and its speed below
  * fused_rest_speed_ms (a real highway drive shook less than 30 mg with its averaged rate below fused_rest_gyro_dps
  * in 6.6 % of its samples, 40 mg in 40 %) */
-#define DR_FUSED_P_IDLE_ACCEL_G (50)
+#define DR_FUSED_P_IDLE_ACCEL_G (51)
 /* s: a pedestrian whose steps stopped without a rest: the speed decays to 0 with this time constant, never
  * integrated (0: held) */
-#define DR_FUSED_P_STAND_TAU_S (51)
+#define DR_FUSED_P_STAND_TAU_S (52)
 /* m/s/sqrt(s): a vehicle's integrated speed: random walk of its error beyond the along-track bias's (what the
  * deadband keeps out) */
-#define DR_FUSED_P_SPEED_NOISE (52)
+#define DR_FUSED_P_SPEED_NOISE (53)
 /* m/s^2/sqrt(s): random walk of the along-track bias after a calibration that moved and before a rest (the gyro bias
  * is off by the motion's mean rate during calibration, so the tilt drifts; otherwise fused_kf_tilt_noise) */
-#define DR_FUSED_P_SPEED_BIAS_NOISE (53)
+#define DR_FUSED_P_SPEED_BIAS_NOISE (54)
 /* m/s/sqrt(s): a vehicle keeps its speed: random walk of its true speed away from the last fix's, the prior its
  * integrated speed is weighed against by their variances (0: no prior) */
-#define DR_FUSED_P_KEEP_SPEED_NOISE (54)
+#define DR_FUSED_P_KEEP_SPEED_NOISE (55)
 /* m/s^2: a vehicle's speed stays within [0, the speed last known + this x the time since] */
-#define DR_FUSED_P_MAX_ACCEL_MS2 (55)
+#define DR_FUSED_P_MAX_ACCEL_MS2 (56)
 /* m/s: auto: a fix faster than this while no steps are seen makes the device a vehicle until it rests, as a fix
  * faster than fused_pedestrian_max_ms does (a pedestrian who moves that fast steps; slow traffic does not) */
-#define DR_FUSED_P_CARRIED_MS (56)
+#define DR_FUSED_P_CARRIED_MS (57)
 /* s: auto: steps this long make a pedestrian of a device that drove (a fix faster than fused_pedestrian_max_ms, or
  * than fused_carried_ms without steps, since its last walk; a rest does not end it): a car creeping on in a queue
  * shakes in the gait band for seconds at a time */
-#define DR_FUSED_P_VEHICLE_WALK_TIME_S (57)
+#define DR_FUSED_P_VEHICLE_WALK_TIME_S (58)
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
@@ -688,6 +693,9 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     if (!(p[DR_FUSED_P_REST_SPEED_MS] >= 0.0f)) { /* rest_speed_ms must be >= 0 */
         return DR_ERR_RANGE;
     }
+    if (!(p[DR_FUSED_P_REST_GATE] >= 0.0f)) { /* rest_gate must be >= 0 */
+        return DR_ERR_RANGE;
+    }
     if (!(p[DR_FUSED_P_REST_UPDATE_S] > 0.0f)) { /* rest_update_s must be > 0 */
         return DR_ERR_RANGE;
     }
@@ -796,6 +804,7 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->inv_vib_tau = dr_recip(p[DR_FUSED_P_VIBRATION_TAU_S]);
     cfg->walk_time_s = p[DR_FUSED_P_WALK_TIME_S];
     cfg->rest_speed_ms = p[DR_FUSED_P_REST_SPEED_MS];
+    cfg->rest_gate = p[DR_FUSED_P_REST_GATE];
     cfg->rest_update_s = p[DR_FUSED_P_REST_UPDATE_S];
     cfg->kf_rest_r = p[DR_FUSED_P_KF_REST_SIGMA_MS2] * p[DR_FUSED_P_KF_REST_SIGMA_MS2];
     cfg->zupt_turn_weight = p[DR_FUSED_P_ZUPT_TURN_WEIGHT];
@@ -858,6 +867,7 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_VIBRATION_TAU_S] = DR_FUSED_VIBRATION_TAU_S;
     p[DR_FUSED_P_WALK_TIME_S] = DR_FUSED_WALK_TIME_S;
     p[DR_FUSED_P_REST_SPEED_MS] = DR_FUSED_REST_SPEED_MS;
+    p[DR_FUSED_P_REST_GATE] = DR_FUSED_REST_GATE;
     p[DR_FUSED_P_REST_UPDATE_S] = DR_FUSED_REST_UPDATE_S;
     p[DR_FUSED_P_KF_REST_SIGMA_MS2] = DR_FUSED_KF_REST_SIGMA_MS2;
     p[DR_FUSED_P_ZUPT_TURN_WEIGHT] = DR_FUSED_ZUPT_TURN_WEIGHT;
@@ -899,8 +909,8 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
 #define DR_FUSED_CONFIG_AT (150)
-#define DR_FUSED_KERNEL_CONFIG_AT (208)
-#define DR_FUSED_BUFFER_FLOATS (220)
+#define DR_FUSED_KERNEL_CONFIG_AT (209)
+#define DR_FUSED_BUFFER_FLOATS (221)
 
 /* ---- the error-state filter (dr_eskf.c, codegen/kernel/eskf.py) ----
  * Its structs are dr_eskf.h's, written by hand; these are their lengths and offsets as codegen/kernel/layout.py
