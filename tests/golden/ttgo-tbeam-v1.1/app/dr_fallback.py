@@ -664,128 +664,39 @@ _FUSED_PARAMS = (
 )
 
 
+def _check_limits(p, names, kinds):
+    # the parameters' common limits, by table (a check per parameter written out would hold the heap's room for
+    # its message): kinds[i] 1 ">= 0", 2 "> 0", 3 ">= 0 and <= 1", 0 none of these; names: p's, space-separated
+    for i in range(len(kinds)):
+        k = kinds[i]
+        v = p[i]
+        if k == 1 and not v >= 0 or k == 2 and not v > 0 or k == 3 and not 0 <= v <= 1:
+            raise ValueError(names.split()[i] + " must be " + ['', '>= 0', '> 0', '>= 0 and <= 1'][k])
+
+
 def fused_init(fstate, params=_FUSED_PARAMS):
     """Reset the fused state and store the configuration: the board's, or 59 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
     p = params
-    if not (p[0] > 0):
-        raise ValueError("tilt_tau_s must be > 0")
-    if not (p[1] > 0):
-        raise ValueError("accel_reject_g must be > 0")
-    if not (p[2] >= 0):
-        raise ValueError("tilt_tau_dark_s must be >= 0")
-    if not (p[3] > 0):
-        raise ValueError("steady_accel_ms2 must be > 0")
-    if not (p[4] >= 0):
-        raise ValueError("speed_tau_s must be >= 0")
-    if not (p[5] > 0):
-        raise ValueError("gps_timeout_s must be > 0")
-    if not (p[6] > 0):
-        raise ValueError("stat_tau_s must be > 0")
-    if not (p[7] > 0):
-        raise ValueError("rest_accel_g must be > 0")
-    if not (p[8] > 0):
-        raise ValueError("rest_gyro_dps must be > 0")
-    if not (p[9] >= 0):
-        raise ValueError("rest_time_s must be >= 0")
-    if not (p[10] >= 0):
-        raise ValueError("bias_tau_s must be >= 0")
-    if not (p[11] > 0):
-        raise ValueError("walk_accel_g must be > 0")
-    if not (p[12] >= 0):
-        raise ValueError("min_speed_ms must be >= 0")
-    if not (p[13] >= 0 and p[13] <= 1):
-        raise ValueError("heading_gain must be >= 0 and <= 1")
-    if not (p[14] >= 0 and p[14] <= 1):
-        raise ValueError("align_forget must be >= 0 and <= 1")
-    if not (p[15] >= 0 and p[15] <= 1):
-        raise ValueError("speed_gain must be >= 0 and <= 1")
-    if not (p[16] >= 0 and p[16] <= 1):
-        raise ValueError("walk_speed_gain must be >= 0 and <= 1")
-    if not (p[17] >= 0):
-        raise ValueError("kf_bias_init_g must be >= 0")
-    if not (p[18] >= 0):
-        raise ValueError("kf_bias_noise must be >= 0")
-    if not (p[19] >= 0):
-        raise ValueError("kf_tilt_noise must be >= 0")
-    if not (p[20] >= 0):
-        raise ValueError("kf_turn_noise must be >= 0")
-    if not (p[21] > 0):
-        raise ValueError("kf_vel_sigma_ms must be > 0")
-    if not (p[22] >= 0):
-        raise ValueError("kf_align_min must be >= 0")
-    if not (p[24] >= 0):
-        raise ValueError("pos_sigma_m must be >= 0")
-    if not (p[25] > 0):
-        raise ValueError("pos_tau_s must be > 0")
-    if not (p[26] > 0):
-        raise ValueError("pos_step_sigma_ms must be > 0")
-    if not (p[27] >= 0):
-        raise ValueError("turn_hold_tau_s must be >= 0")
-    if not (p[28] > 0):
-        raise ValueError("turn_start_dps must be > 0")
+    _check_limits(p, ("tilt_tau_s accel_reject_g tilt_tau_dark_s steady_accel_ms2 speed_tau_s gps_timeout_s "
+                   "stat_tau_s rest_accel_g rest_gyro_dps rest_time_s bias_tau_s walk_accel_g min_speed_ms "
+                   "heading_gain align_forget speed_gain walk_speed_gain kf_bias_init_g kf_bias_noise "
+                   "kf_tilt_noise kf_turn_noise kf_vel_sigma_ms kf_align_min median pos_sigma_m pos_tau_s "
+                   "pos_step_sigma_ms turn_hold_tau_s turn_start_dps turn_end_dps platform vibration_hz "
+                   "vibration_ratio vibration_tau_s walk_time_s rest_speed_ms rest_gate rest_update_s "
+                   "kf_rest_sigma_ms2 zupt_turn_weight accel_tau_s nhc_sigma_ms2 nhc_period_s nhc_speed_noise "
+                   "nhc_leak_sigma_ms2 nhc_min_rate nhc_position nhc_leak_turn nhc_fold_scale "
+                   "pedestrian_max_ms still_accel_g idle_accel_g stand_tau_s speed_noise speed_bias_noise "
+                   "keep_speed_noise max_accel_ms2 carried_ms vehicle_walk_time_s"),
+                  (b"\x02\x02\x01\x02\x01\x02\x02\x02\x02\x01\x01\x02\x01\x03\x03\x03\x03\x01\x01\x01\x01\x02\x01\x00"
+                   b"\x01\x02\x02\x01\x02\x00\x00\x02\x03\x02\x01\x01\x01\x02\x01\x01\x01\x01\x02\x01\x01\x01\x03\x01"
+                   b"\x01\x02\x01\x01\x01\x01\x01\x01\x02\x02\x01"))
     if not (p[29] >= 0 and p[29] <= p[28]):
         raise ValueError("turn_end_dps must be >= 0 and <= turn_start_dps")
     if not (0 <= p[30] <= 2):
         raise ValueError("platform must be one of 0 (pedestrian), 1 (vehicle), 2 (auto)")
-    if not (p[31] > 0):
-        raise ValueError("vibration_hz must be > 0")
-    if not (p[32] >= 0 and p[32] <= 1):
-        raise ValueError("vibration_ratio must be >= 0 and <= 1")
-    if not (p[33] > 0):
-        raise ValueError("vibration_tau_s must be > 0")
-    if not (p[34] >= 0):
-        raise ValueError("walk_time_s must be >= 0")
-    if not (p[35] >= 0):
-        raise ValueError("rest_speed_ms must be >= 0")
-    if not (p[36] >= 0):
-        raise ValueError("rest_gate must be >= 0")
-    if not (p[37] > 0):
-        raise ValueError("rest_update_s must be > 0")
-    if not (p[38] >= 0):
-        raise ValueError("kf_rest_sigma_ms2 must be >= 0")
-    if not (p[39] >= 0):
-        raise ValueError("zupt_turn_weight must be >= 0")
-    if not (p[40] >= 0):
-        raise ValueError("accel_tau_s must be >= 0")
-    if not (p[41] >= 0):
-        raise ValueError("nhc_sigma_ms2 must be >= 0")
-    if not (p[42] > 0):
-        raise ValueError("nhc_period_s must be > 0")
-    if not (p[43] >= 0):
-        raise ValueError("nhc_speed_noise must be >= 0")
-    if not (p[44] >= 0):
-        raise ValueError("nhc_leak_sigma_ms2 must be >= 0")
-    if not (p[45] >= 0):
-        raise ValueError("nhc_min_rate must be >= 0")
-    if not (p[46] >= 0 and p[46] <= 1):
-        raise ValueError("nhc_position must be >= 0 and <= 1")
-    if not (p[47] >= 0):
-        raise ValueError("nhc_leak_turn must be >= 0")
-    if not (p[48] >= 0):
-        raise ValueError("nhc_fold_scale must be >= 0")
-    if not (p[49] > 0):
-        raise ValueError("pedestrian_max_ms must be > 0")
-    if not (p[50] >= 0):
-        raise ValueError("still_accel_g must be >= 0")
-    if not (p[51] >= 0):
-        raise ValueError("idle_accel_g must be >= 0")
-    if not (p[52] >= 0):
-        raise ValueError("stand_tau_s must be >= 0")
-    if not (p[53] >= 0):
-        raise ValueError("speed_noise must be >= 0")
-    if not (p[54] >= 0):
-        raise ValueError("speed_bias_noise must be >= 0")
-    if not (p[55] >= 0):
-        raise ValueError("keep_speed_noise must be >= 0")
-    if not (p[56] > 0):
-        raise ValueError("max_accel_ms2 must be > 0")
-    if not (p[57] > 0):
-        raise ValueError("carried_ms must be > 0")
-    if not (p[58] >= 0):
-        raise ValueError("vehicle_walk_time_s must be >= 0")
     for i in range(FUSED_STATE_LEN):
         fstate[i] = 0.0
     fstate[_F_Q + 0] = 1.0
