@@ -1092,18 +1092,20 @@ int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused
 
 
 /* The GPS-aided update of the tilt/offset filter at a fix (codegen.fused's tilt_and_offset_update): called with its
- * velocity, whether it has a course, and the seconds since the previous fix, before those are replaced. */
+ * velocity, whether it has a course, and the seconds since the previous fix, before those are replaced. The
+ * measurement noise counts the heading alignment's angle error: kf_vel_r / T^2 (1 + |dv_gps|^2 / |A|). */
 static void dr_fused_filter(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, int moving, float t) {
     float h[2][3], x[5];
-    float inv_t, gx, gy, z0, z1, norm2;
+    float inv_t, gx, gy, z0, z1, norm2, norm;
     if (dr_fused_kf_start(cfg, st) || !dr_fused_kf_predict(cfg, st)) {
         return;
     }
     norm2 = st->align_c * st->align_c + st->align_s * st->align_s;
-    if (!(st->gps_ok > 0.0f && moving && t > 0.0f && t < cfg->gps_timeout_s &&
+    if (!(st->gps_ok > 0.0f && moving && t > 0.0f && t < cfg->gps_timeout_s && norm2 > 0.0f &&
           norm2 >= cfg->kf_align_min * cfg->kf_align_min)) {
         return;
     }
+    norm = dr_sqrt(norm2);
     inv_t = dr_recip(t);
     gx = ve - st->gps_ve;
     gy = vn - st->gps_vn;
@@ -1115,7 +1117,8 @@ static void dr_fused_filter(const dr_fused_config *cfg, dr_fused_state *st, floa
     h[1][0] = st->m[DR_FUSED_M10] * inv_t;
     h[1][1] = st->m[DR_FUSED_M11] * inv_t;
     h[1][2] = st->m2[DR_FUSED_M12] * inv_t;
-    dr_fused_kf_update(cfg, st, z0, z1, (const float(*)[3])h, cfg->kf_vel_r * inv_t * inv_t, x);
+    dr_fused_kf_update(cfg, st, z0, z1, (const float(*)[3])h,
+                       cfg->kf_vel_r * inv_t * inv_t * (1.0f + (gx * gx + gy * gy) * dr_recip(norm)), x);
 }
 
 void dr_fused_position(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn, float de, float dn) {

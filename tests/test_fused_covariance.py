@@ -416,3 +416,37 @@ def test_every_covariance_stays_positive_semidefinite_on_simulated_runs(impl, tm
         assert {(F.FILTER_TILT, F.STEP_UPDATE), (F.FILTER_LATERAL, F.STEP_PREDICT),
                 (F.FILTER_LATERAL, F.STEP_UPDATE)} <= seen
     assert trace.at(-1, "cov_repairs") == 0.0
+
+
+def test_a_fix_is_weighed_by_the_heading_alignments_angle_error():
+    """tilt_and_offset_update's measurement noise counts the alignment's angle error: its predict, then the update
+    with r = 2 kf_vel_sigma^2 / T^2 (1 + |dv_gps|^2 / |A|) (A the alignment's sums), not the velocity noise alone:
+    a weak alignment, as a straight road's, weighs a fix that changed speed much the less (the reference; the C and
+    the fallback follow it through the equivalence runs)."""
+    rng = np.random.default_rng(31)
+    st = F.FusedState()
+    p = _random_covariance(rng, 5, 0.2)
+    for (i, j), name in F.FILTER_COVARIANCES[F.FILTER_TILT].items():
+        setattr(st, name, float(p[i, j]))
+    st.kf_t, st.gps_ok, st.gps_ve, st.gps_vn = 1.0, 1.0, 3.0, 4.0
+    norm = max(5.0, FCFG.kf_align_min)
+    st.align_c, st.align_s, st.cos_t, st.sin_t = 0.6 * norm, 0.8 * norm, 0.6, 0.8
+    st.dvx, st.dvy = 0.4, -1.9
+    st.m00, st.m01, st.m02, st.m10, st.m11, st.m12 = (float(v) for v in rng.uniform(-1.0, 1.0, 6))
+    ve, vn, t = 5.0, 3.0, 1.0  # dv_gps = (2, -1): |dv_gps|^2 = 5
+    done = st.copy()
+    F.tilt_and_offset_update(done, ve, vn, True, t, FCFG)
+
+    def by_hand(r):
+        want = st.copy()
+        assert F._kf_predict(want, FCFG)
+        gx, gy = ve - st.gps_ve, vn - st.gps_vn
+        z0 = (st.dvx - (st.cos_t * gx + st.sin_t * gy)) / t
+        z1 = (st.dvy - (-st.sin_t * gx + st.cos_t * gy)) / t
+        h = ((st.m00 / t, st.m01 / t, st.m02 / t), (st.m10 / t, st.m11 / t, st.m12 / t))
+        assert F._kf_update(want, z0, z1, h, r, FCFG) is not None
+        return want.vector()
+
+    plain = 2.0 * FCFG.kf_vel_sigma_ms ** 2 / t ** 2
+    np.testing.assert_allclose(done.vector(), by_hand(plain * (1.0 + 5.0 / norm)), rtol=1e-12, atol=1e-12)
+    assert not np.allclose(done.vector(), by_hand(plain), rtol=1e-6, atol=1e-9)

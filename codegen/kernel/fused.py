@@ -1028,12 +1028,15 @@ def tilt_and_offset_update(st: FusedState, ve: float, vn: float, moving: bool, t
     remaining offsets of the accelerometer's x, y, z axes (fixed in the body; the device may be mounted any way up,
     so each axis can lie horizontal). Calibration folds b into the tilt (d = -R_h b at that moment), so the filter
     starts with that correlation; a turn tells them apart (the offset along gravity stays unseen, and harmless).
-    Measurement noise 2 kf_vel_sigma_ms^2 / T^2 per axis. At rest the same filter takes dv_gps = 0
-    (rest_update)."""
+    Measurement noise per axis 2 kf_vel_sigma_ms^2 / T^2 (1 + |dv_gps|^2 / |A|), A the heading alignment's sums:
+    the alignment's angle has the variance 2 kf_vel_sigma_ms^2 / |A| (its sums gather |dv_gps|^2 per fix against
+    that noise), and an angle error e turns dv_gps by e |dv_gps| (a weak alignment weighs a fix that changed speed
+    much the less; a straight road's builds slowly). At rest the same filter takes dv_gps = 0 (rest_update)."""
     if _kf_start(st, fcfg) or not _kf_predict(st, fcfg):
         return
     norm = math.sqrt(st.align_c * st.align_c + st.align_s * st.align_s)
-    if not (st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s and norm >= fcfg.kf_align_min):
+    if not (st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s and norm > 0.0
+            and norm >= fcfg.kf_align_min):
         return
     inv_t = 1.0 / t
     gx = ve - st.gps_ve
@@ -1041,7 +1044,8 @@ def tilt_and_offset_update(st: FusedState, ve: float, vn: float, moving: bool, t
     z0 = (st.dvx - (st.cos_t * gx + st.sin_t * gy)) * inv_t
     z1 = (st.dvy - (-st.sin_t * gx + st.cos_t * gy)) * inv_t
     h = ((st.m00 * inv_t, st.m01 * inv_t, st.m02 * inv_t), (st.m10 * inv_t, st.m11 * inv_t, st.m12 * inv_t))
-    _kf_update(st, z0, z1, h, 2.0 * fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms * inv_t * inv_t, fcfg)
+    r = 2.0 * fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms * inv_t * inv_t * (1.0 + (gx * gx + gy * gy) / norm)
+    _kf_update(st, z0, z1, h, r, fcfg)
 
 
 def rest_update(st: FusedState, gscale: float, fcfg: FusedConfig) -> None:

@@ -451,8 +451,9 @@ FUSED = Kernel(
               Store("kf_turn_q", "(m/s^2/rad)^2", "square"), 0.1, ge=0),
         Param("kf_vel_sigma_ms", "m/s", "GPS Doppler velocity error per axis, with unmodelled motion",
               Store("kf_vel_r", "(m/s)^2", "square", times=2.0), 0.15, gt=0),
-        Param("kf_align_min", "(m/s)^2", "heading alignment sums needed before the filter updates",
-              Store("kf_align_min", "(m/s)^2"), 20.0, ge=0),
+        Param("kf_align_min", "(m/s)^2", "heading alignment sums needed before the filter updates (a fix then weighs "
+              "by the alignment's angle error too: a straight road's weak alignment no longer keeps it off)",
+              Store("kf_align_min", "(m/s)^2"), 1.0, ge=0),
         Param("median", "", "a vehicle's along-track acceleration is the median of the last b (block) samples: the "
               f"seed's block median, sliding (b <= {FUSED_MEDIAN_MAX})", Store("median", "1: on"), False, kind="bool"),
         Param("pos_sigma_m", "m",

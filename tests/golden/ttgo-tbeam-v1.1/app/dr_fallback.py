@@ -624,7 +624,7 @@ _FUSED_PARAMS = (
     0.002,  # kf_tilt_noise, m/s^2/sqrt(s)
     0.1,  # kf_turn_noise, m/s^2 per rad
     0.15,  # kf_vel_sigma_ms, m/s
-    20.0,  # kf_align_min, (m/s)^2
+    1.0,  # kf_align_min, (m/s)^2
     0.0,  # median
     2.1,  # pos_sigma_m, m
     60.0,  # pos_tau_s, s
@@ -1713,7 +1713,9 @@ def _fused_filter(st, ve, vn, moving, t):
     ac = st[_F_ALIGN_C]
     als = st[_F_ALIGN_S]
     need = st[_FC_KF_ALIGN_MIN]
-    if not (st[_F_GPS_OK] > 0.0 and moving and 0.0 < t < st[_FC_GPS_TIMEOUT_S] and ac * ac + als * als >= need * need):
+    norm2 = ac * ac + als * als
+    if not (st[_F_GPS_OK] > 0.0 and moving and 0.0 < t < st[_FC_GPS_TIMEOUT_S] and norm2 > 0.0
+            and norm2 >= need * need):
         return
     inv_t = 1.0 / t
     gx = ve - st[_F_GPS_VE]
@@ -1724,7 +1726,8 @@ def _fused_filter(st, ve, vn, moving, t):
     z1 = (st[_F_DVY] - (-sin_t * gx + cos_t * gy)) * inv_t
     h = (st[_F_M] * inv_t, st[_F_M + 1] * inv_t, st[_F_M2] * inv_t,
          st[_F_M + 2] * inv_t, st[_F_M + 3] * inv_t, st[_F_M2 + 1] * inv_t)
-    _kf_update(st, z0, z1, h, st[_FC_KF_VEL_R] * inv_t * inv_t)
+    # the noise counts the alignment's angle error: kf_vel_r / T^2 (1 + |dv_gps|^2 / |A|)
+    _kf_update(st, z0, z1, h, st[_FC_KF_VEL_R] * inv_t * inv_t * (1.0 + (gx * gx + gy * gy) / math.sqrt(norm2)))
 
 
 def fused_position(fstate, ve, vn, de, dn):

@@ -51,7 +51,7 @@
 #define DR_FUSED_KF_TILT_NOISE (0.002f) /* m/s^2/sqrt(s) */
 #define DR_FUSED_KF_TURN_NOISE (0.1f) /* m/s^2 per rad */
 #define DR_FUSED_KF_VEL_SIGMA_MS (0.15f) /* m/s */
-#define DR_FUSED_KF_ALIGN_MIN (20.0f) /* (m/s)^2 */
+#define DR_FUSED_KF_ALIGN_MIN (1.0f) /* (m/s)^2 */
 #define DR_FUSED_MEDIAN (0.0f) /* 1: on, 0: off */
 #define DR_FUSED_POS_SIGMA_M (2.1f) /* m */
 #define DR_FUSED_POS_TAU_S (60.0f) /* s */

@@ -486,7 +486,9 @@ typedef char dr_fused_cov_repairs_at_142[
 /* m/s^2 per rad: gravity leak a turn may add (gyro scale and cross-axis errors) */
 #define DR_FUSED_P_KF_TURN_NOISE (20)
 #define DR_FUSED_P_KF_VEL_SIGMA_MS (21) /* m/s: GPS Doppler velocity error per axis, with unmodelled motion */
-#define DR_FUSED_P_KF_ALIGN_MIN (22) /* (m/s)^2: heading alignment sums needed before the filter updates */
+/* (m/s)^2: heading alignment sums needed before the filter updates (a fix then weighs by the alignment's angle error
+ * too: a straight road's weak alignment no longer keeps it off) */
+#define DR_FUSED_P_KF_ALIGN_MIN (22)
 /* a vehicle's along-track acceleration is the median of the last b (block) samples: the seed's block median, sliding
  * (b <= 32) */
 #define DR_FUSED_P_MEDIAN (23)
