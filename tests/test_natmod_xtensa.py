@@ -61,11 +61,24 @@ def _l32r_sites(module, link):
 
         with open(obj, "rb") as f:
             elf = ELFFile(f)
-            rela = elf.get_section_by_name(".rela.text")
-            base = link.placement(obj, ".text").addr
+            text = next(name for name, _ in linkmap.loaded_sections(obj) if name.startswith(".text"))  # .text.<obj>
+            rela = elf.get_section_by_name(".rela" + text)
+            base = link.placement(obj, text).addr
             sites += [base + r["r_offset"] for r in rela.iter_relocations()
                       if xtensa.is_l32r(module.text, base + r["r_offset"])]
     return sites
+
+
+def test_each_objects_sections_have_their_own_name_so_the_got_keeps_their_literals_apart(built):
+    """mpy_ld keys a GOT entry for a literal that points into a section by section name and offset, not by file:
+    with every object's code in a section called .text, dr_fused.o's static function at .text+0xbb8 and
+    dr_kernel.o's at the same offset shared one entry, and half their callers called the other function."""
+    _, link, _, _ = built
+    names = [p.name for p in link.placements]
+    assert len(names) == len(set(names)) and len(link.objects) > 2, names
+    sections = [name.split("+")[0] for name, _, _ in link.got.values() if name.startswith((".text", ".data"))]
+    assert sections and set(sections) <= set(names)
+    assert len({p.obj for p in link.placements if p.name in sections}) > 1  # several objects' literals in the GOT
 
 
 @pytest.mark.parametrize("which", [0, 57, -1])

@@ -77,25 +77,31 @@ def cross_prefix() -> Optional[str]:
     return command[: -len(CROSS_SUFFIX)]
 
 
-def reshape(assembly: str) -> str:
-    """llc's assembly with GNU as's section layout (see the module docstring, step 3)."""
+def reshape(assembly: str, unit: str = "") -> str:
+    """llc's assembly with GNU as's section layout (see the module docstring, step 3). `unit` names this object's
+    sections (.text.UNIT, .data.rel.ro.UNIT): mpy_ld takes a literal that points into a section for the same GOT
+    entry as any other object's literal with the same section name and offset, so a static function of dr_fused.o
+    at .text+0xbb8 and one of dr_kernel.o at the same offset once shared one entry, and half their callers called
+    the wrong function (codegen.natmod.verify caught it). Every name still starts with what mpy_ld looks for."""
+    tag = re.sub(r"\W", "_", unit)
+    text = f'\t.section\t.text.{tag},"ax",@progbits' if tag else '\t.section\t.text,"ax",@progbits'
+    rodata = f'\t.section\t.data.rel.ro.{tag},"aw",@progbits' if tag else '\t.section\t.data.rel.ro,"aw",@progbits'
     out = []
     for line in assembly.splitlines():
         literal = _LITERAL.match(line)
         if _TEXT_SECTION.match(line):
-            out.append('\t.section\t.text,"ax",@progbits')
+            out.append(text)
         elif _RODATA_SECTION.match(line):
-            out.append('\t.section\t.data.rel.ro,"aw",@progbits')
+            out.append(rodata)
         elif line.strip() == ".literal_position":
             continue
         elif literal:
             label, value = literal.groups()
-            out += ['\t.section\t.literal,"a",@progbits', "\t.p2align\t2", f"{label}:", f"\t.4byte\t{value}",
-                    '\t.section\t.text,"ax",@progbits']
+            out += ['\t.section\t.literal,"a",@progbits', "\t.p2align\t2", f"{label}:", f"\t.4byte\t{value}", text]
         else:
             out.append(line)
     if any(line.startswith("mpy_init:") for line in out):
-        out[1:1] = ['\t.section\t.text,"ax",@progbits', "\t.p2align\t2", "\t.4byte\t0"]
+        out[1:1] = [text, "\t.p2align\t2", "\t.4byte\t0"]
     return "\n".join(out) + "\n"
 
 
@@ -167,7 +173,7 @@ def compile_object(source: Path, output: Path, flags: Sequence[str] = (), clear_
     _run("llc (IR -> ESP32 assembly)", [llc, "-mtriple=xtensa", "-mcpu=esp32", "-O2", "-function-sections",
                                         str(ir), "-o", str(asm)])
     shaped = output.with_suffix(".mpy_ld.s")
-    shaped.write_text(reshape(asm.read_text()))
+    shaped.write_text(reshape(asm.read_text(), output.stem))
     _run("llvm-mc (assembly -> object)", [mc, "-triple=xtensa", "-mcpu=esp32", "-filetype=obj", str(shaped),
                                           "-o", str(output)])
     fix_object(output, clear_l32r)
