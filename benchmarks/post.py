@@ -393,6 +393,12 @@ if __name__ == "__main__":
         at = args.index("--seeds")
         stop_seeds = device_seeds = tuple(int(s) for s in args[at + 1].split(","))
         del args[at:at + 2]
+    if "--gyro-window" in args:  # s: the gyro frame's offset windows (codegen/post/gyroframe.py WINDOW), to compare
+        at = args.index("--gyro-window")
+        from codegen.post import gyroframe
+
+        gyroframe.WINDOW = float(args[at + 1])
+        del args[at:at + 2]
     which = args or ["synthetic", "walk", "gaps", "stands", "stops"]
     if "synthetic" in which:
         synthetic()
