@@ -14,9 +14,9 @@ One source becomes one object in four steps:
      must be 4-byte aligned");
   3. the assembly reshaped into GNU as's layout (`reshape`): literal pools (`.literal_position`, `.literal X, v`,
      which LLVM keeps inside .text, giving R_XTENSA_32 relocations mpy_ld rejects) move into one `.literal`
-     section; every `.text.*` becomes one `.text` (padded by one word before mpy_init, so its offset is never 0:
-     mpy_ld's first pass computes the entry jump as offset - 4); `.rodata` (the function objects, which hold
-     pointers) becomes `.data.rel.ro`, where GCC puts it;
+     section; every `.text.*` becomes one `.text.<object>` (padded by one word before mpy_init, so its offset is
+     never 0: mpy_ld's first pass computes the entry jump as offset - 4); `.rodata` (the function objects, which
+     hold pointers) becomes `.data.rel.ro.<object>`, where GCC puts it (named per object: see `reshape`);
   4. llvm-mc-22 assembles it, and the object is fixed where llvm-mc's output differs from GNU as's (`fix_object`):
      a `.literal` word that points into a section carries its offset in the data with addend 0 (GNU as style, the
      form mpy_ld's literal table reads), and every relocated L32R has imm16 = 0. llvm-mc leaves 0xffff there when
@@ -77,15 +77,15 @@ def cross_prefix() -> Optional[str]:
     return command[: -len(CROSS_SUFFIX)]
 
 
-def reshape(assembly: str, unit: str = "") -> str:
+def reshape(assembly: str, unit: str) -> str:
     """llc's assembly with GNU as's section layout (see the module docstring, step 3). `unit` names this object's
     sections (.text.UNIT, .data.rel.ro.UNIT): mpy_ld takes a literal that points into a section for the same GOT
     entry as any other object's literal with the same section name and offset, so a static function of dr_fused.o
     at .text+0xbb8 and one of dr_kernel.o at the same offset once shared one entry, and half their callers called
     the wrong function (codegen.natmod.verify caught it). Every name still starts with what mpy_ld looks for."""
     tag = re.sub(r"\W", "_", unit)
-    text = f'\t.section\t.text.{tag},"ax",@progbits' if tag else '\t.section\t.text,"ax",@progbits'
-    rodata = f'\t.section\t.data.rel.ro.{tag},"aw",@progbits' if tag else '\t.section\t.data.rel.ro,"aw",@progbits'
+    text = f'\t.section\t.text.{tag},"ax",@progbits'
+    rodata = f'\t.section\t.data.rel.ro.{tag},"aw",@progbits'
     out = []
     for line in assembly.splitlines():
         literal = _LITERAL.match(line)
