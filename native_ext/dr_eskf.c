@@ -128,7 +128,7 @@ static float exp_neg(float x) {
 
 int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_state *st, const int16_t *samples,
                       int32_t count) {
-    float total[6], mean[6], var[3], inv_n, norm;
+    float total[6], mean[6], var[3], inv_n, norm, along;
     int32_t k, i;
     int moved = 0;
     (void)cfg;
@@ -165,6 +165,12 @@ int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_
         st->bg[i] = mean[3 + i] * kcfg->gyro_rads_per_lsb;
     }
     st->mean_f = norm * kcfg->accel_ms2_per_lsb;
+    /* the accelerometer bias along the mean specific force: its length less g (an offset or scale error on the axis
+     * that points Up, read as a vertical acceleration otherwise) */
+    along = (st->mean_f - DR_GRAVITY_MS2) * dr_recip(norm);
+    for (i = 0; i < 3; i++) {
+        st->ba[i] = mean[i] * along;
+    }
     st->gyro_moving = (float)moved; /* not moved ? 1.0f : 0.0f: LLVM's Xtensa backend cannot select that pair */
     return moved;
 }

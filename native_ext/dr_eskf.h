@@ -7,7 +7,7 @@
  * covariance is the full symmetric matrix p[DR_ESKF_N][DR_ESKF_N] (2.1 KB), indexed by those names.
  *
  *   dr_eskf_config_init(&cfg); dr_eskf_state_init(&st);
- *   dr_eskf_calibrate(&kcfg, &cfg, &st, rest_samples, n);             the tilt and gyro bias
+ *   dr_eskf_calibrate(&kcfg, &cfg, &st, rest_samples, n);             the tilt and biases
  *   dr_eskf_process(&kcfg, &cfg, &st, samples, dt_us, n, out);         the strapdown step, the covariance, NHC/ZUPT
  *   dr_eskf_gps(&cfg, &st, t_s, e, n, u, ve, vn);                      a fix: the yaw alignment, then updates
  */
@@ -137,8 +137,8 @@ void dr_eskf_config_init(dr_eskf_config *cfg);
 /* Resets st: identity attitude, everything else 0, the filter not started. */
 void dr_eskf_state_init(dr_eskf_state *st);
 
-/* Calibration from count >= 1 raw samples (sensor frame, interleaved [ax ay az gx gy gz]): the tilt (yaw 0) and the
- * gyro bias from their mean. Returns 1 if the device moved during it (the kernel's motion limit), 0 if not,
+/* Calibration from count >= 1 raw samples (sensor frame, interleaved [ax ay az gx gy gz]): the tilt (yaw 0), the
+ * gyro bias and the accelerometer bias along the mean specific force (its length less g) from their mean. Returns 1 if the device moved during it (the kernel's motion limit), 0 if not,
  * DR_ESKF_ERR_COUNT (st unchanged) for no samples or no gravity. */
 int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_state *st, const int16_t *samples,
                       int32_t count);

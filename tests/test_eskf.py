@@ -223,9 +223,37 @@ def test_constant_acceleration_and_turn_through_the_strapdown_step():
     assert abs(yaw - (135.0 + 20.0 * 400 * dt)) <= 1.01 * 400 * math.degrees(step ** 3 / 12.0)
 
 
+def _rest_counts(rng, offset_ms2, scale, n=400):
+    """n raw samples of a device at rest in a random attitude whose accelerometer reads scale * f + offset (m/s^2,
+    body), with noise; returns (counts, R body -> level frame)."""
+    q = rng.standard_normal(4)
+    q /= np.linalg.norm(q)
+    r = E._rotation(*q)
+    f = scale * (r.T @ np.array([0.0, 0.0, STANDARD_GRAVITY])) + offset_ms2
+    acc = (f + rng.normal(0.0, 0.05, (n, 3))) / KCFG.accel_ms2_per_lsb
+    gyr = rng.normal(0.0, 3.0, (n, 3))
+    return np.round(np.hstack([acc, gyr])).astype(np.int16), r
+
+
+@pytest.mark.parametrize("case", range(CASES))
+def test_calibration_takes_the_accelerometers_error_along_gravity_as_its_bias(case):
+    """At rest in any attitude, with the MPU-6050's offsets (up to 80 mg) and scale error (3 %): after calibration
+    the bias-corrected mean specific force, turned by the attitude, is gravity exactly, so a device that stays still
+    reads no vertical acceleration (before, the mean's length less g read as one until a constraint learnt it)."""
+    rng = np.random.default_rng(300 + case)
+    offset = rng.uniform(-1.0, 1.0, 3) * np.array([0.05, 0.05, 0.08]) * STANDARD_GRAVITY
+    counts, _ = _rest_counts(rng, offset, 1.0 + rng.uniform(-0.03, 0.03))
+    st = E.EskfState()
+    E.calibrate(st, counts, KCFG)
+    mean = counts[:, :3].mean(axis=0) * KCFG.accel_ms2_per_lsb
+    level = st.rotation() @ (mean - np.array([st.bax, st.bay, st.baz]))
+    assert np.allclose(level, [0.0, 0.0, STANDARD_GRAVITY], atol=1e-9)
+    assert abs(np.linalg.norm(mean) - STANDARD_GRAVITY) > 0.05  # the case has an error along gravity to take
+
+
 def test_zero_velocity_updates_find_a_vertical_accelerometer_bias():
-    """A level device at rest whose accelerometer reads 0.08 m/s^2 too much on its up axis: the zero-velocity
-    updates take the vertical velocity it gathers as that bias (along gravity, calibration cannot see it)."""
+    """A level device at rest whose accelerometer reads 0.08 m/s^2 too much on its up axis (a bias that came after
+    the calibration): the zero-velocity updates take the vertical velocity it gathers as that bias."""
     st = _started()
     bias = 0.08
     n, dt = 6000, 0.005  # 30 s

@@ -276,6 +276,26 @@ def test_c_method_uses_no_gps_after_the_outage_start(car_run):
 
 
 @pytest.mark.parametrize("case", range(CASES))
+def test_c_calibration_equals_the_reference(ek, case):
+    """The tilt, the gyro bias and the accelerometer bias along gravity from the same raw samples."""
+    from test_eskf import _rest_counts
+
+    rng = np.random.default_rng(800 + case)
+    counts, _ = _rest_counts(rng, rng.uniform(-0.8, 0.8, 3), 1.03)  # 3 %: 0.29 m/s^2 along gravity at least
+    ref = E.EskfState()
+    kcfg = KernelConfig()
+    moved_ref = E.calibrate(ref, counts, kcfg)
+    s = ek.session(CFG)
+    s.use_kernel_config(kcfg)
+    assert s.calibrate(counts) == moved_ref
+    want, got = H.reference_nominal(ref), s.nominal()
+    assert np.max(np.abs(got["q"] - want["q"])) <= 1e-5
+    assert np.max(np.abs(got["bg"] - want["bg"])) <= 1e-6
+    assert np.max(np.abs(got["ba"] - want["ba"])) <= 1e-5
+    assert np.linalg.norm(want["ba"]) > 0.05
+
+
+@pytest.mark.parametrize("case", range(CASES))
 def test_c_start_equals_the_reference(ek, case):
     """The yaw fit's sums, the start's levelling and turn: the C starts at the same fix with the same attitude."""
     from test_eskf import _fit_case

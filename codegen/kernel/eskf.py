@@ -32,10 +32,10 @@ the nominal state and reset to zero (`inject`):
   smoothed gyro reading is the bias, 3).
 No heading is measured: yaw is observed through the GPS velocity's changes against the rotated specific force.
 
-Start (`calibrate`, `align`): calibration gives the tilt (yaw 0) and the gyro bias, at rest or (a run that starts
-driving) from the mean of its first calibration_s. Yaw is unknown: until the filter starts, the attitude is
-integrated in that wander frame and each fix interval's GPS velocity change dv is fitted by least squares as
-z du + c s (`alignment_fit`): du the rotated specific force's integral, s the body heading's (a calibration in
+Start (`calibrate`, `align`): calibration gives the tilt (yaw 0), the gyro bias and the accelerometer bias along
+the mean specific force (its length less g), at rest or (a run that starts driving) from the mean of its first
+calibration_s. Yaw is unknown: until the filter starts, the attitude is integrated in that wander frame and each
+fix interval's GPS velocity change dv is fitted by least squares as z du + c s (`alignment_fit`): du the rotated specific force's integral, s the body heading's (a calibration in
 motion took the mean acceleration for gravity, a body-fixed horizontal offset b = -c / z that turns with the
 vehicle). The interval that spans the calibration (`calibration_interval`: du 0 by construction) ties z to that
 offset, so a start on the move is found within seconds. Once the fit's yaw is as sure as the prior assumes, the
@@ -165,7 +165,9 @@ def skew(a) -> np.ndarray:
 
 # --------------------------------------------------------------------------------------------- start
 def calibrate(st: EskfState, samples, kcfg: KernelConfig) -> bool:
-    """Tilt from the mean specific force (yaw 0: the wander frame until `align`), gyro bias = the mean rate.
+    """Tilt from the mean specific force (yaw 0: the wander frame until `align`), gyro bias = the mean rate, and
+    the accelerometer bias along that mean: what its length differs from g by (an offset or scale error on the axis
+    that points Up, which would otherwise read as a vertical acceleration until the constraints learnt it).
     Returns True when the device moved during it (the kernel's threshold): the bias then holds the road's mean
     turn rate and the tilt its mean acceleration, and the filter starts less sure of both."""
     body = remap_axes(samples, kcfg.axis_map)
@@ -173,7 +175,10 @@ def calibrate(st: EskfState, samples, kcfg: KernelConfig) -> bool:
     q = tilt_from_gravity(mean[:3])
     st.qw, st.qx, st.qy, st.qz = (float(v) for v in q)
     st.bgx, st.bgy, st.bgz = (float(v) * kcfg.gyro_rads_per_lsb for v in mean[3:])
-    st.mean_f = float(np.linalg.norm(mean[:3])) * kcfg.accel_ms2_per_lsb
+    norm = float(np.linalg.norm(mean[:3]))
+    st.mean_f = norm * kcfg.accel_ms2_per_lsb
+    along = (st.mean_f - STANDARD_GRAVITY) / norm  # per count of the mean
+    st.bax, st.bay, st.baz = (float(v) * along for v in mean[:3])
     std_g = body[:, :3].std(axis=0) / kcfg.accel_lsb_per_g
     st.gyro_moving = bool(np.any(std_g > kcfg.motion_threshold_g))
     return st.gyro_moving
