@@ -138,8 +138,9 @@ void dr_eskf_config_init(dr_eskf_config *cfg);
 void dr_eskf_state_init(dr_eskf_state *st);
 
 /* Calibration from count >= 1 raw samples (sensor frame, interleaved [ax ay az gx gy gz]): the tilt (yaw 0), the
- * gyro bias and the accelerometer bias along the mean specific force (its length less g) from their mean. Returns 1 if the device moved during it (the kernel's motion limit), 0 if not,
- * DR_ESKF_ERR_COUNT (st unchanged) for no samples or no gravity. */
+ * gyro bias and the accelerometer bias along the mean specific force (its length less g) from their mean. Returns 1
+ * if the device moved during it (the kernel's motion limit), 0 if not, DR_ESKF_ERR_COUNT (st unchanged) for no
+ * samples or no gravity. */
 int dr_eskf_calibrate(const dr_config *kcfg, const dr_eskf_config *cfg, dr_eskf_state *st, const int16_t *samples,
                       int32_t count);
 

@@ -224,15 +224,15 @@ def test_constant_acceleration_and_turn_through_the_strapdown_step():
 
 
 def _rest_counts(rng, offset_ms2, scale, n=400):
-    """n raw samples of a device at rest in a random attitude whose accelerometer reads scale * f + offset (m/s^2,
-    body), with noise; returns (counts, R body -> level frame)."""
+    """n raw samples (int16 counts, [ax ay az gx gy gz]) of a device at rest in a random attitude whose accelerometer
+    reads scale * f + offset (m/s^2, body), with noise."""
     q = rng.standard_normal(4)
     q /= np.linalg.norm(q)
     r = E._rotation(*q)
     f = scale * (r.T @ np.array([0.0, 0.0, STANDARD_GRAVITY])) + offset_ms2
     acc = (f + rng.normal(0.0, 0.05, (n, 3))) / KCFG.accel_ms2_per_lsb
     gyr = rng.normal(0.0, 3.0, (n, 3))
-    return np.round(np.hstack([acc, gyr])).astype(np.int16), r
+    return np.round(np.hstack([acc, gyr])).astype(np.int16)
 
 
 @pytest.mark.parametrize("case", range(CASES))
@@ -242,7 +242,7 @@ def test_calibration_takes_the_accelerometers_error_along_gravity_as_its_bias(ca
     reads no vertical acceleration (before, the mean's length less g read as one until a constraint learnt it)."""
     rng = np.random.default_rng(300 + case)
     offset = rng.uniform(-1.0, 1.0, 3) * np.array([0.05, 0.05, 0.08]) * STANDARD_GRAVITY
-    counts, _ = _rest_counts(rng, offset, 1.0 + rng.uniform(-0.03, 0.03))
+    counts = _rest_counts(rng, offset, 1.0 + rng.uniform(-0.03, 0.03))
     st = E.EskfState()
     E.calibrate(st, counts, KCFG)
     mean = counts[:, :3].mean(axis=0) * KCFG.accel_ms2_per_lsb

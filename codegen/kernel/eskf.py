@@ -35,12 +35,12 @@ No heading is measured: yaw is observed through the GPS velocity's changes again
 Start (`calibrate`, `align`): calibration gives the tilt (yaw 0), the gyro bias and the accelerometer bias along
 the mean specific force (its length less g), at rest or (a run that starts driving) from the mean of its first
 calibration_s. Yaw is unknown: until the filter starts, the attitude is integrated in that wander frame and each
-fix interval's GPS velocity change dv is fitted by least squares as z du + c s (`alignment_fit`): du the rotated specific force's integral, s the body heading's (a calibration in
-motion took the mean acceleration for gravity, a body-fixed horizontal offset b = -c / z that turns with the
-vehicle). The interval that spans the calibration (`calibration_interval`: du 0 by construction) ties z to that
-offset, so a start on the move is found within seconds. Once the fit's yaw is as sure as the prior assumes, the
-attitude is levelled by b and turned by z's angle, the filter starts from the fix and its velocity, and the mounting
-is set from the body-frame velocity.
+fix interval's GPS velocity change dv is fitted by least squares as z du + c s (`alignment_fit`): du the rotated
+specific force's integral, s the body heading's (a calibration in motion took the mean acceleration for gravity, a
+body-fixed horizontal offset b = -c / z that turns with the vehicle). The interval that spans the calibration
+(`calibration_interval`: du 0 by construction) ties z to that offset, so a start on the move is found within
+seconds. Once the fit's yaw is as sure as the prior assumes, the attitude is levelled by b and turned by z's angle,
+the filter starts from the fix and its velocity, and the mounting is set from the body-frame velocity.
 
 `estimate` is the benchmark's method contract (codegen.sim.methods): one pass over the run with every fix, the state
 kept after each; each outage continues from the state after its last fix with the IMU alone. An outage that starts
