@@ -1215,7 +1215,8 @@ int dr_fused_speed_predict(const dr_fused_config *cfg, dr_fused_state *st, float
 }
 
 /* The speed/bias filter's update with the fix's speed, H = [1, 0], variance r (codegen.fused's _speed_correct):
- * P <- P - K S K^T. gain: K. Returns 0 if the covariance went wrong (reset to the prior). */
+ * P <- P - K S K^T as (I - K H) P, free of cancellation when the speed starts unknown. gain: K. Returns 0 if the
+ * covariance went wrong (reset to the prior). */
 int dr_fused_speed_correct(const dr_fused_config *cfg, dr_fused_state *st, float r, float gain[2]) {
     const float pss = st->sb_p[DR_FUSED_SB_PSS], psb = st->sb_p[DR_FUSED_SB_PSB], pbb = st->sb_p[DR_FUSED_SB_PBB];
     const float s = pss + r;
@@ -1226,9 +1227,9 @@ int dr_fused_speed_correct(const dr_fused_config *cfg, dr_fused_state *st, float
     inv_s = dr_recip(s);
     gain[0] = pss * inv_s;
     gain[1] = psb * inv_s;
-    st->sb_p[DR_FUSED_SB_PSS] = pss - gain[0] * gain[0] * s;
-    st->sb_p[DR_FUSED_SB_PSB] = psb - gain[0] * gain[1] * s;
-    st->sb_p[DR_FUSED_SB_PBB] = pbb - gain[1] * gain[1] * s;
+    st->sb_p[DR_FUSED_SB_PSS] = gain[0] * r;
+    st->sb_p[DR_FUSED_SB_PSB] = gain[1] * r;
+    st->sb_p[DR_FUSED_SB_PBB] = pbb - gain[1] * psb;
     return dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_SPEED, DR_FUSED_STEP_UPDATE, 1);
 }
 
@@ -1296,9 +1297,11 @@ static inline void dr_fused_fix_course(const dr_fused_config *cfg, dr_fused_stat
 }
 
 /* The speed at a fix, t s after the previous one (codegen.fused's _fix_speed): a pedestrian's or a rest's pulled
- * (not integrated, so the interval says nothing of the bias), a vehicle's by the speed/bias filter; then the speed
- * kept is the fix's. Before the tilt/offset filter's predict restarts st->turn, which the bias's noise reads. */
-static inline void dr_fused_fix_speed(const dr_fused_config *cfg, dr_fused_state *st, float speed, float t) {
+ * (not integrated, so the interval says nothing of the bias), a vehicle's by the speed/bias filter, started from the
+ * fix when the interval was not aimed (its travel direction not known at its start); then the speed kept is the
+ * fix's. Before the tilt/offset filter's predict restarts st->turn, which the bias's noise reads. */
+static inline void dr_fused_fix_speed(const dr_fused_config *cfg, dr_fused_state *st, float speed, float t,
+                                      int aimed) {
     float e = speed - st->speed;
     if ((int)st->flags & (DR_FUSED_AT_REST | DR_FUSED_WALKING | DR_FUSED_WALKED)) {
         const float left = (1.0f - cfg->speed_gain) * e;
@@ -1307,7 +1310,7 @@ static inline void dr_fused_fix_speed(const dr_fused_config *cfg, dr_fused_state
         st->sb_p[DR_FUSED_SB_PSB] = 0.0f;
     } else {
         float gain[2];
-        if (!(t > 0.0f && t < cfg->gps_timeout_s)) { /* after an outage or before any fix: from the fix */
+        if (!(aimed && t > 0.0f && t < cfg->gps_timeout_s)) { /* after an outage, before any fix, not aimed */
             st->sb_p[DR_FUSED_SB_PSS] = DR_FUSED_SPEED_UNKNOWN_VAR;
             st->sb_p[DR_FUSED_SB_PSB] = 0.0f;
         }
@@ -1368,13 +1371,14 @@ void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, floa
     float t = st->since_fix;
     int moving = speed >= cfg->min_speed_ms;
     float a[2] = {0.0f, 0.0f};
+    int aimed = st->gps_ok > 0.0f && (st->align_c != 0.0f || st->align_s != 0.0f); /* the direction was known */
     if (st->gps_ok > 0.0f && moving && t > 0.0f && t < cfg->gps_timeout_s) {
         dr_fused_fix_alignment(cfg, st, ve, vn, t, a);
     }
     if (moving) {
         dr_fused_fix_course(cfg, st, ve, vn, speed, inv_speed);
     }
-    dr_fused_fix_speed(cfg, st, speed, t);
+    dr_fused_fix_speed(cfg, st, speed, t, aimed);
     if (cfg->kf_bias_var > 0.0f) {
         dr_fused_filter(cfg, st, ve, vn, moving, t);
     }

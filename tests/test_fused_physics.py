@@ -34,6 +34,7 @@ DT_US = 5000
 ONE_G = KCFG.accel_lsb_per_g  # counts
 QUAT = slice(0, 4)
 FUSED_PLATFORM = FUSED.param("platform")
+ALIGNED = 100.0  # (m/s)^2: align_c of a heading alignment found long ago, the kernel frame true ENU (cos_t 1)
 
 
 @pytest.fixture(params=IMPLEMENTATIONS)
@@ -419,7 +420,7 @@ def test_a_calibration_that_moved_leaves_the_speed_to_the_first_fix_not_to_a_bia
     along-track bias alone. Had calibration stood still (the speed known 0), the same fix would have been a bias:
     that was the real highway drive's -2.6 m/s^2 from its first fix."""
     samples, dt = _samples(200)
-    moving = dict(flags=float(F.VEHICLE), since_fix=0.0, gps_ok=19.5, gps_speed=20.0)
+    moving = dict(flags=float(F.VEHICLE), since_fix=0.0, gps_ok=19.5, gps_speed=20.0, align_c=ALIGNED)
     unknown = run(impl, [("p", samples, dt), ("v", 20.0, 0.0)], tmp_path,
                   start=_still(**moving, sb_pss=F.SPEED_UNKNOWN_VAR, cal_moved=1.0))
     assert not int(unknown.states[0][F.IDX["flags"]]) & F.AT_REST
@@ -428,6 +429,24 @@ def test_a_calibration_that_moved_leaves_the_speed_to_the_first_fix_not_to_a_bia
     assert unknown.at(-1, "keep_v") == pytest.approx(20.0) and unknown.at(-1, "sk_t") == 0.0
     known = run(impl, [("p", samples, dt), ("v", 20.0, 0.0)], tmp_path, start=_still(**moving))
     assert known.at(-1, "bias") < -1.0
+
+
+def test_an_interval_whose_travel_direction_was_not_known_teaches_no_along_track_bias(impl, tmp_path):
+    """A car whose heading alignment has not been found yet (its first seconds of driving: the kernel frame's yaw
+    is arbitrary, so the acceleration was integrated along a direction the fixes had not placed) gets a fix 20 m/s
+    faster than its integrated speed: the speed takes it, the along-track bias does not. The same fix after an
+    aimed interval is a bias (as the calibration test above shows). A simulated car that learned its first
+    seconds' lag as a bias of -1 m/s^2 ran from 8.7 to 18 m/s in a 10 s outage."""
+    samples, dt = _samples(200)
+    start = dict(flags=float(F.VEHICLE), since_fix=0.0, gps_ok=19.5, gps_speed=20.0)
+    unaligned = run(impl, [("p", samples, dt), ("v", 20.0, 0.0)], tmp_path, start=_still(**start))
+    assert unaligned.at(-1, "speed") == pytest.approx(20.0, abs=0.01)
+    assert abs(unaligned.at(-1, "bias")) < 1e-3  # 2e-5: the speed's restart variance (1e4) leaves a trace
+    after_a_stop = run(impl, [("p", samples, dt), ("v", 20.0, 0.0)], tmp_path,
+                       start=_still(**dict(start, gps_ok=-0.5, align_c=ALIGNED)))  # the last fix had no course
+    assert abs(after_a_stop.at(-1, "bias")) < 1e-3
+    aimed = run(impl, [("p", samples, dt), ("v", 20.0, 0.0)], tmp_path, start=_still(**start, align_c=ALIGNED))
+    assert aimed.at(-1, "bias") < -1.0
 
 
 def test_a_fix_that_finds_a_pedestrian_teaches_no_along_track_bias(impl, tmp_path):
@@ -758,7 +777,7 @@ def test_along_track_bias_is_learned_from_a_steady_speed_error(impl, tmp_path):
     fcfg = replace(FCFG, tilt_tau_s=1e9)
     offset = round(0.06 * ONE_G) * KCFG.accel_ms2_per_lsb
     samples, dt = _samples(200, accel_g=(round(0.06 * ONE_G) / ONE_G, 0.0, 1.0))
-    start = _still(speed=10.0, gps_speed=10.0, gps_ve=10.0, gps_ok=9.5, since_fix=0.0)
+    start = _still(speed=10.0, gps_speed=10.0, gps_ve=10.0, gps_ok=9.5, since_fix=0.0, align_c=ALIGNED)
     trace = run(impl, [s for _ in range(40) for s in (("p", samples, dt), ("v", 10.0, 0.0))], tmp_path,
                 params=fcfg, start=start)
     gated = _gated(offset, 200)  # the first second, unlearned, after the gate opens
@@ -841,7 +860,7 @@ def test_a_gentle_start_the_deadband_hides_is_speed_not_an_along_track_bias(impl
     steps = []
     for k in range(1, 5):
         steps += [("p", samples, dt), ("v", 1.0 + 0.025 * G * k, 0.0)]
-    start = _still(flags=float(F.VEHICLE), since_fix=0.0, gps_ok=0.5, gps_speed=1.0, speed=1.0)
+    start = _still(flags=float(F.VEHICLE), since_fix=0.0, gps_ok=0.5, gps_speed=1.0, speed=1.0, align_c=ALIGNED)
     trace = run(impl, steps, tmp_path, start=start)
     assert not np.any(trace.series("flags").astype(int) & (F.AT_REST | F.WALKING))
     assert abs(trace.at(-1, "bias")) < 0.1  # -0.083 m/s^2; -0.127 before the deadband's loss was counted

@@ -793,8 +793,10 @@ def _speed_predict(st: FusedState, t: float, q_speed: float, q_bias: float, fcfg
 
 def _speed_correct(st: FusedState, r: float, fcfg: FusedConfig):
     """The speed/bias filter's update with the fix's speed (H = [1, 0], variance r): P <- P - K S K^T, K = P H^T / S
-    (the Joseph form's value for this optimal gain). Returns the gain (k_s, k_b), or None if the covariance went
-    wrong (reset to the prior)."""
+    (the Joseph form's value for this optimal gain), as (I - K H) P: pss r / S, psb r / S, pbb - k_b psb. That form
+    has no difference of near-equal numbers when the speed starts from SPEED_UNKNOWN_VAR (pss - pss^2 / S lost all
+    but a tenth of r's digits in float32). Returns the gain (k_s, k_b), or None if the covariance went wrong (reset
+    to the prior)."""
     pss, psb, pbb = st.sb_pss, st.sb_psb, st.sb_pbb
     s = pss + r
     if not 0.0 < s <= COV_MAX:
@@ -802,9 +804,9 @@ def _speed_correct(st: FusedState, r: float, fcfg: FusedConfig):
         return None
     ks = pss / s
     kb = psb / s
-    st.sb_pss = pss - ks * ks * s
-    st.sb_psb = psb - ks * kb * s
-    st.sb_pbb = pbb - kb * kb * s
+    st.sb_pss = ks * r
+    st.sb_psb = kb * r
+    st.sb_pbb = pbb - kb * psb
     return (ks, kb) if _covariance_checked(st, FILTER_SPEED, STEP_UPDATE, fcfg) else None
 
 
@@ -857,11 +859,12 @@ def gps_update(st: FusedState, ve: float, vn: float, fcfg: FusedConfig) -> None:
     moving = speed >= fcfg.min_speed_ms
     t = st.since_fix
     follows = st.gps_ok > 0.0 and moving and 0.0 < t < fcfg.gps_timeout_s  # a previous fix with a course, in time
+    aimed = st.gps_ok > 0.0 and (st.align_c != 0.0 or st.align_s != 0.0)  # the interval's direction was known
     if follows:
         _fix_alignment(st, ve, vn, fcfg)
     if moving:
         _fix_course(st, ve, vn, speed, fcfg)
-    _fix_speed(st, speed, t, fcfg)
+    _fix_speed(st, speed, t, aimed, fcfg)
     if follows:
         # the motion acceleration over the last interval, into the kernel frame (A^T)
         me = (ve - st.gps_ve) / t
@@ -910,19 +913,23 @@ def _fix_course(st: FusedState, ve: float, vn: float, speed: float, fcfg: FusedC
         st.walk_speed += fcfg.walk_speed_gain * (min(speed, fcfg.pedestrian_max_ms) - st.walk_speed)
 
 
-def _fix_speed(st: FusedState, speed: float, t: float, fcfg: FusedConfig) -> None:
+def _fix_speed(st: FusedState, speed: float, t: float, aimed: bool, fcfg: FusedConfig) -> None:
     """The speed at a fix, t s after the previous one. A pedestrian's or a rest's speed is not integrated, so the
     interval says nothing of the along-track bias (a car in slow traffic taken for a walker once learned -12 m/s^2
     here, and ran to 700 m/s when it drove on): pulled by speed_gain, its variance what is left. A vehicle's: the
-    speed/bias filter (_speed_update), after an outage or before any fix started from the fix (its speed corrected
-    by lateral and zero-velocity updates, the interval teaches the bias nothing). Then the speed kept is the fix's."""
+    speed/bias filter (_speed_update), started from the fix (the interval teaches the bias nothing) after an outage,
+    before any fix, or when the interval was not `aimed`: its travel direction not known in the kernel frame at its
+    start (the previous fix without a course, or no heading alignment yet). A car's first seconds of driving
+    integrated its acceleration along a direction the alignment had not found: the speed lagged the fixes by a third
+    and the filter took that for a bias of -1 m/s^2, which an outage then integrated (simulated car, tuning seed 102:
+    8.7 -> 18 m/s in 10 s). Then the speed kept is the fix's."""
     e = speed - st.speed
     if int(st.flags) & (AT_REST | WALKING | WALKED):
         st.speed += fcfg.speed_gain * e
         st.sb_pss = (1.0 - fcfg.speed_gain) ** 2 * e * e + fcfg.kf_vel_sigma_ms * fcfg.kf_vel_sigma_ms
         st.sb_psb = 0.0
     else:
-        if not 0.0 < t < fcfg.gps_timeout_s:
+        if not (aimed and 0.0 < t < fcfg.gps_timeout_s):
             st.sb_pss = SPEED_UNKNOWN_VAR
             st.sb_psb = 0.0
         gain = _speed_update(st, e, fcfg)

@@ -1827,7 +1827,8 @@ def _speed_predict(st, t, q_speed, q_bias):
 
 def _speed_correct(st, r):
     # the speed/bias filter's update with the fix's speed, H = [1, 0], variance r (codegen.kernel.fused's
-    # _speed_correct): P <- P - K S K^T. The gain (k_s, k_b), or None if the covariance went wrong (reset).
+    # _speed_correct): P <- P - K S K^T as (I - K H) P, free of cancellation when the speed starts unknown. The gain
+    # (k_s, k_b), or None if the covariance went wrong (reset).
     pss = st[_F_SB_PSS]
     psb = st[_F_SB_PSB]
     pbb = st[_F_SB_PBB]
@@ -1837,9 +1838,9 @@ def _speed_correct(st, r):
         return None
     ks = pss / s
     kb = psb / s
-    st[_F_SB_PSS] = pss - ks * ks * s
-    st[_F_SB_PSB] = psb - ks * kb * s
-    st[_F_SB_PBB] = pbb - kb * kb * s
+    st[_F_SB_PSS] = ks * r
+    st[_F_SB_PSB] = kb * r
+    st[_F_SB_PBB] = pbb - kb * psb
     return (ks, kb) if _covariance_checked(st, _FILTER_SPEED, _STEP_UPDATE) else None
 
 
@@ -1869,6 +1870,7 @@ def fused_gps(fstate, ve, vn):
     t = st[_F_SINCE_FIX]
     flags = int(st[_F_FLAGS])
     ae = an = 0.0
+    aimed = st[_F_GPS_OK] > 0.0 and (st[_F_ALIGN_C] != 0.0 or st[_F_ALIGN_S] != 0.0)  # the direction was known
     if st[_F_GPS_OK] > 0.0 and moving and 0.0 < t < st[_FC_GPS_TIMEOUT_S]:
         gx = ve - st[_F_GPS_VE]
         gy = vn - st[_F_GPS_VN]
@@ -1906,7 +1908,7 @@ def fused_gps(fstate, ve, vn):
         st[_F_SB_PSS] = left * left + 0.5 * st[_FC_KF_VEL_R]
         st[_F_SB_PSB] = 0.0
     else:
-        if not 0.0 < t < st[_FC_GPS_TIMEOUT_S]:  # after an outage or before any fix: from the fix
+        if not (aimed and 0.0 < t < st[_FC_GPS_TIMEOUT_S]):  # after an outage, before any fix, not aimed
             st[_F_SB_PSS] = _SPEED_UNKNOWN_VAR
             st[_F_SB_PSB] = 0.0
         gain = _speed_update(st)
