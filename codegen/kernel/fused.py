@@ -921,8 +921,8 @@ def _fix_speed(st: FusedState, speed: float, t: float, aimed: bool, fcfg: FusedC
     before any fix, or when the interval was not `aimed`: its travel direction not known in the kernel frame at its
     start (the previous fix without a course, or no heading alignment yet). A car's first seconds of driving
     integrated its acceleration along a direction the alignment had not found: the speed lagged the fixes by a third
-    and the filter took that for a bias of -1 m/s^2, which an outage then integrated (simulated car, tuning seed 102:
-    8.7 -> 18 m/s in 10 s). Then the speed kept is the fix's."""
+    and the filter took that for a bias of -1 m/s^2, which an outage then integrated (a simulated car whose cruises
+    wandered, docs/fused.md: 8.7 -> 18 m/s in 10 s). Then the speed kept is the fix's."""
     e = speed - st.speed
     if int(st.flags) & (AT_REST | WALKING | WALKED):
         st.speed += fcfg.speed_gain * e
