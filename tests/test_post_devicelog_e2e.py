@@ -18,8 +18,10 @@ tilts the device by ~6 deg RMS within seconds): post orients both with the gyro'
 What is not reached yet is marked xfail (strict: the mark fails once it passes): the walk's mean mounting (1.4 deg
 off here, 1.4-3.9 deg on tuning seeds 100-103, its yaw 1-sigma 2.0-2.7 deg: the GPS fixes the gyro frame's yaw through
 a walker's small accelerations, 0.14 m/s^2 of Doppler noise per interval against a few tenths of turns and steps).
-The drive's mounting passes here (0.91 deg) but is 1.1-1.8 deg off on other seeds, in tilt: the MPU-6050 model's
-gyro cross-axis error, which 1 Hz GPS cannot see (docs/post.md, `benchmarks/post.py device-matrices`).
+The drive's mounting within 1 deg is not reached either (strict xfail): 1.68 deg off here, 0.9-1.8 deg on the
+seeds docs/post.md lists, in tilt: the MPU-6050 model's gyro cross-axis error, which 1 Hz GPS cannot see (docs/post.md,
+`benchmarks/post.py device-matrices`). It passed at 0.91 deg on this seed's drive before the car's cruises wandered
+with the traffic: a draw, not a result.
 Runtime: about 25 s for the drive and 15 s for the walk (the app's run, then post), x86-64.
 """
 
@@ -157,6 +159,8 @@ def test_drive_delay_within_twenty_milliseconds(drive):
     assert abs(drive.result.delay - truth) <= DELAY_BOUND, (drive.result.delay, truth)
 
 
+@pytest.mark.xfail(strict=True, reason="a drive: the gyro's cross-axis error (the MPU-6050 model's +-2 %) tilts the gyro "
+                   "frame's mean mounting by 1.68 deg; 1 Hz GPS does not see it")
 def test_drive_mounting_within_one_degree(drive):
     assert drive.mounting_error_deg(min_speed=2.0) <= MOUNTING_BOUND
 

@@ -100,3 +100,17 @@ def fused_statistic_share(t_s: np.ndarray, f: np.ndarray) -> np.ndarray:
     h = norm - smooth(norm, beta)
     h = h - smooth(h, beta)
     return smooth(h * h, dt / WINDOW_S) / np.maximum(smooth(d * d, dt / WINDOW_S), 1e-30)
+
+
+def along_track_acceleration(t_s: np.ndarray, speed: np.ndarray, smooth_s: float = 1.0):
+    """The carrier's along-track acceleration from its speed (a simulated truth's, or a real car's own wheel speed,
+    whose bus stamps its samples unevenly): the speed on an even grid at the median step, through a gaussian of
+    smooth_s, differentiated. Returns (grid s, m/s^2). What a vehicle's deadband (the board's l on the fused
+    method's 0.5 s average) compares: how much of a drive's speed change lies within it."""
+    from codegen.sim.trajectory import gaussian_filter1d
+
+    t_s = np.asarray(t_s, dtype=float)
+    dt = float(np.median(np.diff(t_s)))
+    grid = t_s[0] + dt * np.arange(int(round((t_s[-1] - t_s[0]) / dt)) + 1)
+    even = gaussian_filter1d(np.interp(grid, t_s, np.asarray(speed, dtype=float)), smooth_s / dt, mode="nearest")
+    return grid, np.gradient(even, dt)

@@ -330,8 +330,9 @@ def _stops_and_turns(rng, rest_s: float, duration: float, *, cruise_ms, accel_ms
                      turn_ms: float, brake_ms2, wait_s, turn_s):
     """A ride as segment scripts (seconds, value): speed up to a cruise, cruise, brake, then either stop for a while
     (a share `stop_share` of the time) or turn by 60..100 degrees at `turn_ms`; repeated until `duration`. Returns
-    the along-track acceleration, the turn rate and the pedalling (1 while speeding up or cruising) scripts."""
-    script_a, script_w, script_p = [], [], []
+    the along-track acceleration, the turn rate, the pedalling (1 while speeding up or cruising) and the cruising (1
+    while cruising) scripts."""
+    script_a, script_w, script_p, script_c = [], [], [], []
     v = 0.0
     elapsed = rest_s
     while elapsed < duration:
@@ -345,12 +346,14 @@ def _stops_and_turns(rng, rest_s: float, duration: float, *, cruise_ms, accel_ms
         script_a += [(ramp, accel), (cruise, 0.0), (brake_s, -brake)]
         script_w += [(ramp + cruise + brake_s, 0.0)]
         script_p += [(ramp + cruise, 1.0), (brake_s, 0.0)]
+        script_c += [(ramp, 0.0), (cruise, 1.0), (brake_s, 0.0)]
         elapsed += ramp + cruise + brake_s
         if slow_to == 0.0:
             wait = rng.uniform(*wait_s)
             script_a.append((wait, 0.0))
             script_w.append((wait, 0.0))
             script_p.append((wait, 0.0))
+            script_c.append((wait, 0.0))
             elapsed += wait
         else:
             turn = np.radians(rng.uniform(60, 100)) * rng.choice([-1, 1])
@@ -358,9 +361,10 @@ def _stops_and_turns(rng, rest_s: float, duration: float, *, cruise_ms, accel_ms
             script_a.append((seconds, 0.0))
             script_w.append((seconds, turn / seconds))
             script_p.append((seconds, 0.0))
+            script_c.append((seconds, 0.0))
             elapsed += seconds
         v = slow_to
-    return script_a, script_w, script_p
+    return script_a, script_w, script_p, script_c
 
 
 def bike(duration: float = 360.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ) -> Trajectory:
@@ -378,7 +382,7 @@ def bike(duration: float = 360.0, rest_s: float = 12.0, seed: int = 0, rate: flo
     n = int(round(duration * rate)) + 1
     t = np.arange(n) / rate
     start = int(rest_s * rate)
-    script_a, script_w, script_p = _stops_and_turns(
+    script_a, script_w, script_p, _ = _stops_and_turns(
         rng, rest_s, duration, cruise_ms=(4.0, 7.0), accel_ms2=(0.4, 1.0), cruise_s=(15.0, 45.0), stop_share=0.4,
         turn_ms=3.5, brake_ms2=(1.0, 2.0), wait_s=(5.0, 30.0), turn_s=(3.0, 5.0))
     a_cmd = gaussian_filter1d(_segments(n, rate, script_a, start), 0.4 * rate, mode="nearest")
@@ -419,12 +423,23 @@ def bike(duration: float = 360.0, rest_s: float = 12.0, seed: int = 0, rate: flo
     return _assemble("bike", rate, rest_s, speed, course, climb, extra, attitude, {"mount": mount}, mount=mount)
 
 
+# a cruise in traffic, calibrated on car-comma2k19's highway (its CAN speed from 12 s, after the on-ramp, through
+# codegen.sim.features.along_track_acceleration): 24 % of the time under 0.1 m/s^2, 41 % within a vehicle's deadband
+# (0.1-0.31), 35 % over; the cruises of tuning seeds 100-105 read 23 / 38 / 39 % (tests/test_sim_motion.py checks
+# seeds 0-2), their rms 0.35 m/s^2 against the highway's 0.48. When cruises held their speed, all of a cruise lay
+# under 0.1 m/s^2 and the whole moving drive read 61 / 3 / 36 %.
+CAR_TRAFFIC_MS2 = 0.5  # m/s^2 rms of the wander's acceleration
+CAR_TRAFFIC_HZ = (0.02, 0.25)  # its band: car-comma2k19's CAN speed has 87 % of that acceleration's power below 0.2 Hz
+CAR_TRAFFIC_FADE_S = 3.0  # s: the wander fades in and out over this at the cruise's ends (a smoothstep)
+
+
 def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: float = TRUTH_RATE_HZ,
         mount: str = "any", vibration: bool = True) -> Trajectory:
     """A car on ordinary roads: starts, stops at lights with the engine idling, turns at junctions, hills.
 
-    Longitudinal acceleration up to ~2.5 m/s^2, cruise 8..17 m/s, turns of 60..100 degrees at ~6 m/s, stops of
-    3..30 s; the road rises and falls by up to 6 %; the body rolls in turns and pitches with acceleration and grade.
+    Longitudinal acceleration up to ~2.5 m/s^2, cruise 8..17 m/s wandering with the traffic (CAR_TRAFFIC_MS2),
+    turns of 60..100 degrees at ~6 m/s, stops of 3..30 s; the road rises and falls by up to 6 %; the body rolls in
+    turns and pitches with acceleration and grade.
     With `vibration` the body shakes as codegen.sim.vibration models it: road roughness (ISO 8608, class B to C,
     drawn per seed) through the suspension, potholes, and the engine, which runs from the start or is started a
     few seconds before the car moves (drawn per seed).
@@ -442,12 +457,26 @@ def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: floa
     t = np.arange(n) / rate
     start = int(rest_s * rate)
     # a stop at lights, or a turn at a junction
-    script_a, script_w, _ = _stops_and_turns(
+    script_a, script_w, _, script_c = _stops_and_turns(
         rng, rest_s, duration, cruise_ms=(8.0, 17.0), accel_ms2=(1.2, 2.5), cruise_s=(10.0, 30.0), stop_share=0.45,
         turn_ms=6.0, brake_ms2=(1.5, 3.0), wait_s=(3.0, 30.0), turn_s=(4.0, 6.0))
     a_cmd = gaussian_filter1d(_segments(n, rate, script_a, start), 0.3 * rate, mode="nearest")
     w_cmd = gaussian_filter1d(_segments(n, rate, script_w, start), 0.5 * rate, mode="nearest")
-    speed = np.maximum(np.cumsum(a_cmd) / rate, 0.0)
+    # a cruise is not a constant speed: the traffic and the driver's foot make it wander (CAR_TRAFFIC_MS2). It is a
+    # speed that comes and goes within the cruise (faded in and out over CAR_TRAFFIC_FADE_S at its ends, exactly 0
+    # outside), so the script's ramps and stops hold. Drawn from a stream of its own, so the script is the one the
+    # seed drew without it.
+    cruise_spans = _segments(n, rate, script_c, start)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0.0], cruise_spans, [0.0]])))
+    cruising = np.zeros(n)
+    for b, e in zip(edges[::2], edges[1::2]):
+        inside = np.clip(np.minimum(np.arange(b, e) - b + 0.5, e - 0.5 - np.arange(b, e)) / (CAR_TRAFFIC_FADE_S * rate),
+                         0.0, 1.0)
+        cruising[b:e] = inside * inside * (3.0 - 2.0 * inside)
+    surge = _band_noise(np.random.default_rng([seed, 1]), n, rate, *CAR_TRAFFIC_HZ)
+    wander = np.cumsum(surge) / rate
+    wander = CAR_TRAFFIC_MS2 * (wander - np.mean(wander))
+    speed = np.maximum(np.cumsum(a_cmd) / rate + cruising * wander, 0.0)
     course = rng.uniform(0, 2 * np.pi) + np.cumsum(w_cmd) / rate
     # the road's grade is a property of the road: a function of the distance driven (a car stopped on a hill keeps
     # its pitch), varying over ~240 m (a smooth profile drawn on a grid of GRADE_GRID_M along the road), flat for the
@@ -464,6 +493,16 @@ def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: floa
     extra = np.zeros((n, 3))
     angles = np.zeros((n, 3))
     engine_on = 0.0 if rng.random() < 0.5 else rest_s - rng.uniform(2.0, 4.0)
+    # the mounting is drawn before the road, whose draws depend on the distance driven (and so on the traffic): a
+    # seed's device sits the same way however its cruises wander
+    if mount == "any":
+        rotation = Rotation.random(random_state=rng).as_matrix()
+        lever = np.array([rng.uniform(-1.0, 1.5), rng.uniform(-0.7, 0.7), rng.uniform(0.0, 0.8)])
+    elif mount == "dashboard":
+        rotation = euler_to_matrix(np.array([np.radians(2.0), np.radians(-3.0), rng.uniform(-0.2, 0.2)]))
+        lever = np.array([1.2, 0.3, 0.4])
+    else:
+        raise ValueError(f"unknown car mount {mount!r}; choose any or dashboard")
     if vibration:
         road = vib.Road(gd_n0=float(np.exp(rng.uniform(np.log(64e-6), np.log(256e-6)))))
         heave, pitch_v, roll_v = vib.road_shake(distance, rate, vib.VehicleBody(), road, rng)
@@ -473,20 +512,13 @@ def car(duration: float = 420.0, rest_s: float = 12.0, seed: int = 0, rate: floa
         pitch = pitch + pitch_v
         extra[:, 2] += np.gradient(heave - heave[0], 1.0 / rate, edge_order=2)
         extra += engine_vel
-    if mount == "any":
-        rotation = Rotation.random(random_state=rng).as_matrix()
-        lever = np.array([rng.uniform(-1.0, 1.5), rng.uniform(-0.7, 0.7), rng.uniform(0.0, 0.8)])
-    elif mount == "dashboard":
-        rotation = euler_to_matrix(np.array([np.radians(2.0), np.radians(-3.0), rng.uniform(-0.2, 0.2)]))
-        lever = np.array([1.2, 0.3, 0.4])
-    else:
-        raise ValueError(f"unknown car mount {mount!r}; choose any or dashboard")
     body = np.stack([roll, pitch, yaw], axis=-1)
     arm = euler_to_matrix(body) @ lever  # the body's pitch and roll move the device on its lever arm
     extra += np.gradient(arm - arm[0], 1.0 / rate, axis=0, edge_order=2)
     # the engine's shake is the mounting's own: local flexing (cm from its centre), no lever arm
     attitude = body + angles
-    events = {"engine_on_s": engine_on, "mount": rotation, "lever_m": lever}
+    events = {"engine_on_s": engine_on, "mount": rotation, "lever_m": lever,
+              "cruises": [(b / rate, e / rate) for b, e in zip(edges[::2], edges[1::2])]}
     return _assemble("car", rate, rest_s, speed, course, climb, extra, attitude, events, mount=rotation)
 
 
