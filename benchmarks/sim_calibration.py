@@ -12,6 +12,8 @@ the fused method's own statistic (codegen.sim.features.fused_statistic_share: it
 - gnss-imu-walk: the hand-held walk's IMU (imu_1730_sf.csv, ~167 Hz), speed from the RTK Doppler;
 - the simulated scenarios through the MPU-6050 model at the board's 200 Hz (car, car-town, walk, walk-stand),
   stands counted after the engine runs or the device is picked up.
+A second table sets a car's along-track acceleration against the board's deadband: car-comma2k19's highway beside
+the simulated car's cruises (what trajectory.CAR_TRAFFIC_MS2 is calibrated on) and its whole moving drive.
 """
 
 from __future__ import annotations
@@ -91,7 +93,41 @@ def main(argv=None) -> int:
     print(f"|f| features per 2 s window; simulated: seeds 0-{args.seeds - 1}, 300 s each, MPU-6050 at "
           f"{board.imu.sample_rate_hz:g} Hz (DLPF {board.imu.dlpf})")
     print("\n".join(lines))
+    print()
+    print("\n".join(_traffic_rows(car, range(args.seeds), board.algorithm.deadband_g * STANDARD_GRAVITY)))
     return 0
+
+
+def _traffic_rows(car, seeds, deadband_ms2):
+    """A car's along-track acceleration (its speed through a 1 s gaussian, differentiated) under 0.1 m/s^2, within
+    the board's deadband and over it: car-comma2k19's highway (CAN speed, after its on-ramp) beside the simulated
+    car's cruises (their middles, 2 s in from each end) and its whole drive while it moves."""
+    head = f"{'stream':34s} {'s':>6s} {'<0.1':>6s} {f'0.1-{deadband_ms2:.2f}':>9s} {'over':>6s} {'rms m/s^2':>9s}"
+    rows = [f"along-track acceleration against the deadband (l = {deadband_ms2:.3f} m/s^2); simulated: seeds "
+            f"0-{seeds[-1]}, 420 s each", head, "-" * len(head)]
+
+    def row(label, a, seconds):
+        shares = features.deadband_shares(a, deadband_ms2)
+        return (f"{label:34s} {seconds:6.0f} {shares[0]:6.2f} {shares[1]:9.2f} {shares[2]:6.2f} "
+                f"{np.sqrt(np.mean(a * a)):9.2f}")
+
+    t, a = features.along_track_acceleration(car.can_t, car.can_speed)
+    highway = t > 12.0
+    rows.append(row("car-comma2k19 highway (CAN, >12 s)", a[highway], np.ptp(t[highway])))
+    cruising, moving = [], []
+    for seed in seeds:
+        tr = trajectory.make_scenario("car", seed=seed)
+        speed = np.linalg.norm(tr.vel[:, :2], axis=1)
+        _, a = features.along_track_acceleration(tr.t, speed)
+        inside = np.zeros(len(tr.t), dtype=bool)
+        for begin, end in tr.events["cruises"]:
+            inside |= (tr.t > begin + 2.0) & (tr.t < end - 2.0)
+        cruising.append(a[inside])
+        moving.append(a[speed > 1.0])
+    for label, parts in (("sim car, cruises", cruising), ("sim car, moving (> 1 m/s)", moving)):
+        a = np.concatenate(parts)
+        rows.append(row(label, a, len(a) / tr.rate_hz))
+    return rows
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ from codegen.sim import comma, features, mpu6050, replay, trajectory
 from conftest import require_shared_data
 
 SEEDS = range(3)
+DEADBAND_MS2 = load_board(None).board.algorithm.deadband_g * 9.80665  # the default board's l, m/s^2
 DURATION_S = 300.0
 
 
@@ -124,19 +125,13 @@ def test_town_car_stands_where_its_script_stands():
             assert np.median(speed[int((begin + 2.0) * tr.rate_hz):int(end * tr.rate_hz)]) > 0.5, (seed, begin)
 
 
-def _deadband_shares(a: np.ndarray) -> np.ndarray:
-    """The share of samples under 0.1 m/s^2, within the default board's deadband (0.1-0.31) and over it."""
-    q = np.abs(a)
-    return np.array([np.mean(q < 0.1), np.mean((q >= 0.1) & (q < 0.306)), np.mean(q >= 0.306)])
-
-
 def test_car_cruises_in_traffic_as_car_comma2k19s_highway(real_car):
     """A cruise wanders as traffic makes it: the simulated car's along-track acceleration while it cruises lies under,
     within and over a vehicle's deadband as often as car-comma2k19's on its highway (its CAN speed after the on-ramp,
     from 12 s). Cruises that held their speed, as the simulated car's once did, lay wholly under 0.1 m/s^2."""
     car, _ = real_car
     t, a = features.along_track_acceleration(car.can_t, car.can_speed)
-    real = _deadband_shares(a[t > 12.0])
+    real = features.deadband_shares(a[t > 12.0], DEADBAND_MS2)
     assert abs(real - [0.24, 0.41, 0.35]).max() < 0.01, real  # what trajectory.CAR_TRAFFIC_MS2 is calibrated on
     cruising = []
     for seed in SEEDS:
@@ -148,7 +143,7 @@ def test_car_cruises_in_traffic_as_car_comma2k19s_highway(real_car):
             inside |= (tr.t > begin + 2.0) & (tr.t < end - 2.0)
             assert speed[(tr.t >= begin) & (tr.t <= end)].min() > 3.0, (seed, begin)  # traffic slows, never stops
         cruising.append(a[inside])
-    sim = _deadband_shares(np.concatenate(cruising))
+    sim = features.deadband_shares(np.concatenate(cruising), DEADBAND_MS2)
     assert abs(sim - real).max() < 0.08, (sim, real)
 
 

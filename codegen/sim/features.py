@@ -27,6 +27,7 @@ from codegen.board.model import STANDARD_GRAVITY
 WINDOW_S = 2.0  # s
 SHAKING_TAU_S = 0.5  # s, the running mean's time constant
 HIGH_HZ = 8.0  # Hz, where "high frequency" starts
+QUIET_MS2 = 0.1  # m/s^2: a car's along-track acceleration under this is a held speed
 SETTLE_S = 2.0  # s dropped at the start of a stream while the filters settle
 
 
@@ -114,3 +115,10 @@ def along_track_acceleration(t_s: np.ndarray, speed: np.ndarray, smooth_s: float
     grid = t_s[0] + dt * np.arange(int(round((t_s[-1] - t_s[0]) / dt)) + 1)
     even = gaussian_filter1d(np.interp(grid, t_s, np.asarray(speed, dtype=float)), smooth_s / dt, mode="nearest")
     return grid, np.gradient(even, dt)
+
+
+def deadband_shares(a: np.ndarray, deadband_ms2: float) -> np.ndarray:
+    """The shares of along-track accelerations `a` under QUIET_MS2 (a held speed), from there to a vehicle's deadband
+    (the board's l, in m/s^2: what the deadband takes away) and over it (what it keeps)."""
+    q = np.abs(np.asarray(a, dtype=float))
+    return np.array([np.mean(q < QUIET_MS2), np.mean((q >= QUIET_MS2) & (q < deadband_ms2)), np.mean(q >= deadband_ms2)])
