@@ -796,11 +796,17 @@ static inline void dr_fused_travel_direction(const dr_fused_config *cfg, dr_fuse
 
 /* A vehicle's speed (codegen.fused's _vehicle_speed): the along-track acceleration (the optional sliding median),
  * less its bias and the folded offsets' leak, through the deadband on its average over accel_tau_s, plus the
- * optional pull towards the GPS speed, integrated and floored at 0 (zr_v: without the floor). */
+ * optional pull towards the GPS speed, integrated and floored at 0 (zr_v: without the floor). The deadband grows
+ * from 0 at a fix to l over deadband_ramp_s (the tilt's gravity leak grows with the time since a fix). */
 static inline void dr_fused_vehicle_speed(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st,
                                           const dr_fused_loop *lp) {
     const float dt = lp->dt;
+    const float ramp = st->since_fix * cfg->inv_deadband_ramp;
+    float deadband = kcfg->deadband_ms2;
     float a = lp->ae * st->ux + lp->an * st->uy;
+    if (cfg->inv_deadband_ramp > 0.0f && ramp < 1.0f) {
+        deadband *= ramp;
+    }
     if (lp->median) { /* the seed's block median, sliding: the median of the last b along-track accelerations */
         float window[DR_FUSED_MEDIAN_MAX];
         int32_t slot = (int32_t)st->med_i, filled = (int32_t)st->med_n + 1, m;
@@ -820,11 +826,11 @@ static inline void dr_fused_vehicle_speed(const dr_config *kcfg, const dr_fused_
     if (cfg->inv_accel_tau > 0.0f) { /* the deadband gates on the smoothed acceleration (not the road's) */
         float b = dt * cfg->inv_accel_tau;
         st->acc_lp += (b < 1.0f ? b : 1.0f) * (a - st->acc_lp);
-        if (dr_absf(st->acc_lp) < kcfg->deadband_ms2) {
+        if (dr_absf(st->acc_lp) < deadband) {
             st->sb_lost += a * dt; /* what the deadband keeps out: the speed's noise at the next fix, no bias */
             a = 0.0f;
         }
-    } else if (dr_absf(a) < kcfg->deadband_ms2) { /* the board's deadband, on the along-track acceleration */
+    } else if (dr_absf(a) < deadband) { /* the board's deadband, on the along-track acceleration */
         st->sb_lost += a * dt;
         a = 0.0f;
     }

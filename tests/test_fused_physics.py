@@ -703,13 +703,16 @@ def test_walker_stops_when_the_steps_stop(impl, tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ speed
-def _gated(a, n):
+def _gated(a, n, since_fix=None):
     """Samples of a constant along-track acceleration a (m/s^2, from rest) the deadband's gate holds back: while its
     moving average over accel_tau_s, a (1 - (1 - dt / tau)^k) after k samples, is below the deadband; all n if it
-    never gets there."""
+    never gets there. The deadband is l, or from since_fix s after a fix it grows to l over deadband_ramp_s."""
     k = np.arange(1, n + 1)
     smoothed = a * (1.0 - (1.0 - 0.005 / FCFG.accel_tau_s) ** k)
-    return int(np.argmax(smoothed >= KCFG.deadband_ms2)) if smoothed[-1] >= KCFG.deadband_ms2 else n
+    deadband = np.full(n, KCFG.deadband_ms2)
+    if since_fix is not None:
+        deadband *= np.minimum(1.0, (since_fix + (k - 1) * 0.005) / FCFG.deadband_ramp_s)
+    return int(np.argmax(smoothed >= deadband)) if smoothed[-1] >= deadband[-1] else n
 
 
 def test_constant_along_track_acceleration_builds_speed_a_t(impl, tmp_path):
@@ -731,6 +734,31 @@ def test_constant_along_track_acceleration_builds_speed_a_t(impl, tmp_path):
     samples, dt = _samples(200, accel_g=(0.02, 0.0, 1.0))
     trace = run(impl, [("p", samples, dt)], tmp_path, start=_still())
     assert trace.at(-1, "speed") == 0.0 and trace.outs[-1][0] == 0.0
+
+
+@pytest.mark.parametrize("since_fix", [0.0, 3.0, 10.0])
+def test_a_vehicles_deadband_grows_from_0_at_a_fix_to_l_over_deadband_ramp_s(impl, tmp_path, since_fix):
+    """A vehicle cruising level at 10 m/s East speeds up gently, at 0.02 g (under the board's 0.03125 g deadband, as
+    41 % of a real highway's along-track acceleration is), for 1 s starting since_fix s after a fix. The deadband grows
+    from 0 at the fix to l over deadband_ramp_s (10 s): the gate passes sample k while the acceleration's average over
+    accel_tau_s, a (1 - (1 - dt / tau)^k), is not below l (since_fix + (k - 1) dt) / 10. Right after the fix all of the
+    second is speed (a 0.2 m/s change); 3 s after it the first 0.37 s is held back; 10 s after it, all of it (the
+    gravity leak a tilt error gathers by then is what l keeps out). Float32 may move the gate by a sample."""
+    fcfg = replace(FCFG, rest_time_s=1e9)
+    assert fcfg.deadband_ramp_s == 10.0
+    counts = round(0.02 * ONE_G)
+    a = counts * KCFG.accel_ms2_per_lsb
+    samples, dt = _samples(200, accel_g=(counts / ONE_G, 0.0, 1.0))
+    trace = run(impl, [("p", samples, dt)], tmp_path, params=fcfg, start=_still(speed=10.0, since_fix=since_fix))
+    k = np.arange(1, 201)
+    smoothed = a * (1.0 - (1.0 - 0.005 / fcfg.accel_tau_s) ** k)
+    deadband = KCFG.deadband_ms2 * np.minimum(1.0, (since_fix + (k - 1) * 0.005) / fcfg.deadband_ramp_s)
+    passed = smoothed >= deadband
+    built = int(np.sum(passed))
+    assert {0.0: 200, 3.0: 126, 10.0: 0}[since_fix] == built  # the closed form's own count, for the reader
+    # float32: 200 additions to 10 m/s, each rounded by up to half of 10's ulp (4.8e-7); a sample adds 1e-3
+    assert any(trace.at(-1, "speed") == pytest.approx(10.0 + a * 0.005 * m, abs=1e-4) for m in (built - 1, built,
+                                                                                                   built + 1))
 
 
 @pytest.mark.parametrize("median", [False, True])
@@ -771,22 +799,22 @@ def test_walking_speed_learns_the_gps_speed(impl, tmp_path):
 def test_along_track_bias_is_learned_from_a_steady_speed_error(impl, tmp_path):
     """A level vehicle at a steady 10 m/s East whose accelerometer reads 0.06 g (0.59 m/s^2) too much along the
     track: integrated alone, that is 0.59 m/s of speed error a second. Fixes at 10 m/s East once a second drive the
-    along-track bias towards the offset until the remainder is inside the deadband (0.03125 g = 0.31 m/s^2: below
-    it the remainder builds no speed, so the fixes see no more error), and the speed back to 10 m/s. (No tilt
-    correction: it would take the offset as tilt.)"""
+    along-track bias towards the offset until the remainder is inside the deadband as it stands a second after a fix
+    (l / deadband_ramp_s a second, 0.031 m/s^2: below it the remainder builds little speed, so the fixes see little
+    error), and the speed back to 10 m/s within what that remainder builds in a second. (No tilt correction: it
+    would take the offset as tilt.)"""
     fcfg = replace(FCFG, tilt_tau_s=1e9)
     offset = round(0.06 * ONE_G) * KCFG.accel_ms2_per_lsb
     samples, dt = _samples(200, accel_g=(round(0.06 * ONE_G) / ONE_G, 0.0, 1.0))
     start = _still(speed=10.0, gps_speed=10.0, gps_ve=10.0, gps_ok=9.5, since_fix=0.0, align_c=ALIGNED)
     trace = run(impl, [s for _ in range(40) for s in (("p", samples, dt), ("v", 10.0, 0.0))], tmp_path,
                 params=fcfg, start=start)
-    gated = _gated(offset, 200)  # the first second, unlearned, after the gate opens
+    gated = _gated(offset, 200, since_fix=0.0)  # the first second, unlearned, after the gate opens
     assert any(trace.at(0, "speed") == pytest.approx(10.0 + offset * 0.005 * (200 - k), rel=1e-4)
                for k in (gated - 1, gated, gated + 1))
     left = offset - trace.at(-1, "bias")
-    assert 0.0 < left < KCFG.deadband_ms2
-    assert trace.at(-1, "speed") == pytest.approx(10.0, abs=1e-3) and trace.at(-2, "speed") == pytest.approx(10.0,
-                                                                                                             abs=2e-3)
+    assert 0.0 < left < KCFG.deadband_ms2 * 1.0 / fcfg.deadband_ramp_s
+    assert abs(trace.at(-1, "speed") - 10.0) < left * 1.0 and abs(trace.at(-2, "speed") - 10.0) < left * 1.0
 
 
 # ------------------------------------------------------------------------------------------------ GPS alignment

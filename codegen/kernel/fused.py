@@ -131,7 +131,7 @@ class _Loop:
         # the parameters in the loop's form
         "fcfg", "g", "gscale", "kp", "reject", "kp_dark", "deadband", "rest_var", "still_var", "idle_var",
         "inv_stand", "rest_w2", "walk_var", "vib_rate", "inv_vib", "platform", "inv_stat", "inv_speed", "inv_acc",
-        "nhc_r", "median", "ring", "hold_rate", "turn_start", "turn_end",
+        "inv_ramp", "nhc_r", "median", "ring", "hold_rate", "turn_start", "turn_end",
         # the decisions carried between samples
         "was_walking", "vehicle", "driven", "fast", "walked", "drove", "turning",
         # this sample: its interval, specific force and rate, their statistics, R(q)'s rows, the horizontal force
@@ -161,6 +161,7 @@ class _Loop:
         self.inv_stat = 1.0 / fcfg.stat_tau_s
         self.inv_speed = 1.0 / fcfg.speed_tau_s if fcfg.speed_tau_s > 0.0 else 0.0
         self.inv_acc = 1.0 / fcfg.accel_tau_s if fcfg.accel_tau_s > 0.0 else 0.0
+        self.inv_ramp = 1.0 / fcfg.deadband_ramp_s if fcfg.deadband_ramp_s > 0.0 else 0.0
         self.nhc_r = fcfg.nhc_sigma_ms2 * fcfg.nhc_sigma_ms2  # the lateral residual's variance, averaged over 1 s
         self.median = kcfg.block if fcfg.median > 0.0 and kcfg.block > 1 else 0
         if self.median > FUSED_MEDIAN_MAX:
@@ -420,8 +421,14 @@ def _vehicle_speed(lp: _Loop, st: FusedState) -> None:
     """A vehicle's speed: the along-track acceleration (the optional sliding median of the last b), less its bias
     and the folded offsets' leak (u0 - u) . f since the outage began, through the board's deadband on its average
     over accel_tau_s (the vehicle's acceleration, not the road's shaking; 0: on each sample), plus the optional pull
-    towards the last GPS speed, integrated; floored at 0 (zr_v: the same without the floor)."""
+    towards the last GPS speed, integrated; floored at 0 (zr_v: the same without the floor). The deadband grows from
+    0 at a fix to l over deadband_ramp_s: it keeps out the gravity leak of a tilt error, which grows with the time
+    since a fix corrected the tilt, and what it keeps out at once is a car's gentle acceleration in traffic (on a
+    real highway 41 % of it lies within l)."""
     dt, deadband = lp.dt, lp.deadband
+    ramp = st.since_fix * lp.inv_ramp
+    if lp.inv_ramp > 0.0 and ramp < 1.0:
+        deadband *= ramp
     a = lp.ae * st.ux + lp.an * st.uy
     if lp.median:
         a = _ring_median(st, lp.ring, a, lp.median)

@@ -500,6 +500,10 @@ FUSED = Kernel(
         Param("accel_tau_s", "s", "a vehicle's along-track acceleration passes the deadband while its average over "
               "this does (the road's shaking averages out; 0: each sample on its own)",
               Store("inv_accel_tau", "1/s", "rate"), 0.5, ge=0),
+        Param("deadband_ramp_s", "s", "a vehicle's deadband grows from 0 at a fix to the board's l over this: the "
+              "gravity leak it keeps out grows with the time since a fix corrected the tilt, while a car's gentle "
+              "accelerations in traffic are there from the first second (0: l at once)",
+              Store("inv_deadband_ramp", "1/s", "rate"), 10.0, ge=0),
         Param("nhc_sigma_ms2", "m/s^2", "a vehicle in an outage: error of the lateral residual a_lat - speed x rate "
               "about Up averaged over 1 s, which sees the speed error in turns (0: no lateral update)",
               Store("nhc_var", "(m/s^2)^2", "square"), 0.15, ge=0),

@@ -379,8 +379,8 @@ def offset_latlon(lat_e7, lon_e7, east_m, north_m):
 # codegen/kernel/fused.py is the specification, native_ext/dr_fused.c the C twin. The fused buffer holds
 # dr_fused_state, dr_fused_config (the parameters in the form the loop reads) and a dr_config (the board's remap and
 # scales), as dr_native's does; every offset below comes from codegen/kernel/layout.py.
-FUSED_STATE_LEN = const(221)
-_F_KCFG = const(209)  # dr_config (offsets _K_*)
+FUSED_STATE_LEN = const(222)
+_F_KCFG = const(210)  # dr_config (offsets _K_*)
 _F_Q = const(0)  # orientation w, x, y, z: body -> kernel ENU
 _F_GYRO_BIAS_LSB = const(4)  # counts: gyro bias (body frame)
 _F_MEAN_F = const(7)  # m/s^2: mean |f| (motion statistics)
@@ -559,24 +559,25 @@ _FC_REST_UPDATE_S = const(187)  # s, from rest_update_s (s)
 _FC_KF_REST_R = const(188)  # (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2)
 _FC_ZUPT_TURN_WEIGHT = const(189)  # 1/rad, from zupt_turn_weight (1/rad)
 _FC_INV_ACCEL_TAU = const(190)  # 1/s, from accel_tau_s (s)
-_FC_NHC_VAR = const(191)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
-_FC_NHC_PERIOD_S = const(192)  # s, from nhc_period_s (s)
-_FC_NHC_SPEED_Q = const(193)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
-_FC_NHC_LEAK_VAR = const(194)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
-_FC_NHC_MIN_RATE = const(195)  # rad/s, from nhc_min_rate (rad/s)
-_FC_NHC_POSITION = const(196)  # , from nhc_position
-_FC_NHC_LEAK_TURN = const(197)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
-_FC_NHC_FOLD_SCALE = const(198)  # , from nhc_fold_scale
-_FC_PEDESTRIAN_MAX_MS = const(199)  # m/s, from pedestrian_max_ms (m/s)
-_FC_STILL_VAR = const(200)  # (m/s^2)^2, from still_accel_g (g)
-_FC_IDLE_VAR = const(201)  # (m/s^2)^2, from idle_accel_g (g)
-_FC_INV_STAND_TAU = const(202)  # 1/s, from stand_tau_s (s)
-_FC_SPEED_Q = const(203)  # (m/s)^2/s, from speed_noise (m/s/sqrt(s))
-_FC_SPEED_BIAS_Q = const(204)  # (m/s^2)^2/s, from speed_bias_noise (m/s^2/sqrt(s))
-_FC_KEEP_Q = const(205)  # (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s))
-_FC_MAX_ACCEL_MS2 = const(206)  # m/s^2, from max_accel_ms2 (m/s^2)
-_FC_CARRIED_MS = const(207)  # m/s, from carried_ms (m/s)
-_FC_VEHICLE_WALK_TIME_S = const(208)  # s, from vehicle_walk_time_s (s)
+_FC_INV_DEADBAND_RAMP = const(191)  # 1/s, from deadband_ramp_s (s)
+_FC_NHC_VAR = const(192)  # (m/s^2)^2, from nhc_sigma_ms2 (m/s^2)
+_FC_NHC_PERIOD_S = const(193)  # s, from nhc_period_s (s)
+_FC_NHC_SPEED_Q = const(194)  # (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s))
+_FC_NHC_LEAK_VAR = const(195)  # (m/s^2)^2, from nhc_leak_sigma_ms2 (m/s^2)
+_FC_NHC_MIN_RATE = const(196)  # rad/s, from nhc_min_rate (rad/s)
+_FC_NHC_POSITION = const(197)  # , from nhc_position
+_FC_NHC_LEAK_TURN = const(198)  # m/s^2 per rad, from nhc_leak_turn (m/s^2 per rad)
+_FC_NHC_FOLD_SCALE = const(199)  # , from nhc_fold_scale
+_FC_PEDESTRIAN_MAX_MS = const(200)  # m/s, from pedestrian_max_ms (m/s)
+_FC_STILL_VAR = const(201)  # (m/s^2)^2, from still_accel_g (g)
+_FC_IDLE_VAR = const(202)  # (m/s^2)^2, from idle_accel_g (g)
+_FC_INV_STAND_TAU = const(203)  # 1/s, from stand_tau_s (s)
+_FC_SPEED_Q = const(204)  # (m/s)^2/s, from speed_noise (m/s/sqrt(s))
+_FC_SPEED_BIAS_Q = const(205)  # (m/s^2)^2/s, from speed_bias_noise (m/s^2/sqrt(s))
+_FC_KEEP_Q = const(206)  # (m/s)^2/s, from keep_speed_noise (m/s/sqrt(s))
+_FC_MAX_ACCEL_MS2 = const(207)  # m/s^2, from max_accel_ms2 (m/s^2)
+_FC_CARRIED_MS = const(208)  # m/s, from carried_ms (m/s)
+_FC_VEHICLE_WALK_TIME_S = const(209)  # s, from vehicle_walk_time_s (s)
 _AT_REST = const(1)  # flags bit: the last sample was at rest
 _WALKING = const(2)  # flags bit: the last sample looked like a walker's
 _TURNING = const(4)  # flags bit: the walker was turning
@@ -643,6 +644,7 @@ _FUSED_PARAMS = (
     0.03,  # kf_rest_sigma_ms2, m/s^2
     3.0,  # zupt_turn_weight, 1/rad
     0.5,  # accel_tau_s, s
+    10.0,  # deadband_ramp_s, s
     0.15,  # nhc_sigma_ms2, m/s^2
     0.5,  # nhc_period_s, s
     0.3,  # nhc_speed_noise, m/s/sqrt(s)
@@ -675,7 +677,7 @@ def _check_limits(p, names, kinds):
 
 
 def fused_init(fstate, params=_FUSED_PARAMS):
-    """Reset the fused state and store the configuration: the board's, or 59 values in the
+    """Reset the fused state and store the configuration: the board's, or 60 values in the
     order of _FUSED_PARAMS."""
     if len(fstate) < FUSED_STATE_LEN:
         raise ValueError("fused state buffer shorter than FUSED_STATE_LEN")
@@ -686,13 +688,13 @@ def fused_init(fstate, params=_FUSED_PARAMS):
                    "kf_tilt_noise kf_turn_noise kf_vel_sigma_ms kf_align_min median pos_sigma_m pos_tau_s "
                    "pos_step_sigma_ms turn_hold_tau_s turn_start_dps turn_end_dps platform vibration_hz "
                    "vibration_ratio vibration_tau_s walk_time_s rest_speed_ms rest_gate rest_update_s "
-                   "kf_rest_sigma_ms2 zupt_turn_weight accel_tau_s nhc_sigma_ms2 nhc_period_s nhc_speed_noise "
-                   "nhc_leak_sigma_ms2 nhc_min_rate nhc_position nhc_leak_turn nhc_fold_scale "
+                   "kf_rest_sigma_ms2 zupt_turn_weight accel_tau_s deadband_ramp_s nhc_sigma_ms2 nhc_period_s "
+                   "nhc_speed_noise nhc_leak_sigma_ms2 nhc_min_rate nhc_position nhc_leak_turn nhc_fold_scale "
                    "pedestrian_max_ms still_accel_g idle_accel_g stand_tau_s speed_noise speed_bias_noise "
                    "keep_speed_noise max_accel_ms2 carried_ms vehicle_walk_time_s"),
                   (b"\x02\x02\x01\x02\x01\x02\x02\x02\x02\x01\x01\x02\x01\x03\x03\x03\x03\x01\x01\x01\x01\x02\x01\x00"
-                   b"\x01\x02\x02\x01\x02\x00\x00\x02\x03\x02\x01\x01\x01\x02\x01\x01\x01\x01\x02\x01\x01\x01\x03\x01"
-                   b"\x01\x02\x01\x01\x01\x01\x01\x01\x02\x02\x01"))
+                   b"\x01\x02\x02\x01\x02\x00\x00\x02\x03\x02\x01\x01\x01\x02\x01\x01\x01\x01\x01\x02\x01\x01\x01\x03"
+                   b"\x01\x01\x02\x01\x01\x01\x01\x01\x01\x02\x02\x01"))
     if not (p[29] >= 0 and p[29] <= p[28]):
         raise ValueError("turn_end_dps must be >= 0 and <= turn_start_dps")
     if not (0 <= p[30] <= 2):
@@ -744,24 +746,25 @@ def fused_init(fstate, params=_FUSED_PARAMS):
     fstate[_FC_KF_REST_R] = p[38] * p[38]
     fstate[_FC_ZUPT_TURN_WEIGHT] = p[39]
     fstate[_FC_INV_ACCEL_TAU] = 1.0 / p[40] if p[40] > 0 else 0.0
-    fstate[_FC_NHC_VAR] = p[41] * p[41]
-    fstate[_FC_NHC_PERIOD_S] = p[42]
-    fstate[_FC_NHC_SPEED_Q] = p[43] * p[43]
-    fstate[_FC_NHC_LEAK_VAR] = p[44] * p[44]
-    fstate[_FC_NHC_MIN_RATE] = p[45]
-    fstate[_FC_NHC_POSITION] = p[46]
-    fstate[_FC_NHC_LEAK_TURN] = p[47]
-    fstate[_FC_NHC_FOLD_SCALE] = p[48]
-    fstate[_FC_PEDESTRIAN_MAX_MS] = p[49]
-    fstate[_FC_STILL_VAR] = p[50] * p[50] * (_GRAVITY_MS2 * _GRAVITY_MS2)
-    fstate[_FC_IDLE_VAR] = p[51] * p[51] * (_GRAVITY_MS2 * _GRAVITY_MS2)
-    fstate[_FC_INV_STAND_TAU] = 1.0 / p[52] if p[52] > 0 else 0.0
-    fstate[_FC_SPEED_Q] = p[53] * p[53]
-    fstate[_FC_SPEED_BIAS_Q] = p[54] * p[54]
-    fstate[_FC_KEEP_Q] = p[55] * p[55]
-    fstate[_FC_MAX_ACCEL_MS2] = p[56]
-    fstate[_FC_CARRIED_MS] = p[57]
-    fstate[_FC_VEHICLE_WALK_TIME_S] = p[58]
+    fstate[_FC_INV_DEADBAND_RAMP] = 1.0 / p[41] if p[41] > 0 else 0.0
+    fstate[_FC_NHC_VAR] = p[42] * p[42]
+    fstate[_FC_NHC_PERIOD_S] = p[43]
+    fstate[_FC_NHC_SPEED_Q] = p[44] * p[44]
+    fstate[_FC_NHC_LEAK_VAR] = p[45] * p[45]
+    fstate[_FC_NHC_MIN_RATE] = p[46]
+    fstate[_FC_NHC_POSITION] = p[47]
+    fstate[_FC_NHC_LEAK_TURN] = p[48]
+    fstate[_FC_NHC_FOLD_SCALE] = p[49]
+    fstate[_FC_PEDESTRIAN_MAX_MS] = p[50]
+    fstate[_FC_STILL_VAR] = p[51] * p[51] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_IDLE_VAR] = p[52] * p[52] * (_GRAVITY_MS2 * _GRAVITY_MS2)
+    fstate[_FC_INV_STAND_TAU] = 1.0 / p[53] if p[53] > 0 else 0.0
+    fstate[_FC_SPEED_Q] = p[54] * p[54]
+    fstate[_FC_SPEED_BIAS_Q] = p[55] * p[55]
+    fstate[_FC_KEEP_Q] = p[56] * p[56]
+    fstate[_FC_MAX_ACCEL_MS2] = p[57]
+    fstate[_FC_CARRIED_MS] = p[58]
+    fstate[_FC_VEHICLE_WALK_TIME_S] = p[59]
     _kernel_config(fstate, _F_KCFG, BLOCK, WINDOW, ACCEL_LSB_PER_G, GYRO_LSB_PER_DPS, DEADBAND_G, MOTION_THRESHOLD_G)
 
 
@@ -822,6 +825,7 @@ def fused_process(fstate, samples, dt_us, out):
     nreject = -reject
     inv_speed = st[_FC_INV_SPEED_TAU]
     inv_acc = st[_FC_INV_ACCEL_TAU]
+    inv_ramp = st[_FC_INV_DEADBAND_RAMP]
     timeout = st[_FC_GPS_TIMEOUT_S]
     inv_stat = st[_FC_INV_STAT_TAU]
     rest_var = st[_FC_REST_VAR]
@@ -1144,13 +1148,20 @@ def fused_process(fstate, samples, dt_us, out):
                 a -= bias + (nh_u0x - ux) * nh_fx + (nh_u0y - uy) * nh_fy
             else:  # the same with f = 0, without the float operations (each allocates here)
                 a -= bias
+            vdb = deadband
+            nvdb = ndeadband
+            if inv_ramp > 0.0:
+                ramp = since_fix * inv_ramp
+                if ramp < 1.0:  # the deadband grows from 0 at a fix to l over deadband_ramp_s (the tilt's leak grows)
+                    vdb = deadband * ramp
+                    nvdb = -vdb
             if inv_acc > 0.0:  # the deadband gates on the smoothed acceleration (not the road's shaking)
                 ka = dt * inv_acc
                 acc_lp += (ka if ka < 1.0 else 1.0) * (a - acc_lp)
-                if ndeadband < acc_lp < deadband:
+                if nvdb < acc_lp < vdb:
                     sb_lost += a * dt  # what the deadband keeps out: the speed's noise at the next fix, no bias
                     a = 0.0
-            elif ndeadband < a < deadband:  # the board's deadband, on the along-track acceleration
+            elif nvdb < a < vdb:  # the board's deadband, on the along-track acceleration
                 sb_lost += a * dt
                 a = 0.0
             if inv_speed > 0.0:

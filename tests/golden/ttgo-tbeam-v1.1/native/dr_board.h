@@ -70,6 +70,7 @@
 #define DR_FUSED_KF_REST_SIGMA_MS2 (0.03f) /* m/s^2 */
 #define DR_FUSED_ZUPT_TURN_WEIGHT (3.0f) /* 1/rad */
 #define DR_FUSED_ACCEL_TAU_S (0.5f) /* s */
+#define DR_FUSED_DEADBAND_RAMP_S (10.0f) /* s */
 #define DR_FUSED_NHC_SIGMA_MS2 (0.15f) /* m/s^2 */
 #define DR_FUSED_NHC_PERIOD_S (0.5f) /* s */
 #define DR_FUSED_NHC_SPEED_NOISE (0.3f) /* m/s/sqrt(s) */

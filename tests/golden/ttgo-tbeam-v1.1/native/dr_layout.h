@@ -177,6 +177,7 @@ typedef struct {
     float kf_rest_r; /* (m/s^2)^2, from kf_rest_sigma_ms2 (m/s^2) */
     float zupt_turn_weight; /* 1/rad, from zupt_turn_weight (1/rad) */
     float inv_accel_tau; /* 1/s, from accel_tau_s (s) */
+    float inv_deadband_ramp; /* 1/s, from deadband_ramp_s (s) */
     float nhc_var; /* (m/s^2)^2, from nhc_sigma_ms2 (m/s^2) */
     float nhc_period_s; /* s, from nhc_period_s (s) */
     float nhc_speed_q; /* (m/s)^2/s, from nhc_speed_noise (m/s/sqrt(s)) */
@@ -307,8 +308,8 @@ typedef struct {
 } dr_fused_state;
 
 #define DR_FUSED_STATE_FLOATS (150) /* floats in dr_fused_state */
-#define DR_FUSED_CONFIG_FLOATS (59) /* floats in dr_fused_config */
-#define DR_FUSED_PARAMS (59) /* parameters dr_fused_config_set takes */
+#define DR_FUSED_CONFIG_FLOATS (60) /* floats in dr_fused_config */
+#define DR_FUSED_PARAMS (60) /* parameters dr_fused_config_set takes */
 /* offsets of the state's fields, in floats */
 #define DR_FUSED_STATE_Q (0)
 #define DR_FUSED_STATE_GYRO_BIAS_LSB (4)
@@ -448,8 +449,8 @@ typedef struct {
 #define DR_FUSED_SB_PBB (2) /* sb_p[2] */
 typedef char dr_fused_state_is_150_floats[
     sizeof(dr_fused_state) == 150 * sizeof(float) ? 1 : -1];
-typedef char dr_fused_config_is_59_floats[
-    sizeof(dr_fused_config) == 59 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_config_is_60_floats[
+    sizeof(dr_fused_config) == 60 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
     ? 1 : -1];
@@ -531,55 +532,59 @@ typedef char dr_fused_cov_repairs_at_142[
 /* s: a vehicle's along-track acceleration passes the deadband while its average over this does (the road's shaking
  * averages out; 0: each sample on its own) */
 #define DR_FUSED_P_ACCEL_TAU_S (40)
+/* s: a vehicle's deadband grows from 0 at a fix to the board's l over this: the gravity leak it keeps out grows with
+ * the time since a fix corrected the tilt, while a car's gentle accelerations in traffic are there from the first
+ * second (0: l at once) */
+#define DR_FUSED_P_DEADBAND_RAMP_S (41)
 /* m/s^2: a vehicle in an outage: error of the lateral residual a_lat - speed x rate about Up averaged over 1 s,
  * which sees the speed error in turns (0: no lateral update) */
-#define DR_FUSED_P_NHC_SIGMA_MS2 (41)
-#define DR_FUSED_P_NHC_PERIOD_S (42) /* s: the lateral residual is averaged over this between updates */
-#define DR_FUSED_P_NHC_SPEED_NOISE (43) /* m/s/sqrt(s): random walk of a vehicle's speed error in an outage */
+#define DR_FUSED_P_NHC_SIGMA_MS2 (42)
+#define DR_FUSED_P_NHC_PERIOD_S (43) /* s: the lateral residual is averaged over this between updates */
+#define DR_FUSED_P_NHC_SPEED_NOISE (44) /* m/s/sqrt(s): random walk of a vehicle's speed error in an outage */
 /* m/s^2: the lateral leak's sigma when the outage starts (or after a rest) */
-#define DR_FUSED_P_NHC_LEAK_SIGMA_MS2 (44)
+#define DR_FUSED_P_NHC_LEAK_SIGMA_MS2 (45)
 /* rad/s: the speed error is seen only while the rate about Up averaged over nhc_period_s exceeds this (a turn, not a
  * wobble) */
-#define DR_FUSED_P_NHC_MIN_RATE (45)
+#define DR_FUSED_P_NHC_MIN_RATE (46)
 /* the share of the position error a lateral update's speed correction implies (as the zero-velocity update takes it)
  * that is taken back */
-#define DR_FUSED_P_NHC_POSITION (46)
-#define DR_FUSED_P_NHC_LEAK_TURN (47) /* m/s^2 per rad: lateral leak a turn may add (offsets folded into the tilt) */
+#define DR_FUSED_P_NHC_POSITION (47)
+#define DR_FUSED_P_NHC_LEAK_TURN (48) /* m/s^2 per rad: lateral leak a turn may add (offsets folded into the tilt) */
 /* a vehicle in an outage: the accelerometer offsets the tilt/offset filter has not told apart from the tilt (its
  * covariance, times this) are estimated too; a turn turns them against the tilt, which shows them along and across
  * the track (0: not estimated) */
-#define DR_FUSED_P_NHC_FOLD_SCALE (48)
+#define DR_FUSED_P_NHC_FOLD_SCALE (49)
 /* m/s: auto: a fix faster than this (people walk at up to ~3 m/s and run at up to ~6) makes the device a vehicle,
  * which no steps turn into a pedestrian until it has rested; nor do steps while a vehicle's own speed is above it */
-#define DR_FUSED_P_PEDESTRIAN_MAX_MS (49)
+#define DR_FUSED_P_PEDESTRIAN_MAX_MS (50)
 /* g: |f| standard deviation up to which a pedestrian may still be at rest if the rest is more than quiet: a hand
  * (steady horizontal force, averaged rate below fused_rest_gyro_dps) */
-#define DR_FUSED_P_STILL_ACCEL_G (50)
+#define DR_FUSED_P_STILL_ACCEL_G (51)
 /* g: and a vehicle, if its shaking is above fused_vibration_hz (an idling engine) and its speed below
  * fused_rest_speed_ms (a real highway drive shook less than 30 mg with its averaged rate below fused_rest_gyro_dps
  * in 6.6 % of its samples, 40 mg in 40 %) */
-#define DR_FUSED_P_IDLE_ACCEL_G (51)
+#define DR_FUSED_P_IDLE_ACCEL_G (52)
 /* s: a pedestrian whose steps stopped without a rest: the speed decays to 0 with this time constant, never
  * integrated (0: held) */
-#define DR_FUSED_P_STAND_TAU_S (52)
+#define DR_FUSED_P_STAND_TAU_S (53)
 /* m/s/sqrt(s): a vehicle's integrated speed: random walk of its error beyond the along-track bias's (what the
  * deadband keeps out) */
-#define DR_FUSED_P_SPEED_NOISE (53)
+#define DR_FUSED_P_SPEED_NOISE (54)
 /* m/s^2/sqrt(s): random walk of the along-track bias after a calibration that moved and before a rest (the gyro bias
  * is off by the motion's mean rate during calibration, so the tilt drifts; otherwise fused_kf_tilt_noise) */
-#define DR_FUSED_P_SPEED_BIAS_NOISE (54)
+#define DR_FUSED_P_SPEED_BIAS_NOISE (55)
 /* m/s/sqrt(s): a vehicle keeps its speed: random walk of its true speed away from the last fix's, the prior its
  * integrated speed is weighed against by their variances (0: no prior) */
-#define DR_FUSED_P_KEEP_SPEED_NOISE (55)
+#define DR_FUSED_P_KEEP_SPEED_NOISE (56)
 /* m/s^2: a vehicle's speed stays within [0, the speed last known + this x the time since] */
-#define DR_FUSED_P_MAX_ACCEL_MS2 (56)
+#define DR_FUSED_P_MAX_ACCEL_MS2 (57)
 /* m/s: auto: a fix faster than this while no steps are seen makes the device a vehicle until it rests, as a fix
  * faster than fused_pedestrian_max_ms does (a pedestrian who moves that fast steps; slow traffic does not) */
-#define DR_FUSED_P_CARRIED_MS (57)
+#define DR_FUSED_P_CARRIED_MS (58)
 /* s: auto: steps this long make a pedestrian of a device that drove (a fix faster than fused_pedestrian_max_ms, or
  * than fused_carried_ms without steps, since its last walk; a rest does not end it): a car creeping on in a queue
  * shakes in the gait band for seconds at a time */
-#define DR_FUSED_P_VEHICLE_WALK_TIME_S (58)
+#define DR_FUSED_P_VEHICLE_WALK_TIME_S (59)
 
 /* Returns DR_OK, or the code of the first parameter outside its limits (in the parameters' units). */
 static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
@@ -710,6 +715,9 @@ static inline int dr_fused_params_check(const float p[DR_FUSED_PARAMS]) {
     if (!(p[DR_FUSED_P_ACCEL_TAU_S] >= 0.0f)) { /* accel_tau_s must be >= 0 */
         return DR_ERR_RANGE;
     }
+    if (!(p[DR_FUSED_P_DEADBAND_RAMP_S] >= 0.0f)) { /* deadband_ramp_s must be >= 0 */
+        return DR_ERR_RANGE;
+    }
     if (!(p[DR_FUSED_P_NHC_SIGMA_MS2] >= 0.0f)) { /* nhc_sigma_ms2 must be >= 0 */
         return DR_ERR_RANGE;
     }
@@ -811,6 +819,7 @@ static inline void dr_fused_params_store(dr_fused_config *cfg, const float p[DR_
     cfg->kf_rest_r = p[DR_FUSED_P_KF_REST_SIGMA_MS2] * p[DR_FUSED_P_KF_REST_SIGMA_MS2];
     cfg->zupt_turn_weight = p[DR_FUSED_P_ZUPT_TURN_WEIGHT];
     cfg->inv_accel_tau = p[DR_FUSED_P_ACCEL_TAU_S] > 0.0f ? dr_recip(p[DR_FUSED_P_ACCEL_TAU_S]) : 0.0f;
+    cfg->inv_deadband_ramp = p[DR_FUSED_P_DEADBAND_RAMP_S] > 0.0f ? dr_recip(p[DR_FUSED_P_DEADBAND_RAMP_S]) : 0.0f;
     cfg->nhc_var = p[DR_FUSED_P_NHC_SIGMA_MS2] * p[DR_FUSED_P_NHC_SIGMA_MS2];
     cfg->nhc_period_s = p[DR_FUSED_P_NHC_PERIOD_S];
     cfg->nhc_speed_q = p[DR_FUSED_P_NHC_SPEED_NOISE] * p[DR_FUSED_P_NHC_SPEED_NOISE];
@@ -874,6 +883,7 @@ static inline void dr_fused_params_board(float p[DR_FUSED_PARAMS]) {
     p[DR_FUSED_P_KF_REST_SIGMA_MS2] = DR_FUSED_KF_REST_SIGMA_MS2;
     p[DR_FUSED_P_ZUPT_TURN_WEIGHT] = DR_FUSED_ZUPT_TURN_WEIGHT;
     p[DR_FUSED_P_ACCEL_TAU_S] = DR_FUSED_ACCEL_TAU_S;
+    p[DR_FUSED_P_DEADBAND_RAMP_S] = DR_FUSED_DEADBAND_RAMP_S;
     p[DR_FUSED_P_NHC_SIGMA_MS2] = DR_FUSED_NHC_SIGMA_MS2;
     p[DR_FUSED_P_NHC_PERIOD_S] = DR_FUSED_NHC_PERIOD_S;
     p[DR_FUSED_P_NHC_SPEED_NOISE] = DR_FUSED_NHC_SPEED_NOISE;
@@ -911,8 +921,8 @@ static inline void dr_fused_state_start(dr_fused_state *st) {
  * one's dr_fused_state | dr_fused_config | dr_config. */
 #define DR_HEADER_FLOATS (22)
 #define DR_FUSED_CONFIG_AT (150)
-#define DR_FUSED_KERNEL_CONFIG_AT (209)
-#define DR_FUSED_BUFFER_FLOATS (221)
+#define DR_FUSED_KERNEL_CONFIG_AT (210)
+#define DR_FUSED_BUFFER_FLOATS (222)
 
 /* ---- the error-state filter (dr_eskf.c, codegen/kernel/eskf.py) ----
  * Its structs are dr_eskf.h's, written by hand; these are their lengths and offsets as codegen/kernel/layout.py
