@@ -883,13 +883,14 @@ def test_a_gentle_start_the_deadband_hides_is_speed_not_an_along_track_bias(impl
     acceleration out of the integrated speed, so each fix 1 s apart finds the speed short by 0.25 m/s. What the
     deadband kept out is counted as the speed's noise at the fix (sb_lost), so the filter takes more of the
     difference for speed, less for an along-track bias (on a town's gentle starts it learned -0.58 m/s^2, and the car's speed grew at
-    +0.53 m/s^2 standing at the next lights)."""
+    +0.53 m/s^2 standing at the next lights). The deadband is held at l from the fix (deadband_ramp_s 0): with the
+    ramp, a second after a fix it is l / 10 and keeps nothing of 0.025 g out."""
     samples, dt = _samples(200, accel_g=(0.025, 0.0, 1.0))
     steps = []
     for k in range(1, 5):
         steps += [("p", samples, dt), ("v", 1.0 + 0.025 * G * k, 0.0)]
     start = _still(flags=float(F.VEHICLE), since_fix=0.0, gps_ok=0.5, gps_speed=1.0, speed=1.0, align_c=ALIGNED)
-    trace = run(impl, steps, tmp_path, start=start)
+    trace = run(impl, steps, tmp_path, params=replace(FCFG, deadband_ramp_s=0.0), start=start)
     assert not np.any(trace.series("flags").astype(int) & (F.AT_REST | F.WALKING))
     assert abs(trace.at(-1, "bias")) < 0.1  # -0.083 m/s^2; -0.127 before the deadband's loss was counted
     assert trace.at(-1, "speed") == pytest.approx(1.0 + 0.1 * G, abs=0.1)
