@@ -18,7 +18,7 @@ tilts the device by ~6 deg RMS within seconds): post orients both with the gyro'
 What is not reached yet is marked xfail (strict: the mark fails once it passes): the walk's mean mounting (1.4 deg
 off here, 1.4-3.9 deg on tuning seeds 100-103, its yaw 1-sigma 2.0-2.7 deg: the GPS fixes the gyro frame's yaw through
 a walker's small accelerations, 0.14 m/s^2 of Doppler noise per interval against a few tenths of turns and steps).
-The drive's mounting within 1 deg is not reached either (strict xfail): 1.68 deg off here, 0.9-1.8 deg on the
+The drive's mounting within 1 deg is not reached either (strict xfail): 1.68 deg off here, 0.7-1.9 deg on the
 seeds docs/post.md lists, in tilt: the MPU-6050 model's gyro cross-axis error, which 1 Hz GPS cannot see (docs/post.md,
 `benchmarks/post.py device-matrices`). It passed at 0.91 deg on this seed's drive before the car's cruises wandered
 with the traffic: a draw, not a result.
