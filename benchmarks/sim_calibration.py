@@ -117,11 +117,7 @@ def _traffic_rows(car, seeds, deadband_ms2):
     cruising, moving = [], []
     for seed in seeds:
         tr = trajectory.make_scenario("car", seed=seed)
-        speed = np.linalg.norm(tr.vel[:, :2], axis=1)
-        _, a = features.along_track_acceleration(tr.t, speed)
-        inside = np.zeros(len(tr.t), dtype=bool)
-        for begin, end in tr.events["cruises"]:
-            inside |= (tr.t > begin + 2.0) & (tr.t < end - 2.0)
+        speed, a, inside = features.car_cruises(tr)
         cruising.append(a[inside])
         moving.append(a[speed > 1.0])
     for label, parts in (("sim car, cruises", cruising), ("sim car, moving (> 1 m/s)", moving)):

@@ -159,8 +159,8 @@ def test_drive_delay_within_twenty_milliseconds(drive):
     assert abs(drive.result.delay - truth) <= DELAY_BOUND, (drive.result.delay, truth)
 
 
-@pytest.mark.xfail(strict=True, reason="a drive: the gyro's cross-axis error (the MPU-6050 model's +-2 %) tilts the gyro "
-                   "frame's mean mounting by 1.68 deg; 1 Hz GPS does not see it")
+@pytest.mark.xfail(strict=True, reason="a drive: the gyro's cross-axis error (the MPU-6050 model's +-2 %) tilts the "
+                   "gyro frame's mean mounting by 1.68 deg; 1 Hz GPS does not see it")
 def test_drive_mounting_within_one_degree(drive):
     assert drive.mounting_error_deg(min_speed=2.0) <= MOUNTING_BOUND
 

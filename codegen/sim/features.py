@@ -121,4 +121,17 @@ def deadband_shares(a: np.ndarray, deadband_ms2: float) -> np.ndarray:
     """The shares of along-track accelerations `a` under QUIET_MS2 (a held speed), from there to a vehicle's deadband
     (the board's l, in m/s^2: what the deadband takes away) and over it (what it keeps)."""
     q = np.abs(np.asarray(a, dtype=float))
-    return np.array([np.mean(q < QUIET_MS2), np.mean((q >= QUIET_MS2) & (q < deadband_ms2)), np.mean(q >= deadband_ms2)])
+    within = (q >= QUIET_MS2) & (q < deadband_ms2)
+    return np.array([np.mean(q < QUIET_MS2), np.mean(within), np.mean(q >= deadband_ms2)])
+
+
+def car_cruises(tr, margin_s: float = 2.0):
+    """A simulated car's speed over ground, its along-track acceleration (along_track_acceleration) and which of its
+    samples lie inside a cruise (the trajectory's events["cruises"], margin_s in from each end). Returns (speed m/s,
+    acceleration m/s^2, inside)."""
+    speed = np.linalg.norm(tr.vel[:, :2], axis=1)
+    _, a = along_track_acceleration(tr.t, speed)
+    inside = np.zeros(len(tr.t), dtype=bool)
+    for begin, end in tr.events["cruises"]:
+        inside |= (tr.t > begin + margin_s) & (tr.t < end - margin_s)
+    return speed, a, inside

@@ -826,6 +826,7 @@ def fused_process(fstate, samples, dt_us, out):
     inv_speed = st[_FC_INV_SPEED_TAU]
     inv_acc = st[_FC_INV_ACCEL_TAU]
     inv_ramp = st[_FC_INV_DEADBAND_RAMP]
+    ramp_s = 1.0 / inv_ramp if inv_ramp > 0.0 else 0.0  # compared with since_fix: no float made per sample after it
     timeout = st[_FC_GPS_TIMEOUT_S]
     inv_stat = st[_FC_INV_STAT_TAU]
     rest_var = st[_FC_REST_VAR]
@@ -1150,11 +1151,9 @@ def fused_process(fstate, samples, dt_us, out):
                 a -= bias
             vdb = deadband
             nvdb = ndeadband
-            if inv_ramp > 0.0:
-                ramp = since_fix * inv_ramp
-                if ramp < 1.0:  # the deadband grows from 0 at a fix to l over deadband_ramp_s (the tilt's leak grows)
-                    vdb = deadband * ramp
-                    nvdb = -vdb
+            if since_fix < ramp_s:  # the deadband grows from 0 at a fix to l over deadband_ramp_s (the leak grows)
+                vdb = deadband * (since_fix * inv_ramp)
+                nvdb = -vdb
             if inv_acc > 0.0:  # the deadband gates on the smoothed acceleration (not the road's shaking)
                 ka = dt * inv_acc
                 acc_lp += (ka if ka < 1.0 else 1.0) * (a - acc_lp)
