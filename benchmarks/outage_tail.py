@@ -41,7 +41,14 @@ from codegen.kernel import fused as F  # noqa: E402
 from codegen.kernel.layout import FUSED  # noqa: E402
 from codegen.kernel.reference import STANDARD_GRAVITY, quat_to_matrix  # noqa: E402
 from codegen.sim.mpu6050 import MpuErrors, draw_device  # noqa: E402
-from codegen.sim.run import REAL_CAR, SCENARIOS, TUNING_SEEDS, build_run, outage_starts  # noqa: E402
+from codegen.sim.run import (  # noqa: E402
+    REAL_CAR,
+    SCENARIOS,
+    TUNING_SEEDS,
+    build_run,
+    missing_recordings,
+    outage_starts,
+)
 
 STEP_S = 0.5
 OUTAGE_S = 60.0  # the accuracy benchmark's longest horizon: the same outage starts
@@ -152,6 +159,9 @@ def main(argv=None) -> int:
     longest = REAL_CAR_OUTAGE_S if args.scenario == REAL_CAR else OUTAGE_S
     if not 0.0 < args.horizon <= longest:
         parser.error(f"--horizon takes 0 < s <= {longest:g} on {args.scenario}, not {args.horizon:g}")
+    missing = missing_recordings([args.scenario])
+    if missing:
+        raise SystemExit(missing)
     names = {p.name for p in FUSED.params}
     changes = {}
     for item in args.set:

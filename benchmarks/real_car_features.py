@@ -23,8 +23,10 @@ import numpy as np  # noqa: E402
 
 from codegen.board.loader import default_board  # noqa: E402
 from codegen.kernel.fused import FusedConfig  # noqa: E402
+from codegen.sim.comma import default_car_dir  # noqa: E402
+from codegen.sim.run import REAL_CAR, missing_recordings  # noqa: E402
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "car-comma2k19" / "processed_log"
+DATA = default_car_dir() / "processed_log"
 G = 9.80665
 
 
@@ -63,6 +65,9 @@ def features(fcfg: FusedConfig):
 
 
 def main() -> int:
+    missing = missing_recordings([REAL_CAR])
+    if missing:
+        raise SystemExit(missing)
     fcfg = FusedConfig.from_board(default_board())
     std, share, rate, speed = features(fcfg)
     print(f"car-comma2k19: {len(std)} moving samples, CAN speed {speed.min():.1f}-{speed.max():.1f} m/s")

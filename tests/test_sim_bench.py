@@ -268,3 +268,38 @@ def test_benchmark_forces_each_platform(board):
     assert platforms == sorted(FUSED.param("platform").code(p) for p in accuracy.PLATFORMS)
     assert fused.FusedConfig.from_board(board).platform == FUSED.param("platform").code("auto")
     assert not np.allclose(result.errors["fused-pedestrian"], result.errors["fused-vehicle"])
+
+
+def test_benchmark_names_a_missing_recording_before_any_work(monkeypatch, tmp_path, capsys):
+    """A benchmark run where ../shared/data is not beside the checkout (a git worktree elsewhere) stops at once with
+    the folder or file it lacks and a hint, not with a traceback minutes into the run; the recordings where they
+    are pass the check."""
+    import sys
+
+    from codegen.sim import comma, replay
+    from codegen.sim.run import REAL_CAR, missing_recordings
+    from conftest import ROOT
+
+    require_shared_data("car-comma2k19", "processed_log")
+    require_shared_data("gnss-imu-walk", replay.IMU_FILE)
+    assert missing_recordings(["walk", "replay-walk", REAL_CAR]) is None
+    car = tmp_path / "car"
+    (car / "processed_log" / "IMU" / "accelerometer").mkdir(parents=True)
+    (car / "processed_log" / "IMU" / "accelerometer" / "t").write_bytes(b"")
+    monkeypatch.setattr(comma, "default_car_dir", lambda: car)
+    monkeypatch.setattr(replay, "default_walk_dir", lambda: tmp_path / "no-walk")
+    assert missing_recordings(["walk", "car"]) is None  # simulated scenarios read nothing
+    text = missing_recordings(["walk", REAL_CAR, "replay-walk"])
+    assert f"replay-car: {car} lacks processed_log/IMU/accelerometer/value" in text
+    assert f"replay-walk: the folder {tmp_path / 'no-walk'} is missing" in text
+    assert "hint:" in text
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import accuracy
+
+    def no_work(*args):
+        raise AssertionError("a job started before the check")
+
+    monkeypatch.setattr(accuracy, "_run_all", no_work)
+    with pytest.raises(SystemExit) as stop:
+        accuracy.main(["--scenario", "walk", "--scenario", REAL_CAR])
+    assert str(stop.value) == missing_recordings([REAL_CAR])

@@ -29,6 +29,13 @@ from codegen.sim.trajectory import SampledTruth
 CAR_DIR = ("car-comma2k19",)
 
 
+# the streams load_car reads, relative to the recording's folder
+CAR_FILES = tuple(f"processed_log/{stream}/{part}" for stream in ("IMU/accelerometer", "IMU/gyro_uncalibrated",
+                                                                  "CAN/speed", "GNSS/live_gnss_ublox")
+                  for part in ("t", "value")) + tuple(
+    f"global_pose/{name}" for name in ("frame_times", "frame_positions", "frame_velocities"))
+
+
 def default_car_dir() -> Path:
     """../shared/data/car-comma2k19 relative to the project checkout."""
     return Path(__file__).resolve().parents[3].joinpath("shared", "data", *CAR_DIR)

@@ -101,6 +101,31 @@ def _replay_car(board, seed: int, errors, car_dir) -> RunData:
     return RunData(REAL_CAR, board, seed, t_us, counts, comma.device_fixes(car, board.gps.rate_hz), car.truth)
 
 
+def missing_recordings(scenarios) -> str | None:
+    """None if every recording that `scenarios` replay (replay-walk, REAL_CAR) is where build_run reads it (beside
+    the checkout, ../shared/data), else what is missing, named, and where the recordings come from: for a
+    benchmark to say before its first job rather than as a traceback minutes into a run."""
+    from codegen.sim import comma, replay
+
+    wanted = {"replay-walk": (replay.default_walk_dir(), (replay.IMU_FILE, replay.POS_FILE)),
+              REAL_CAR: (comma.default_car_dir(), comma.CAR_FILES)}
+    lines = []
+    for scenario in dict.fromkeys(scenarios):
+        if scenario not in wanted:
+            continue
+        folder, files = wanted[scenario]
+        absent = [name for name in files if not (folder / name).is_file()]
+        if absent:
+            what = f"the folder {folder} is missing" if not folder.is_dir() else (
+                f"{folder} lacks {', '.join(absent[:3])}{' ...' if len(absent) > 3 else ''}")
+            lines.append(f"{scenario}: {what}")
+    if not lines:
+        return None
+    return ("the recorded runs are not where this checkout reads them:\n  " + "\n  ".join(lines) + "\nhint: a "
+            "checkout reads them from ../shared/data (shared/data/README.md says where each comes from); from a git "
+            "worktree elsewhere, link shared/ beside it, or leave those scenarios out")
+
+
 def outage_starts(run: RunData, longest: float, step: float = 5.0) -> np.ndarray:
     """Outage start times: after calibration and a few fixes, every `step` s, leaving `longest` s to run.
     Starts fall half-way between 1 Hz fixes, so the last fix is 0.5 s old when the GPS goes."""
