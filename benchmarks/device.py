@@ -1,11 +1,13 @@
 """Instructions per window on the boards' instruction sets, for benchmarks/kernel.py (seed) and fused.py (fused).
 
     python3 benchmarks/device.py [--algorithm seed|fused|eskf] [--windows N] [--before REV] [--scenario S]
+    python3 benchmarks/device.py --algorithm fused --scenario replay-car   # a vehicle's windows (the real car)
 
 ARM: MicroPython 1.28's QEMU port (codegen.natmod.qemu_arm; MICROBIT = Cortex-M0, the RP2040's armv6m; MPS2_AN385 =
 Cortex-M3, armv7m) runs the board's dr_native.mpy built for that arch and the generated dr_fallback compiled by
 mpy-cross for it (plain; @micropython.native; for the seed kernel also @viper sort/median), through the same driver
-(codegen/natmod/device_driver.py) on the recorded walk. Counts are exact: QEMU runs with -icount shift=0 (one
+(codegen/natmod/device_driver.py) on the recorded walk (--scenario replay-car: the real car, whose fused windows
+take the vehicle's branch; after each fused window the last GPS fix before its end). Counts are exact: QEMU runs with -icount shift=0 (one
 instruction per virtual ns) and the driver reads a hardware timer of the emulated SoC around each call.
 Xtensa: the ESP32 code of the same dr_native.mpy (LLVM route) on qemu-system-xtensa de233_fpu, the kernel called
 by a bare-metal harness, counted by the core's ICOUNT register (codegen.natmod.qemu_xtensa).
@@ -90,11 +92,15 @@ def compile_for(source: str, arch: str, folder: Path) -> tuple[bytes | None, str
     return py.with_suffix(".mpy").read_bytes(), ""
 
 
-def walk_steps(board, algorithm: str, windows: int) -> list:
-    """The app's calibration then `windows` windows of the recorded walk (and a GPS fix after each, for fused)."""
+RECORDED = {"replay-walk": "recorded walk", "replay-car": "real car (car-comma2k19, driving at 14-20 m/s)"}
+
+
+def recorded_steps(board, algorithm: str, windows: int, scenario: str = "replay-walk") -> list:
+    """The app's calibration then `windows` windows of a recording (RECORDED: the walk, or the real car, whose
+    fused windows take the vehicle's branch), and, for fused, after each window the last GPS fix before its end."""
     from codegen.sim.run import build_run
 
-    run = build_run("replay-walk", board)
+    run = build_run(scenario, board)
     t = run.t_us * 1e-6
     dt = np.diff(run.t_us).astype(np.int32)
     k = board.calibration_samples
@@ -104,9 +110,9 @@ def walk_steps(board, algorithm: str, windows: int) -> list:
     for j in range(windows):
         steps.append(("P", run.counts[k + j * n:k + (j + 1) * n], dt[k + j * n:k + (j + 1) * n]))
         if algorithm == "fused":
-            second = int(t[k + (j + 1) * n])
-            d = run.gps.enu[second, :2] - run.gps.enu[second - 1, :2]
-            steps.append(("G", float(vel[second, 0]), float(vel[second, 1]), float(d[0]), float(d[1])))
+            fix = int(run.gps.last_valid_before(np.array([t[k + (j + 1) * n]]))[0])
+            d = run.gps.enu[fix, :2] - run.gps.enu[fix - 1, :2]
+            steps.append(("G", float(vel[fix, 0]), float(vel[fix, 1]), float(d[0]), float(d[1])))
     return steps
 
 
@@ -171,20 +177,21 @@ def xtensa_count(files, algorithm: str, steps: list, state_floats: int, folder: 
     return per_window(answers, steps), ""
 
 
-def device_table(loaded, algorithm: str, windows: int = 4, fallback_windows: int = 2, before: str = "") -> None:
-    """Print the device-ISA table of one algorithm for the board `loaded`; `before` (a git revision): its fallback
-    (plain) in a column beside today's, run in the same sessions."""
+def device_table(loaded, algorithm: str, windows: int = 4, fallback_windows: int = 2, before: str = "",
+                 scenario: str = "replay-walk") -> None:
+    """Print the device-ISA table of one algorithm for the board `loaded` on a recording (RECORDED); `before` (a git
+    revision): its fallback (plain) in a column beside today's, run in the same sessions."""
     from codegen.generate import render_tree
     from codegen.kernel import fused as F
 
     board = loaded.board
     files = render_tree(loaded)
     state_floats = 10 if algorithm == "seed" else F.STATE_LEN
-    steps = walk_steps(board, algorithm, windows)
+    steps = recorded_steps(board, algorithm, windows, scenario)
     n = board.algorithm.window
     what = "window" if algorithm == "seed" else "window + its GPS fix"
-    print(f"\non the boards' instruction sets ({algorithm}): instructions per {what} of {n} x 6 samples, recorded "
-          f"walk, exact counts in QEMU")
+    print(f"\non the boards' instruction sets ({algorithm}): instructions per {what} of {n} x 6 samples, "
+          f"{RECORDED[scenario]}, exact counts in QEMU")
     header = f"{'core':34s} {'natmod':>10s}"
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -361,7 +368,8 @@ def main(argv=None) -> int:
     parser.add_argument("--board", default=None, help="board YAML (default: the bundled default board)")
     parser.add_argument("--algorithm", choices=("seed", "fused", "eskf"), default=None,
                         help="default: seed and fused")
-    parser.add_argument("--scenario", default="car", help="eskf: the simulated vehicle drive (default car)")
+    parser.add_argument("--scenario", default=None, help="eskf: the simulated vehicle drive (default car); seed and "
+                        f"fused: the recording, {' or '.join(RECORDED)} (default replay-walk)")
     parser.add_argument("--duration", type=float, default=120.0, help="eskf: its length, s")
     parser.add_argument("--cov-dt", type=float, default=0.0, help="eskf: s between covariance propagations "
                         "(default: the filter's)")
@@ -373,13 +381,20 @@ def main(argv=None) -> int:
                         "today's in the same QEMU sessions (default: none)")
     args = parser.parse_args(argv)
     from codegen.board.loader import load_board
+    from codegen.sim.run import missing_recordings
 
     loaded = load_board(args.board)
     if args.algorithm == "eskf":
-        eskf_table(loaded, args.scenario, 0, args.duration, args.cov_dt, args.nhc_dt)
+        eskf_table(loaded, args.scenario or "car", 0, args.duration, args.cov_dt, args.nhc_dt)
         return 0
+    scenario = args.scenario or "replay-walk"
+    if scenario not in RECORDED:
+        parser.error(f"--scenario {scenario}: seed and fused run on a recording, {' or '.join(RECORDED)}")
+    missing = missing_recordings([scenario])
+    if missing:
+        raise SystemExit(missing)
     for algorithm in ([args.algorithm] if args.algorithm else ["seed", "fused"]):
-        device_table(loaded, algorithm, args.windows, args.fallback_windows, args.before)
+        device_table(loaded, algorithm, args.windows, args.fallback_windows, args.before, scenario)
     return 0
 
 

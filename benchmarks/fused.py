@@ -1,7 +1,7 @@
 """Speed of the fused algorithm per window, beside the kernel's budget (<= 5 ms per 512-sample window at
 240 MHz by instruction count).
 
-    python3 benchmarks/fused.py [--before REV] [--repeat N] [--no-device]
+    python3 benchmarks/fused.py [--before REV] [--repeat N] [--no-device] [--scenario replay-walk|replay-car]
 
 Rows: the C kernel (dr_fused_process + one dr_fused_position and dr_fused_gps) through cffi, the float64 reference
 (codegen/kernel/fused.py), the generated fallback's fused_* on the unix-port `micropython` (the template of git
@@ -81,6 +81,8 @@ def main(argv=None) -> int:
     parser.add_argument("--before", default="main", help="git revision whose fallback template to run beside "
                         "today's (default main; '' for none)")
     parser.add_argument("--no-device", action="store_true", help="skip the QEMU rows (boards' instruction sets)")
+    parser.add_argument("--scenario", default="replay-walk", choices=("replay-walk", "replay-car"),
+                        help="the QEMU rows' recording: the walk, or the real car (a vehicle's windows)")
     args = parser.parse_args(argv)
     loaded = load_board(None)
     board = loaded.board
@@ -131,7 +133,7 @@ def main(argv=None) -> int:
     if not args.no_device:
         from device import device_table
 
-        device_table(loaded, "fused", before=args.before)
+        device_table(loaded, "fused", before=args.before, scenario=args.scenario)
     return 0
 
 

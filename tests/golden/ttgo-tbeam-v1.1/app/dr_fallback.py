@@ -845,12 +845,17 @@ def fused_process(fstate, samples, dt_us, out):
     vib_ratio = st[_FC_VIB_RATIO]
     inv_vib = st[_FC_INV_VIB_TAU]
     turn_weight = st[_FC_ZUPT_TURN_WEIGHT]
-    speed_q = st[_FC_SPEED_Q]
     keep_q = st[_FC_KEEP_Q]
     vel_var = 0.5 * st[_FC_KF_VEL_R]
     max_accel = st[_FC_MAX_ACCEL_MS2]
-    # the along-track bias's random walk (a calibration that moved: until a rest)
-    bias_q = st[_FC_SPEED_BIAS_Q] if st[_F_CAL_MOVED] > 0.0 else st[_FC_KF_TILT_Q]
+    # the integrated speed's variance t = sk_t s after the speed was last known (_kept_speed), as a cubic in t:
+    # vs0 + t (vs1 + t (vs2 + t vs3)), 6 floats per sample for 14; vs3 from the along-track bias's random walk (a
+    # calibration that moved: until a rest). The speed/bias filter runs at fixes, outside this call; a rest inside
+    # it zeroes the filter and drops the kept speed (keep_v < 0) until the next fix, so these stay as they are.
+    vs0 = st[_F_SB_PSS]
+    vs1 = st[_FC_SPEED_Q] - 2.0 * st[_F_SB_PSB]
+    vs2 = st[_F_SB_PBB]
+    vs3 = (st[_FC_SPEED_BIAS_Q] if st[_F_CAL_MOVED] > 0.0 else st[_FC_KF_TILT_Q]) * (1.0 / 3.0)
     nhc = st[_FC_NHC_VAR] > 0.0
     nhc_period = st[_FC_NHC_PERIOD_S]
     nhc_position = st[_FC_NHC_POSITION]
@@ -873,6 +878,7 @@ def fused_process(fstate, samples, dt_us, out):
     gscale = st[kc + _K_GYRO_RADS_PER_LSB]
     deadband = st[kc + _K_DEADBAND_MS2]
     ndeadband = -deadband
+    ramp_slope = deadband * inv_ramp  # the deadband's growth per second since a fix (one float per sample, not two)
     db2 = deadband * deadband
     g = _GRAVITY_MS2
     c6 = 1.0 / 6.0
@@ -1121,7 +1127,6 @@ def fused_process(fstate, samples, dt_us, out):
                 st[_F_SB_PSS] = st[_F_SB_PSB] = st[_F_CAL_MOVED] = 0.0
                 sk_t = sb_lost = 0.0
                 keep_v = -1.0
-                bias_q = st[_FC_KF_TILT_Q]
             elif walking:
                 speed = walk_speed
                 zr_v = speed
@@ -1152,7 +1157,7 @@ def fused_process(fstate, samples, dt_us, out):
             vdb = deadband
             nvdb = ndeadband
             if since_fix < ramp_s:  # the deadband grows from 0 at a fix to l over deadband_ramp_s (the leak grows)
-                vdb = deadband * (since_fix * inv_ramp)
+                vdb = ramp_slope * since_fix
                 nvdb = -vdb
             if inv_acc > 0.0:  # the deadband gates on the smoothed acceleration (not the road's shaking)
                 ka = dt * inv_acc
@@ -1173,8 +1178,7 @@ def fused_process(fstate, samples, dt_us, out):
             # for the position: weighed by the variances against the speed it keeps, bounded (_kept_speed)
             sp = speed
             if keep_v >= 0.0 and keep_q > 0.0:
-                v_s = (st[_F_SB_PSS] - 2.0 * sk_t * st[_F_SB_PSB] + sk_t * sk_t * st[_F_SB_PBB] + speed_q * sk_t
-                       + bias_q * sk_t * sk_t * sk_t * (1.0 / 3.0))
+                v_s = vs0 + sk_t * (vs1 + sk_t * (vs2 + sk_t * vs3))
                 sp += v_s / (v_s + vel_var + keep_q * sk_t) * (keep_v - sp)
             top = (keep_v if keep_v > 0.0 else 0.0) + max_accel * sk_t
             if sp > top:
