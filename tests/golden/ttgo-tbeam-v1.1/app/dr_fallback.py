@@ -969,11 +969,27 @@ def fused_process(fstate, samples, dt_us, out):
     fast = flags & _FAST if platform != _PLATFORM_PEDESTRIAN else 0
     walked = flags & _WALKED
     drove = flags & _DROVE if platform != _PLATFORM_PEDESTRIAN else 0
+    last_us = -1  # the interval whose floats below are made (the app's FIFO reads give every sample the same one)
+    dt = hdt = alpha = beta = gamma = ka = 0.0
     for k in range(count):
-        # step: sample_in
+        # step: sample_in (the interval's floats made again only when it changes: five to six fewer per sample)
         i = 6 * k
-        dt = dt_us[k] * _S_PER_US
-        hdt = 0.5 * dt
+        if dt_us[k] != last_us:
+            last_us = dt_us[k]
+            dt = last_us * _S_PER_US
+            hdt = 0.5 * dt
+            alpha = dt * inv_stat  # the statistics' smoothing over stat_tau_s, the shaking's two and its variance's
+            if alpha > 1.0:
+                alpha = 1.0
+            beta = dt * vib_rate
+            if beta > 1.0:
+                beta = 1.0
+            gamma = dt * inv_vib
+            if gamma > 1.0:
+                gamma = 1.0
+            ka = dt * inv_acc  # a vehicle's along-track acceleration smoothed over accel_tau_s
+            if ka > 1.0:
+                ka = 1.0
         fx = samples[i + sx] * ax - bax
         fy = samples[i + sy] * ay - bay
         fz = samples[i + sz] * az - baz
@@ -982,23 +998,14 @@ def fused_process(fstate, samples, dt_us, out):
         wz = (kz * samples[i + 3 + sz] - bgz) * gscale
         # step: motion_statistics
         nf = sqrt(fx * fx + fy * fy + fz * fz)
-        alpha = dt * inv_stat
-        if alpha > 1.0:
-            alpha = 1.0
         mean_f += alpha * (nf - mean_f)
         d = nf - mean_f
         d2 = d * d
         var_f += alpha * (d2 - var_f)
-        beta = dt * vib_rate  # the shaking above the gait band: two first-order high-passes at vibration_hz
-        if beta > 1.0:
-            beta = 1.0
-        vib_lp1 += beta * (nf - vib_lp1)
+        vib_lp1 += beta * (nf - vib_lp1)  # the shaking above the gait band: two first-order high-passes
         h = nf - vib_lp1
         vib_lp2 += beta * (h - vib_lp2)
         h -= vib_lp2
-        gamma = dt * inv_vib
-        if gamma > 1.0:
-            gamma = 1.0
         vib_var += gamma * (h * h - vib_var)
         vib_tot += gamma * (d2 - vib_tot)
         wsx += alpha * (wx - wsx)  # the body rate smoothed: an idling engine's shake averages out
@@ -1160,8 +1167,7 @@ def fused_process(fstate, samples, dt_us, out):
                 vdb = ramp_slope * since_fix
                 nvdb = -vdb
             if inv_acc > 0.0:  # the deadband gates on the smoothed acceleration (not the road's shaking)
-                ka = dt * inv_acc
-                acc_lp += (ka if ka < 1.0 else 1.0) * (a - acc_lp)
+                acc_lp += ka * (a - acc_lp)
                 if nvdb < acc_lp < vdb:
                     sb_lost += a * dt  # what the deadband keeps out: the speed's noise at the next fix, no bias
                     a = 0.0
