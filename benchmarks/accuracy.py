@@ -60,7 +60,7 @@ from codegen.sim.run import (  # noqa: E402
     evaluate,
     format_table,
     format_table_ci,
-    missing_recordings,
+    require_recordings,
 )
 
 HORIZONS = (10.0, 30.0, 60.0)
@@ -260,9 +260,7 @@ def main(argv=None) -> int:
     started = time.perf_counter()
     _chosen(args.method)  # an unknown method fails here, before any work
     scenarios = args.scenario or list(SCENARIOS) + ([REAL_CAR] if args.car_seeds > 0 else [])
-    missing = missing_recordings(scenarios)
-    if missing:
-        raise SystemExit(missing)
+    require_recordings(scenarios)
     seeds = _seed_list(TUNING_SEEDS if args.tuning else REPORT_SEEDS, args.seeds)
     # the real car's degradations follow the seed ranges too
     car_seeds = _seed_list(TUNING_SEEDS if args.tuning else REPORT_SEEDS, max(args.car_seeds, 1))

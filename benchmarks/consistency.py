@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 
 from codegen.board.loader import load_board  # noqa: E402
 from codegen.kernel import fused as F  # noqa: E402
-from codegen.sim.run import REPORT_SEEDS, TUNING_SEEDS, build_run, missing_recordings, outage_starts  # noqa: E402
+from codegen.sim.run import REPORT_SEEDS, TUNING_SEEDS, build_run, outage_starts, require_recordings  # noqa: E402
 
 LONGEST = 60.0  # s of each outage followed, as benchmarks/accuracy.py's longest horizon
 STEP = 5.0  # s between outage starts
@@ -265,9 +265,7 @@ def main(argv=None) -> int:
                         help="the error-state filter's rows too: its float64 reference or its C (cffi, float32)")
     args = parser.parse_args(argv)
     scenarios = args.scenario or ["car", "bike"]
-    missing = missing_recordings(scenarios)
-    if missing:
-        raise SystemExit(missing)
+    require_recordings(scenarios)
     board = load_board(args.board).board
     seeds = list(TUNING_SEEDS if args.tuning else REPORT_SEEDS)[:args.seeds]
     started = time.time()

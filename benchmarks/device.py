@@ -382,7 +382,7 @@ def main(argv=None) -> int:
                         "today's in the same QEMU sessions (default: none)")
     args = parser.parse_args(argv)
     from codegen.board.loader import load_board
-    from codegen.sim.run import missing_recordings
+    from codegen.sim.run import require_recordings
 
     loaded = load_board(args.board)
     if args.algorithm == "eskf":
@@ -391,9 +391,7 @@ def main(argv=None) -> int:
     scenario = args.scenario or "replay-walk"
     if scenario not in RECORDED:
         parser.error(f"--scenario {scenario}: seed and fused run on a recording, {' or '.join(RECORDED)}")
-    missing = missing_recordings([scenario])
-    if missing:
-        raise SystemExit(missing)
+    require_recordings([scenario])
     for algorithm in ([args.algorithm] if args.algorithm else ["seed", "fused"]):
         device_table(loaded, algorithm, args.windows, args.fallback_windows, args.before, scenario)
     return 0

@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 from codegen.board.loader import default_board  # noqa: E402
 from codegen.kernel import eskf  # noqa: E402
 from codegen.kernel.reference import KernelConfig  # noqa: E402
-from codegen.sim.run import REAL_CAR, build_run, missing_recordings  # noqa: E402
+from codegen.sim.run import REAL_CAR, build_run, require_recordings  # noqa: E402
 
 
 def trace(run, with_interval: bool, until: float) -> tuple[list[tuple], float | None]:
@@ -67,9 +67,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--until", type=float, default=40.0, help="s: the last fix shown")
     args = parser.parse_args(argv)
-    missing = missing_recordings([args.scenario])
-    if missing:
-        raise SystemExit(missing)
+    require_recordings([args.scenario])
     run = build_run(args.scenario, default_board(), seed=args.seed)
     for with_interval in (True, False):
         rows, started = trace(run, with_interval, args.until)

@@ -46,8 +46,8 @@ from codegen.sim.run import (  # noqa: E402
     SCENARIOS,
     TUNING_SEEDS,
     build_run,
-    missing_recordings,
     outage_starts,
+    require_recordings,
 )
 
 STEP_S = 0.5
@@ -159,9 +159,7 @@ def main(argv=None) -> int:
     longest = REAL_CAR_OUTAGE_S if args.scenario == REAL_CAR else OUTAGE_S
     if not 0.0 < args.horizon <= longest:
         parser.error(f"--horizon takes 0 < s <= {longest:g} on {args.scenario}, not {args.horizon:g}")
-    missing = missing_recordings([args.scenario])
-    if missing:
-        raise SystemExit(missing)
+    require_recordings([args.scenario])
     names = {p.name for p in FUSED.params}
     changes = {}
     for item in args.set:

@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 from codegen.board.loader import default_board  # noqa: E402
 from codegen.kernel.fused import FusedConfig  # noqa: E402
 from codegen.sim.comma import default_car_dir  # noqa: E402
-from codegen.sim.run import REAL_CAR, missing_recordings  # noqa: E402
+from codegen.sim.run import REAL_CAR, require_recordings  # noqa: E402
 
 DATA = default_car_dir() / "processed_log"
 G = 9.80665
@@ -65,9 +65,7 @@ def features(fcfg: FusedConfig):
 
 
 def main() -> int:
-    missing = missing_recordings([REAL_CAR])
-    if missing:
-        raise SystemExit(missing)
+    require_recordings([REAL_CAR])
     fcfg = FusedConfig.from_board(default_board())
     std, share, rate, speed = features(fcfg)
     print(f"car-comma2k19: {len(std)} moving samples, CAN speed {speed.min():.1f}-{speed.max():.1f} m/s")

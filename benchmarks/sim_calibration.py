@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 from codegen.board.loader import load_board  # noqa: E402
 from codegen.board.model import STANDARD_GRAVITY  # noqa: E402
 from codegen.sim import comma, features, mpu6050, replay, trajectory  # noqa: E402
-from codegen.sim.run import REAL_CAR, missing_recordings  # noqa: E402
+from codegen.sim.run import REAL_CAR, require_recordings  # noqa: E402
 
 BANDS = (("stand", 0.0, 0.05), ("walking", 0.8, 2.0), ("2-7 m/s", 2.0, 7.0), ("8-20 m/s", 8.0, 20.0))
 
@@ -76,9 +76,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=6, help="seeds per simulated scenario (default 6, from 0)")
     args = parser.parse_args(argv)
-    missing = missing_recordings(["replay-walk", REAL_CAR])
-    if missing:
-        raise SystemExit(missing)
+    require_recordings(["replay-walk", REAL_CAR])
     board = load_board(None).board
     head = (f"{'stream':22s} {'band':9s} {'wins':>5s} {'shaking mg [p10-p90]':>21s} {'share>8 Hz [p10-p90]':>21s}"
             f" {'fused@100':>8s}")

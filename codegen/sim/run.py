@@ -126,6 +126,13 @@ def missing_recordings(scenarios) -> str | None:
             "worktree elsewhere, link shared/ beside it, or leave those scenarios out")
 
 
+def require_recordings(scenarios) -> None:
+    """Stop a benchmark (SystemExit, the message of missing_recordings) unless its recorded runs are all there."""
+    missing = missing_recordings(scenarios)
+    if missing:
+        raise SystemExit(missing)
+
+
 def outage_starts(run: RunData, longest: float, step: float = 5.0) -> np.ndarray:
     """Outage start times: after calibration and a few fixes, every `step` s, leaving `longest` s to run.
     Starts fall half-way between 1 Hz fixes, so the last fix is 0.5 s old when the GPS goes."""
