@@ -451,6 +451,8 @@ mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *a
     mp_store_global(MP_QSTR_fused_process, MP_OBJ_FROM_PTR(&dr_fused_process_obj));
     mp_store_global(MP_QSTR_fused_gps, MP_OBJ_FROM_PTR(&dr_fused_gps_obj));
     mp_store_global(MP_QSTR_fused_position, MP_OBJ_FROM_PTR(&dr_fused_position_obj));
+    mp_store_global(MP_QSTR_FUSED_GYRO_BIAS, MP_OBJ_NEW_SMALL_INT(DR_FUSED_STATE_GYRO_BIAS_LSB));
+    mp_store_global(MP_QSTR_CAL_MOVED, MP_OBJ_NEW_SMALL_INT(DR_FUSED_STATE_CAL_MOVED));
     mp_store_global(MP_QSTR_FIX_AE, MP_OBJ_NEW_SMALL_INT(DR_FUSED_STATE_FIX_AE));
     mp_store_global(MP_QSTR_COV_REPAIRS, MP_OBJ_NEW_SMALL_INT(DR_FUSED_STATE_COV_REPAIRS));
     mp_store_global(MP_QSTR_FUSED_STATE_LEN, MP_OBJ_NEW_SMALL_INT(DR_FUSED_BUFFER_FLOATS));
@@ -496,6 +498,8 @@ static const mp_rom_map_elem_t dr_native_globals_table[] = {
     { MP_ROM_QSTR(MP_QSTR_fused_process), MP_ROM_PTR(&dr_fused_process_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_gps), MP_ROM_PTR(&dr_fused_gps_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_position), MP_ROM_PTR(&dr_fused_position_obj) },
+    { MP_ROM_QSTR(MP_QSTR_FUSED_GYRO_BIAS), MP_ROM_INT(DR_FUSED_STATE_GYRO_BIAS_LSB) },
+    { MP_ROM_QSTR(MP_QSTR_CAL_MOVED), MP_ROM_INT(DR_FUSED_STATE_CAL_MOVED) },
     { MP_ROM_QSTR(MP_QSTR_FIX_AE), MP_ROM_INT(DR_FUSED_STATE_FIX_AE) },
     { MP_ROM_QSTR(MP_QSTR_COV_REPAIRS), MP_ROM_INT(DR_FUSED_STATE_COV_REPAIRS) },
     { MP_ROM_QSTR(MP_QSTR_FUSED_STATE_LEN), MP_ROM_INT(DR_FUSED_BUFFER_FLOATS) },

@@ -4,7 +4,7 @@ loses at most the open block.
 Each run is the default board (fused, T-Beam v1.1) walking with fixes, on the board's clock and heap, with one
 fault: an I2C NACK mid-run, the IMU gone (and back), the GPS UART silent, a MemoryError inside a window (once, and
 twice: the top-level handler), a full filesystem, a power cut in the middle of a flash write, a bus that hangs
-until the watchdog resets the board.
+until the watchdog resets the board (and, in a car, the calibration from before the reset taken up again).
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 from appkit import outage_world
 
@@ -195,3 +196,25 @@ def test_watchdog_resets_a_stuck_loop_and_gps_returns(tbeam, tmp_path):
     assert len(files) == 2
     t_last = max(r[1] for r in logs[0][1]) / 1e6
     assert 22.0 - BLOCK_SPAN_S < t_last <= 22.0 + 0.1  # the first boot's log up to its last whole block
+
+
+def test_watchdog_reset_on_the_road_takes_up_the_calibration_from_before(tbeam, tmp_path):
+    """The simulated car calibrates at rest, drives off, and the bus hangs at 22 s, at 15 m/s: the watchdog resets
+    the board, whose next calibration moves. It takes up the tilt and gyro bias of the rest before the reset, kept
+    in the RTC's memory, instead of the motion's (a car's acceleration for gravity, its turns for the gyro's bias):
+    the same q and bias to the last digit printed, said on the console and in the log."""
+    board, out = tbeam
+    world, traj, _ = outage_world(board, "car", 5, 45.0, [], tmp_path)
+    world["i2c"]["0"][0].update(hang_at_s=22.0, hang_s=6.0)  # held past the 5 s watchdog, free again at 28 s
+    assert float(np.hypot(*traj.velocity_at(np.array([22.0, 30.0]))[:, :2].T).min()) > 10.0
+    result = run_app(board_micropython(), out, world, tmp_path / "w")
+    assert result.returncode == 0 and "Traceback" not in result.stderr, result.stdout[-2000:]
+    assert [b["cause"] for b in result.events("boot")] == ["watchdog"]
+    assert len(result.events("rtc_memory")) == 1  # kept once: at the calibration at rest
+    calibrated = result.console("CAL ok")
+    assert len(calibrated) == 2 and calibrated[0] == calibrated[1], result.stdout[-3000:]
+    assert result.console("CAL moved: the calibration from before the reset restored")
+    assert not result.console("CAL moved: travelling")  # the motion's calibration was not the one kept
+    _, logs = log_records(result, tmp_path)
+    assert "calibration restored" in events(logs[1][1])
+

@@ -51,6 +51,7 @@ def _macros(header: str) -> dict[str, int]:
 def test_the_offsets_the_app_reads_keep_their_values():
     consts = _fallback_consts(FALLBACK)
     assert (consts["Q"], consts["V"], consts["GYRO_BIAS"], consts["FIX_AE"], consts["COV_REPAIRS"]) == (0, 4, 7, 50, 142)
+    assert (consts["FUSED_GYRO_BIAS"], consts["CAL_MOVED"]) == (4, 149)
     assert consts["FUSED_STATE_LEN"] == 222 and consts["OUT_LEN"] == 6
     # documented in native_ext/API.md: speed 16, East/North 30/31, flags 32
     assert [F.IDX[n] for n in ("speed", "pe", "pn", "flags")] == [16, 30, 31, 32]

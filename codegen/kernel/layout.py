@@ -289,7 +289,8 @@ FUSED = Kernel(
     state=(
         Field("q", "", "orientation w, x, y, z: body -> kernel ENU", 4, ("qw", "qx", "qy", "qz"), initial=(1.0,),
               local="carry", group="the attitude and the motion statistics"),
-        Field("gyro_bias_lsb", "counts", "gyro bias (body frame)", 3, ("bgx", "bgy", "bgz"), local="carry"),
+        Field("gyro_bias_lsb", "counts", "gyro bias (body frame)", 3, ("bgx", "bgy", "bgz"), local="carry",
+              public="FUSED_GYRO_BIAS"),
         Field("mean_f", "m/s^2", "mean |f| (motion statistics)", local="carry"),
         Field("var_f", "(m/s^2)^2", "variance of |f|", local="carry"),
         Field("vib_var", "(m/s^2)^2", "variance of |f| above the gait band (vibration_hz) over vibration_tau_s",
@@ -403,7 +404,7 @@ FUSED = Kernel(
               "since the speed was last known, integrated: its square is noise of the speed at the next fix, not a "
               "bias", local="carry"),
         Field("cal_moved", "", "1 from a calibration that moved until the next rest (the gyro bias took the motion's "
-              "mean rate for a bias: the tilt drifts), else 0"),
+              "mean rate for a bias: the tilt drifts), else 0", public="CAL_MOVED"),
     ),
     params=(
         Param("tilt_tau_s", "s", "tilt correction time constant while GPS fixes arrive", Store("kp", "1/s", "recip"),

@@ -64,10 +64,12 @@ class Recording:
 
 def record_on_micropython(loaded, traj: trajectory.Trajectory, seed: int = 0, quality: str = "open-sky",
                           duration: float | None = None, outages=(), work: Path | None = None,
-                          what: str = "", errors: mpu6050.MpuErrors | None = None) -> Recording:
+                          what: str = "", errors: mpu6050.MpuErrors | None = None,
+                          edit_world=None) -> Recording:
     """Run the generated app unmodified on the emulated board for `duration` s of virtual time (default the
     trajectory's), fed by the MPU-6050 and NEO-6M models of `traj` with the GPS `outages` ((start s, end s)) cut in;
-    `errors` the chip's (default the model's, without read jitter: the emulated board's clock times the reads)."""
+    `errors` the chip's (default the model's, without read jitter: the emulated board's clock times the reads);
+    `edit_world` changes the emulated board's scenario (codegen/sim/mpsim/simworld.py) before the run: its faults."""
     board = loaded.board
     duration = traj.duration if duration is None else duration
     errors = replace(mpu6050.MpuErrors(), jitter_us=0.0) if errors is None else errors
@@ -90,6 +92,8 @@ def record_on_micropython(loaded, traj: trajectory.Trajectory, seed: int = 0, qu
                                    display=display, pmu=pmu, rail=rail, uart_id=board.uart[board.gps.uart].id)
     if board.display is not None:
         world["i2c"]["0"][1]["address"] = board.display.address
+    if edit_world is not None:
+        edit_world(world)
     print(f"running the generated app on MicroPython for {duration:.0f} s of virtual time"
           f"{f' ({what})' if what else ''} in {work}", file=sys.stderr)
     extra = _host_native_module(board, out, work)

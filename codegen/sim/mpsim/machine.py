@@ -272,3 +272,24 @@ class WDT:
 
     def feed(self):
         time.feed_watchdog()
+
+
+_rtc_memory = b""  # the RTC's user memory: a reset leaves it (this module outlives the app's), a power-on clears it
+RTC_MEMORY_MAX = 2048  # bytes, the ESP32 port's MICROPY_HW_RTC_USER_MEM_MAX
+
+
+class RTC:
+    """The RTC, for its user memory only (the ESP32's RTC slow memory, which survives the watchdog's and
+    machine.reset()'s resets): memory() reads it back, memory(data) stores at most RTC_MEMORY_MAX bytes; OSError
+    where the scenario says the port has none."""
+
+    def memory(self, data=None):
+        global _rtc_memory
+        if not _S.get("rtc_memory", True):  # a port without it (the scenario's "rtc_memory": false)
+            raise OSError(errno.ENODEV)
+        if data is None:
+            return _rtc_memory
+        if len(data) > RTC_MEMORY_MAX:
+            raise ValueError("buffer too long")
+        _rtc_memory = bytes(data)
+        simworld.trace("rtc_memory", length=len(data))

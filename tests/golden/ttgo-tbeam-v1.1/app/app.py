@@ -99,6 +99,41 @@ def _wrap_lon_e7(d):
     return d
 
 
+# The last calibration at rest, kept in the RTC's memory (the ESP32's RTC slow memory, which the watchdog's reset
+# and machine.reset() leave as it was and a power-on clears): a board reset on the road calibrates while it moves,
+# taking a car's acceleration for gravity's direction and its turn rate for the gyro's bias; it starts from its last
+# rest's tilt and gyro bias instead (App._calibration_done). The record: a tag naming the kernel whose state it is,
+# then the orientation q (w, x, y, z; its yaw is the calibration's, 0) and the gyro's bias (counts, body frame).
+_CAL_KEPT_FLOATS = const(7)
+
+
+def _cal_tag():
+    return b"DRf1" if FUSED else b"DRs1"
+
+
+def _keep_calibration(s, bias_at):
+    values = array("f", [s[dr.Q + i] for i in range(4)] + [s[bias_at + i] for i in range(3)])
+    try:
+        machine.RTC().memory(_cal_tag() + bytes(values))
+    except (AttributeError, OSError, ValueError):  # a port without the RTC's memory: nothing is kept
+        pass
+
+
+def _kept_calibration():
+    """The calibration kept before the reset, or None (none kept, another kernel's, or not a calibration)."""
+    try:
+        data = machine.RTC().memory()
+    except (AttributeError, OSError):
+        return None
+    if len(data) != 4 + 4 * _CAL_KEPT_FLOATS or bytes(data[:4]) != _cal_tag():
+        return None
+    values = array("f", bytes(data[4:]))
+    norm = values[0] * values[0] + values[1] * values[1] + values[2] * values[2] + values[3] * values[3]
+    if not abs(norm - 1.0) < 1e-3 or not all(abs(v) < 1e6 for v in values):  # a NaN fails both
+        return None
+    return values
+
+
 class App:
     def __init__(self, wdt=None):
         self.wdt = wdt  # fed by every pass of the loop (board micropython.watchdog_s)
@@ -213,6 +248,9 @@ class App:
             self.warn("reset: watchdog")
         elif cause == getattr(machine, "SOFT_RESET", -1):
             self.warn("reset: error")
+        # after the app's own resets, the calibration at rest from before (a power-on has none)
+        self.kept_cal = _kept_calibration() if cause in (
+            getattr(machine, "WDT_RESET", -1), getattr(machine, "SOFT_RESET", -1)) else None
         self.gps_bytes_ms = time.ticks_ms()  # when the GPS last sent anything
         self.gps_silent = False
         self.imu_retry_ms = time.ticks_ms()
@@ -275,6 +313,12 @@ class App:
             moved = dr.calibrate(self.state, self.calib)
         if self.on_calibrated is not None:
             self.on_calibrated(self, self.calib, moved)
+        if moved and self.kept_cal is not None:
+            self._restore_calibration()
+            moved = False
+        elif not moved:
+            _keep_calibration(*self._calibrated())
+        self.kept_cal = None  # the boot's first calibration only: a later one that moves (the button) starts again
         if moved and self._travelling():
             print("CAL moved: travelling at %.1f m/s, kept" % self.gps_fix.speed_ms)
             self.log.event("calibration in motion")
@@ -286,9 +330,9 @@ class App:
             self.k = 0
             self.cal_started_ms = time.ticks_ms()
             return
-        s = self.fstate if FUSED else self.state
+        s, at = self._calibrated()
         q = "%.5f,%.5f,%.5f,%.5f" % (s[dr.Q], s[dr.Q + 1], s[dr.Q + 2], s[dr.Q + 3])
-        bias = "" if FUSED else " bias=%.2f,%.2f,%.2f" % (s[dr.GYRO_BIAS], s[dr.GYRO_BIAS + 1], s[dr.GYRO_BIAS + 2])
+        bias = " bias=%.2f,%.2f,%.2f" % (s[at], s[at + 1], s[at + 2])
         print("CAL ok q=" + q + bias)
         self.log.event("calibrated q=" + q + bias)
         self.status = "calibrated"
@@ -296,6 +340,26 @@ class App:
         self.k = 0
         self.vel[0] = self.vel[1] = self.vel[2] = 0.0  # it stood still for the whole calibration
         self.calib = None  # its room goes back to the heap until the next calibration, the window's takes it
+
+    def _calibrated(self):
+        """(the kernel's state, the offset of its gyro bias): where the calibration is (the orientation at dr.Q)."""
+        return (self.fstate, dr.FUSED_GYRO_BIAS) if FUSED else (self.state, dr.GYRO_BIAS)
+
+    def _restore_calibration(self):
+        """The calibration moved after a reset: its tilt and gyro bias are the last rest's, kept from before the
+        reset. The rest of what the kernel's calibration set stands (the fused method's speed unknown until the next
+        fix), but for the fused method's mark of a calibration that moved: its along-track bias's filter starts as
+        after a rest (docs/watchdog.md, benchmarks/watchdog_reset.py)."""
+        s, bias_at = self._calibrated()
+        kept = self.kept_cal
+        for i in range(4):
+            s[dr.Q + i] = kept[i]
+        for i in range(3):
+            s[bias_at + i] = kept[4 + i]
+        if FUSED:  # the tilt and the gyro bias are a rest's: the along-track bias's filter as after one
+            s[dr.CAL_MOVED] = 0.0
+        print("CAL moved: the calibration from before the reset restored")
+        self.log.event("calibration restored")
 
     # ---------------------------------------------------------------- IMU samples
 

@@ -451,11 +451,17 @@ typedef char dr_fused_state_is_150_floats[
     sizeof(dr_fused_state) == 150 * sizeof(float) ? 1 : -1];
 typedef char dr_fused_config_is_60_floats[
     sizeof(dr_fused_config) == 60 * sizeof(float) ? 1 : -1];
+typedef char dr_fused_gyro_bias_lsb_at_4[
+    offsetof(dr_fused_state, gyro_bias_lsb) == DR_FUSED_STATE_GYRO_BIAS_LSB * sizeof(float)
+    ? 1 : -1];
 typedef char dr_fused_fix_ae_at_50[
     offsetof(dr_fused_state, fix_ae) == DR_FUSED_STATE_FIX_AE * sizeof(float)
     ? 1 : -1];
 typedef char dr_fused_cov_repairs_at_142[
     offsetof(dr_fused_state, cov_repairs) == DR_FUSED_STATE_COV_REPAIRS * sizeof(float)
+    ? 1 : -1];
+typedef char dr_fused_cal_moved_at_149[
+    offsetof(dr_fused_state, cal_moved) == DR_FUSED_STATE_CAL_MOVED * sizeof(float)
     ? 1 : -1];
 /* platform's choices */
 #define DR_FUSED_PLATFORM_PEDESTRIAN (0)
