@@ -49,7 +49,8 @@ def hang_time(traj, calibration_s: float) -> float | None:
 
 def run_one(loaded, traj, seed: int, hang: float, t_loss: float, outage_s: float, horizons, variant: str,
             work: Path):
-    """The app's horizontal errors at the horizons of the outage from t_loss, and whether it restored."""
+    """The app's horizontal errors at the horizons of the outage from t_loss (stops where the app restored a
+    calibration in a variant that should not, or did not where it should)."""
 
     def edit(world):
         if variant != "no reset":
