@@ -15,7 +15,7 @@ Neither run sits rigidly enough for post's rigid mounting fit (its chi2: ~12 on 
 weighed as Doppler meet a tilt that a level-road fit cannot tell from a horizontal bias; ~36 on the walk, whose hand
 tilts the device by ~6 deg RMS within seconds): post orients both with the gyro's integral turned onto ENU by the GPS
 (codegen/post/gyroframe.py, chi2 ~1.1), and its mounting is the device's mean orientation along the track.
-What is not reached yet is marked xfail (strict: the mark fails once it passes): the walk's mean mounting (1.4 deg
+What is not reached yet is marked xfail (strict: the mark fails once it passes): the walk's mean mounting (1.8 deg
 off here, 1.4-3.9 deg on tuning seeds 100-103, its yaw 1-sigma 2.0-2.7 deg: the GPS fixes the gyro frame's yaw through
 a walker's small accelerations, 0.14 m/s^2 of Doppler noise per interval against a few tenths of turns and steps).
 The drive's mounting within 1 deg is not reached either (strict xfail): 1.68 deg off here, 0.7-1.9 deg on the
@@ -187,7 +187,7 @@ def test_walk_delay_within_twenty_milliseconds(walk):
     assert abs(walk.result.delay - truth) <= DELAY_BOUND
 
 
-@pytest.mark.xfail(strict=True, reason="a hand-held walk: the gyro frame's mean mounting is 1.4 deg off (its yaw is "
+@pytest.mark.xfail(strict=True, reason="a hand-held walk: the gyro frame's mean mounting is 1.8 deg off (its yaw is "
                    "fixed by a walker's small accelerations against the Doppler's noise)")
 def test_walk_mounting_within_one_degree(walk):
     assert walk.mounting_error_deg(min_speed=0.5) <= MOUNTING_BOUND
