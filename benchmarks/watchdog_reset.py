@@ -1,4 +1,4 @@
-"""A watchdog's reset on the road: what taking up the calibration from before the reset buys.
+"""A watchdog's reset on the road: what taking up the kernel's state from before the reset buys.
 
     python3 benchmarks/watchdog_reset.py                         # tuning seeds 100-105, 30 s outages
     python3 benchmarks/watchdog_reset.py --seeds 0,1,2,3,4,5     # reported seeds
@@ -8,8 +8,9 @@ command, as `deadreckon simulate --on-micropython` runs it (its fused fallback k
 calibrates at rest, drives off, and its I2C bus hangs while the car drives, until the watchdog resets the board; the
 calibration after the boot moves. A GPS outage follows once the kernel has had fixes again (--fixes-after: 20, 40,
 60 and 80 s of them, a run each). Each outage runs three times on the same world: with the RTC's memory (the app
-takes up the tilt and gyro bias of its last rest), on a port without it (the app keeps the calibration it made in
-motion: a car's acceleration taken for gravity, its turn rate for the gyro's bias), and without the reset. Prints
+takes up what fused_keep kept at its last fix before the reset: docs/watchdog.md), on a port without it (the app
+keeps the calibration it made in motion: a car's acceleration taken for gravity, its turn rate for the gyro's
+bias, and the kernel learns everything again), and without the reset. Prints
 the app's horizontal error (m, from its screen) at the outage's horizons, and the median and 90th percentile over
 the outages. Conditions: the x86-64 host; the PyPI `micropython` computes in double, the board in float32; the
 MPU-6050 and NEO-6M models' errors. About 8 minutes.

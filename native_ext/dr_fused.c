@@ -254,6 +254,38 @@ static int dr_fused_kf_start(const dr_fused_config *cfg, dr_fused_state *st) {
     return 1;
 }
 
+void dr_fused_keep(const dr_fused_state *st, float kept[DR_FUSED_KEPT_LEN]) {
+    const float *s = (const float *)st;
+#define DR_FUSED_KEEP_ONE(i, at) kept[i] = s[at];
+    DR_FUSED_KEPT(DR_FUSED_KEEP_ONE)
+#undef DR_FUSED_KEEP_ONE
+}
+
+void dr_fused_restore(const dr_fused_config *cfg, dr_fused_state *st, const float kept[DR_FUSED_KEPT_LEN]) {
+    float *s = (float *)st;
+    float r[3][3];
+    const float v = cfg->kf_bias_var;
+#define DR_FUSED_RESTORE_ONE(i, at) s[at] = kept[i];
+    DR_FUSED_KEPT(DR_FUSED_RESTORE_ONE)
+#undef DR_FUSED_RESTORE_ONE
+    st->cal_moved = 0.0f;
+    if (!(st->p[DR_FUSED_P22] > 0.0f)) { /* the filter had not started: it starts at its first use */
+        (void)dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_SPEED, DR_FUSED_STEP_START, 1);
+        return;
+    }
+    /* the leak's block as the prior's (var R_h R_h^T), its rows against the offsets 0 */
+    dr_quat_to_matrix(st->q, r);
+    st->p[DR_FUSED_P00] = v * (r[0][0] * r[0][0] + r[0][1] * r[0][1] + r[0][2] * r[0][2]);
+    st->p[DR_FUSED_P01] = v * (r[0][0] * r[1][0] + r[0][1] * r[1][1] + r[0][2] * r[1][2]);
+    st->p[DR_FUSED_P11] = v * (r[1][0] * r[1][0] + r[1][1] * r[1][1] + r[1][2] * r[1][2]);
+    st->p[DR_FUSED_P02] = st->p[DR_FUSED_P03] = st->p[DR_FUSED_P12] = st->p[DR_FUSED_P13] = 0.0f;
+    st->pz[DR_FUSED_P04] = st->pz[DR_FUSED_P14] = 0.0f;
+    st->kf_t = 0.0f;
+    st->turn = 0.0f;
+    (void)dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_START, 1);
+    (void)dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_SPEED, DR_FUSED_STEP_START, 1);
+}
+
 /* The filter's predict P <- P + Q, Q the process noise over the kf_t seconds since its last prediction
  * (codegen.fused's _kf_predict). Returns 0 if the covariance went wrong (reset to the prior). */
 int dr_fused_kf_predict(const dr_fused_config *cfg, dr_fused_state *st) {

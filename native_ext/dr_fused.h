@@ -43,6 +43,17 @@ void dr_fused_state_init(dr_fused_state *st);
  * dr_calibrate, the motion statistics started at rest, speed 0. Returns DR_OK, DR_MOVED or DR_ERR_COUNT. */
 int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t *samples, int32_t count);
 
+/* Copies what a reset should not lose (DR_FUSED_KEPT, from codegen/kernel/layout.py's FUSED.kept: the attitude, the
+ * gyro's bias, the accelerometer's offsets and their covariance block, the along-track bias and its variance, the
+ * walking speed) into kept, for the caller to keep where a reset leaves it (the ESP32's RTC memory). */
+void dr_fused_keep(const dr_fused_state *st, float kept[DR_FUSED_KEPT_LEN]);
+
+/* After a calibration that moved (a board reset on the road): takes up what dr_fused_keep kept before the reset.
+ * The tilt/offset filter's tilt part starts again from the attitude (the board may have tilted while it was reset),
+ * uncorrelated with the offsets it keeps; the calibration counts as a rest's (cal_moved 0); the speed stays unknown
+ * until the next fix. */
+void dr_fused_restore(const dr_fused_config *cfg, dr_fused_state *st, const float kept[DR_FUSED_KEPT_LEN]);
+
 /* Processes count >= 1 raw samples (sensor frame, interleaved), each held dt_us[k] microseconds, each through the
  * per-sample steps of docs/fused.md in their order (static inline dr_fused_<step> in dr_fused.c). out: the
  * displacement East, North, Up (m, true ENU; Up 0) over the samples, then the velocity East, North, Up (m/s).

@@ -305,6 +305,38 @@ static mp_obj_t dr_fused_gps_fn(mp_obj_t state_obj, mp_obj_t ve_obj, mp_obj_t vn
 }
 static MP_DEFINE_CONST_FUN_OBJ_3(dr_fused_gps_obj, dr_fused_gps_fn);
 
+/* The floats of a kept-state buffer (array('f') of at least FUSED_KEPT_LEN), or a ValueError. */
+static float *dr_fused_kept_floats(mp_obj_t kept_obj, mp_uint_t flags) {
+    mp_buffer_info_t kept;
+    dr_get_array(kept_obj, &kept, flags, 'f');
+    if (kept.len < DR_FUSED_KEPT_LEN * sizeof(float)) {
+        mp_raise_ValueError(MP_ERROR_TEXT("kept must hold FUSED_KEPT_LEN floats"));
+    }
+    return (float *)kept.buf;
+}
+
+/* fused_keep(fstate, kept): what a reset should not lose, into kept */
+static mp_obj_t dr_fused_keep_fn(mp_obj_t state_obj, mp_obj_t kept_obj) {
+    dr_fused_state *st;
+    dr_fused_config *cfg;
+    dr_config *kcfg;
+    dr_fused_unpack(state_obj, &st, &cfg, &kcfg);
+    dr_fused_keep(st, dr_fused_kept_floats(kept_obj, MP_BUFFER_WRITE));
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_2(dr_fused_keep_obj, dr_fused_keep_fn);
+
+/* fused_restore(fstate, kept): after a calibration that moved, takes up what fused_keep kept before a reset */
+static mp_obj_t dr_fused_restore_fn(mp_obj_t state_obj, mp_obj_t kept_obj) {
+    dr_fused_state *st;
+    dr_fused_config *cfg;
+    dr_config *kcfg;
+    dr_fused_unpack(state_obj, &st, &cfg, &kcfg);
+    dr_fused_restore(cfg, st, dr_fused_kept_floats(kept_obj, MP_BUFFER_READ));
+    return mp_const_none;
+}
+static MP_DEFINE_CONST_FUN_OBJ_2(dr_fused_restore_obj, dr_fused_restore_fn);
+
 /* fused_position(fstate, ve, vn, de, dn): a fix's position, before fused_gps for the same fix */
 static mp_obj_t dr_fused_position_fn(size_t n_args, const mp_obj_t *args) {
     dr_fused_state *st;
@@ -451,6 +483,9 @@ mp_obj_t mpy_init(mp_obj_fun_bc_t *self, size_t n_args, size_t n_kw, mp_obj_t *a
     mp_store_global(MP_QSTR_fused_process, MP_OBJ_FROM_PTR(&dr_fused_process_obj));
     mp_store_global(MP_QSTR_fused_gps, MP_OBJ_FROM_PTR(&dr_fused_gps_obj));
     mp_store_global(MP_QSTR_fused_position, MP_OBJ_FROM_PTR(&dr_fused_position_obj));
+    mp_store_global(MP_QSTR_fused_keep, MP_OBJ_FROM_PTR(&dr_fused_keep_obj));
+    mp_store_global(MP_QSTR_fused_restore, MP_OBJ_FROM_PTR(&dr_fused_restore_obj));
+    mp_store_global(MP_QSTR_FUSED_KEPT_LEN, MP_OBJ_NEW_SMALL_INT(DR_FUSED_KEPT_LEN));
     mp_store_global(MP_QSTR_FUSED_GYRO_BIAS, MP_OBJ_NEW_SMALL_INT(DR_FUSED_STATE_GYRO_BIAS_LSB));
     mp_store_global(MP_QSTR_CAL_MOVED, MP_OBJ_NEW_SMALL_INT(DR_FUSED_STATE_CAL_MOVED));
     mp_store_global(MP_QSTR_FIX_AE, MP_OBJ_NEW_SMALL_INT(DR_FUSED_STATE_FIX_AE));
@@ -498,6 +533,9 @@ static const mp_rom_map_elem_t dr_native_globals_table[] = {
     { MP_ROM_QSTR(MP_QSTR_fused_process), MP_ROM_PTR(&dr_fused_process_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_gps), MP_ROM_PTR(&dr_fused_gps_obj) },
     { MP_ROM_QSTR(MP_QSTR_fused_position), MP_ROM_PTR(&dr_fused_position_obj) },
+    { MP_ROM_QSTR(MP_QSTR_fused_keep), MP_ROM_PTR(&dr_fused_keep_obj) },
+    { MP_ROM_QSTR(MP_QSTR_fused_restore), MP_ROM_PTR(&dr_fused_restore_obj) },
+    { MP_ROM_QSTR(MP_QSTR_FUSED_KEPT_LEN), MP_ROM_INT(DR_FUSED_KEPT_LEN) },
     { MP_ROM_QSTR(MP_QSTR_FUSED_GYRO_BIAS), MP_ROM_INT(DR_FUSED_STATE_GYRO_BIAS_LSB) },
     { MP_ROM_QSTR(MP_QSTR_CAL_MOVED), MP_ROM_INT(DR_FUSED_STATE_CAL_MOVED) },
     { MP_ROM_QSTR(MP_QSTR_FIX_AE), MP_ROM_INT(DR_FUSED_STATE_FIX_AE) },

@@ -10,6 +10,7 @@ until the watchdog resets the board (and, in a car, the calibration from before 
 from __future__ import annotations
 
 import re
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ import pytest
 from appkit import outage_world
 
 from codegen.board.loader import load_board
+from codegen.kernel.layout import FUSED
 from codegen.post.devicelog import parse_device_log
 from codegen.sim.harness import generate_app, read_log, run_app
 from conftest import board_micropython
@@ -198,21 +200,31 @@ def test_watchdog_resets_a_stuck_loop_and_gps_returns(tbeam, tmp_path):
     assert 22.0 - BLOCK_SPAN_S < t_last <= 22.0 + 0.1  # the first boot's log up to its last whole block
 
 
-def test_watchdog_reset_on_the_road_takes_up_the_calibration_from_before(tbeam, tmp_path):
+def test_watchdog_reset_on_the_road_takes_up_what_it_had_before(tbeam, tmp_path):
     """The simulated car calibrates at rest, drives off, and the bus hangs at 22 s, at 15 m/s: the watchdog resets
-    the board, whose next calibration moves. It takes up the tilt and gyro bias of the rest before the reset, kept
-    in the RTC's memory, instead of the motion's (a car's acceleration for gravity, its turns for the gyro's bias):
-    the same q and bias to the last digit printed, said on the console and in the log."""
+    the board, whose next calibration moves. The fused kernel's learnt state (fused_keep: attitude, gyro bias,
+    accelerometer offsets, along-track bias), kept in the RTC's memory at the rest and at every fix after it, is
+    taken up instead of the motion's calibration (a car's acceleration for gravity, its turns for the gyro's bias):
+    "CAL ok" prints the last record's attitude and bias; said on the console and in the log."""
     board, out = tbeam
     world, traj, _ = outage_world(board, "car", 5, 45.0, [], tmp_path)
     world["i2c"]["0"][0].update(hang_at_s=22.0, hang_s=6.0)  # held past the 5 s watchdog, free again at 28 s
     assert float(np.hypot(*traj.velocity_at(np.array([22.0, 30.0]))[:, :2].T).min()) > 10.0
     result = run_app(board_micropython(), out, world, tmp_path / "w")
     assert result.returncode == 0 and "Traceback" not in result.stderr, result.stdout[-2000:]
-    assert [b["cause"] for b in result.events("boot")] == ["watchdog"]
-    assert len(result.events("rtc_memory")) == 1  # kept once: at the calibration at rest
+    boots = result.events("boot")
+    assert [b["cause"] for b in boots] == ["watchdog"]
+    kept = [w for w in result.events("rtc_memory") if w["t_us"] < boots[0]["t_us"]]
+    assert len(kept) >= 5, kept  # the rest's, then one per fix while it drove
+    record = bytes.fromhex(kept[-1]["data"])
+    assert record[:4] == b"DRf2" and len(record) == 4 + 4 * len(FUSED.kept)
+    values = struct.unpack("<%df" % len(FUSED.kept), record[4:])
     calibrated = result.console("CAL ok")
-    assert len(calibrated) == 2 and calibrated[0] == calibrated[1], result.stdout[-3000:]
+    assert len(calibrated) == 2, result.stdout[-3000:]
+    printed = [float(x) for x in re.findall(r"-?\d+\.\d+", calibrated[1])]
+    np.testing.assert_allclose(printed[:4], values[:4], atol=1.5e-5)  # q, as "%.5f"
+    np.testing.assert_allclose(printed[4:7], values[4:7], atol=0.015)  # the gyro's bias (counts), as "%.2f"
+    assert calibrated[0] != calibrated[1]  # the attitude of the last fix before the reset, not the rest's
     assert result.console("CAL moved: the calibration from before the reset restored")
     assert not result.console("CAL moved: travelling")  # the motion's calibration was not the one kept
     _, logs = log_records(result, tmp_path)

@@ -99,6 +99,10 @@ def _apply_reference(fn, state, args):
     if fn == "_kf_update":
         z0, z1, h, r = args
         returned = F._kf_update(st, z0, z1, (h[:3], h[3:]), r, FCFG)
+    elif fn == "fused_keep":
+        returned = F.keep(st)
+    elif fn == "fused_restore":
+        returned = F.restore(st, args[0], FCFG)
     else:
         returned = getattr(F, fn)(st, *args, FCFG)
     return st.vector(), returned
@@ -132,6 +136,10 @@ def _apply_c(fk, fn, state, args):
     elif fn == "_speed_correct":
         gain = ffi.new("float[2]")
         returned = list(gain) if lib.dr_fused_speed_correct(cfg, st, args[0], gain) else None
+    elif fn == "fused_keep":
+        returned = [float(v) for v in session.keep()]
+    elif fn == "fused_restore":
+        returned = session.restore(args[0])
     else:
         raise ValueError(fn)
     return session.state_vector().astype(float), returned
@@ -292,6 +300,73 @@ def test_a_broken_speed_and_bias_covariance_is_reset_counted_and_not_used(impl, 
         np.testing.assert_allclose(_covariance(state, F.FILTER_SPEED),
                                    np.diag([F.SPEED_UNKNOWN_VAR, FCFG.nhc_leak_sigma_ms2 ** 2]), rtol=1e-6)
         assert (state[F.IDX["speed"]], state[F.IDX["bias"]]) == pytest.approx((12.0, 0.3)), fn
+
+
+# ------------------------------------------------------------------------------------------ a reset on the road
+def test_keep_copies_out_what_the_declaration_names(impl, tmp_path):
+    """fused_keep gives the values codegen/kernel/layout.py's FUSED.kept names, in its order, on every
+    implementation (the app writes them to the RTC's memory as they come)."""
+    rng = np.random.default_rng(31)
+    state = rng.uniform(-2.0, 2.0, F.FUSED.state_floats)
+    (after, kept), = _apply(impl, [("fused_keep", state, [])], tmp_path)
+    want = state[list(F.FUSED.kept_offsets)]
+    np.testing.assert_allclose(kept, want, rtol=0, atol=(0 if impl == "reference" else 1e-6))
+    np.testing.assert_allclose(after, state, rtol=0, atol=(0 if impl == "reference" else 1e-6))  # read only
+
+
+def test_restore_takes_up_the_kept_state_and_restarts_the_tilt(impl, tmp_path):
+    """After a calibration that moved: the kept values are taken up; the tilt/offset filter keeps its offsets'
+    block and restarts the leak's as the prior's (var R_h R_h^T, from the restored attitude), uncorrelated with the
+    offsets; the covariance is symmetric positive semi-definite; the calibration counts as a rest's (cal_moved 0);
+    the speed's variance (unknown after the moved calibration) and the rest of the state stay as calibration left
+    them. A kept record whose covariance went wrong is repaired and counted, never used."""
+    rng = np.random.default_rng(32)
+    cases, kept_of = [], []
+    for broken in (False, False, True):
+        q = rng.standard_normal(4)
+        q /= np.linalg.norm(q)
+        p = _random_covariance(rng, 5, rng.uniform(0.01, 0.3))
+        source = _with_covariance(F.FusedState().vector(), F.FILTER_TILT, p)
+        source[0:4] = q
+        for name in ("bgx", "bgy", "bgz", "bax", "bay", "baz", "bias", "walk_speed"):
+            source[F.IDX[name]] = rng.uniform(-1.0, 1.0)
+        source[F.IDX["sb_pbb"]] = rng.uniform(0.001, 0.01)
+        kept = [float(v) for v in source[list(F.FUSED.kept_offsets)]]
+        if broken:
+            kept[F.FUSED.kept.index("p33")] = -0.5
+        # as fused_calibrate leaves a calibration that moved, over a covariance the restore must not keep any of
+        moved = _with_covariance(F.FusedState().vector(), F.FILTER_TILT, _random_covariance(rng, 5, 0.5))
+        moved[F.IDX["cal_moved"]] = 1.0
+        moved[F.IDX["sb_pss"]] = F.SPEED_UNKNOWN_VAR
+        moved[F.IDX["speed"]] = 0.0
+        moved[F.IDX["cov_repairs"]] = 4.0
+        cases.append(("fused_restore", moved, [kept]))
+        kept_of.append((source, p))
+    tol = 1e-12 if impl == "reference" else 1e-5
+    for (case, (source, p)), (state, _) in zip(zip(cases, kept_of), _apply(impl, cases, tmp_path)):
+        broken = case[2][0][F.FUSED.kept.index("p33")] < 0.0
+        assert state[F.IDX["cal_moved"]] == 0.0
+        assert state[F.IDX["sb_pss"]] == pytest.approx(F.SPEED_UNKNOWN_VAR)
+        got = _covariance(state, F.FILTER_TILT)
+        if broken:  # repaired to the prior at the restored attitude, counted
+            assert state[F.IDX["cov_repairs"]] == 5.0
+            st = F.FusedState()
+            st.qw, st.qx, st.qy, st.qz = (float(v) for v in source[0:4])
+            F._kf_prior(st, FCFG)
+            np.testing.assert_allclose(got, F.covariance_matrix(st, F.FILTER_TILT), rtol=0, atol=tol)
+            continue
+        assert state[F.IDX["cov_repairs"]] == 4.0
+        names = [n for n in F.FUSED.kept if n not in ("p22", "p23", "p24", "p33", "p34", "p44")]
+        np.testing.assert_allclose([state[F.IDX[n]] for n in names], [source[F.IDX[n]] for n in names], rtol=0,
+                                   atol=tol)
+        r_h = F.quat_to_matrix(source[0:4])[:2]
+        want = np.zeros((5, 5))
+        want[:2, :2] = (FCFG.kf_bias_init_g * F.STANDARD_GRAVITY) ** 2 * r_h @ r_h.T
+        want[2:, 2:] = p[2:, 2:]
+        np.testing.assert_allclose(got, want, rtol=0, atol=tol * np.abs(want).max())
+        np.testing.assert_allclose(got, got.T)
+        assert np.linalg.eigvalsh(got).min() >= -tol * np.abs(want).max()
+        assert state[F.IDX["kf_t"]] == 0.0 and state[F.IDX["turn"]] == 0.0
 
 
 # ----------------------------------------------------------------------------------------- the repair on device

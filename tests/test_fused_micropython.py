@@ -50,7 +50,8 @@ def _steps(scenario="walk", seed=30, start=10.0, stop=40.0, dark=()):
 
 def _run_mp(module, module_dir, calib, steps, work, params=None):
     payload = {"calib": calib.ravel().tolist(), "state_len": F.STATE_LEN,
-               "steps": [[s[0], s[1].ravel().tolist(), s[2].tolist()] if s[0] == "p" else list(s) for s in steps]}
+               "steps": [[s[0], s[1].ravel().tolist(), s[2].tolist()] if s[0] == "p"
+                         else [s[0], s[1].ravel().tolist()] if s[0] == "r" else list(s) for s in steps]}
     if params is not None:
         payload["params"] = [float(getattr(params, name)) for name in PARAM_ORDER]
     (work / "fused.json").write_text(json.dumps(payload))
@@ -69,6 +70,11 @@ def _reference(calib, steps):
     for s in steps:
         if s[0] == "p":
             seen |= int(np.bitwise_or.reduce(F.process(st, s[1], s[2], KCFG, FCFG)[1]))
+        elif s[0] == "r":  # a reset on the road: what was kept taken up after a calibration in motion
+            kept = F.keep(st)
+            st = F.FusedState()
+            F.calibrate(st, s[1], KCFG)
+            F.restore(st, kept, FCFG)
         else:
             F.position_update(st, s[1], s[2], s[3], s[4], FCFG)
             F.gps_update(st, s[1], s[2], FCFG)
@@ -162,6 +168,48 @@ def test_fallback_fused_matches_c(tmp_path, median, dark):
         np.testing.assert_allclose(np.asarray(got)[ring], want[ring], atol=1e-4)
 
 
+def _with_reset(calib, steps, at_step: int):
+    """The steps with a reset on the road after step `at_step`: the calibration after the boot takes the samples of
+    the `len(calib)` before it (the car drives through them: it moves)."""
+    samples = np.concatenate([s[1] for s in steps[:at_step + 1] if s[0] == "p"])[-len(calib):]
+    return steps[:at_step + 1] + [("r", samples)] + steps[at_step + 1:]
+
+
+def test_a_reset_on_the_road_takes_up_the_kept_state_alike_everywhere(tmp_path):
+    """fused_keep, then a calibration in motion and fused_restore, midway through a car's drive (after 30 s of
+    fixes, so the tilt/offset filter has offsets to keep): the fallback on micropython follows the reference through
+    the reset and 29 s after it, and the C through cffi follows the fallback."""
+    require_tool("micropython")
+    from codegen.kernel.hostfused import load_fused
+
+    write_fallback(tmp_path)
+    calib, steps = _steps("car", seed=22, stop=70.0)  # test_fallback_fused_matches_c's car, with a reset
+    at = 2 * 30 - 1  # the step of the 30th fix after calibration
+    assert steps[at][0] == "g"
+    steps = _with_reset(calib, steps, at)
+    answer = _run_mp("dr_fallback", tmp_path, calib, steps, tmp_path)
+    _compare(answer, calib, steps)
+    after = answer["steps"][at + 1][1]
+    assert after[F.IDX["cal_moved"]] == 0.0 and after[F.IDX["bax"]] != 0.0  # offsets learnt before, kept
+    c = load_fused().session()
+    c.calibrate(calib)
+    n = 0
+    for s, (_, got) in zip(steps, answer["steps"]):
+        if s[0] == "p":
+            c.process(s[1], s[2])
+            n += len(s[1])
+        elif s[0] == "r":
+            kept = c.keep()
+            c = load_fused().session()
+            c.calibrate(s[1])
+            c.restore(kept)
+        else:
+            c.position(s[1], s[2], s[3], s[4])
+            c.gps(s[1], s[2])
+        want = c.state_vector()
+        _assert_close(got, want, n, float(np.hypot(want[F.IDX["pe"]], want[F.IDX["pn"]])) + 10.0)
+
+
 def test_natmod_fused_matches_reference(tmp_path):
     """The x64 natmod's fused_* functions under the unix port."""
     from test_kernel_natmod import make, mpy_dir, native_tree
@@ -173,5 +221,6 @@ def test_natmod_fused_matches_reference(tmp_path):
     done = make(native, "x64")
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
     calib, steps = _steps(seed=23, stop=46.0)
+    steps = _with_reset(calib, steps, 2 * 25 - 1)  # and its fused_keep and fused_restore, at 35 s
     answer = _run_mp("dr_native", native, calib, steps, tmp_path)
     assert _compare(answer, calib, steps) & 4  # through a turn (from 42.7 s)

@@ -16,7 +16,7 @@ weighed as Doppler meet a tilt that a level-road fit cannot tell from a horizont
 tilts the device by ~6 deg RMS within seconds): post orients both with the gyro's integral turned onto ENU by the GPS
 (codegen/post/gyroframe.py, chi2 ~1.1), and its mounting is the device's mean orientation along the track.
 What is not reached yet is marked xfail (strict: the mark fails once it passes): the walk's mean mounting (1.8 deg
-off here, 1.4-3.9 deg on tuning seeds 100-103, its yaw 1-sigma 2.0-2.7 deg: the GPS fixes the gyro frame's yaw through
+off here, 1.5-3.8 deg on tuning seeds 100-103, its yaw 1-sigma 2.2-2.6 deg: the GPS fixes the gyro frame's yaw through
 a walker's small accelerations, 0.14 m/s^2 of Doppler noise per interval against a few tenths of turns and steps).
 The drive's mounting within 1 deg is not reached either (strict xfail): 1.68 deg off here, 0.7-1.9 deg on the
 seeds docs/post.md lists, in tilt: the MPU-6050 model's gyro cross-axis error, which 1 Hz GPS cannot see (docs/post.md,

@@ -28,6 +28,7 @@ from codegen.kernel.layout import COVARIANCE_FILTERS, FILTER_STEPS, FUSED, FUSED
 from codegen.kernel.reference import (
     STANDARD_GRAVITY,
     KernelConfig,
+    quat_to_matrix,
     remap_axes,
     tilt_from_gravity,
 )
@@ -114,6 +115,31 @@ def calibrate(st: FusedState, samples, kcfg: KernelConfig) -> bool:
     st.keep_v = -1.0
     st.cal_moved = 1.0 if moved else 0.0
     return moved
+
+
+def keep(st: FusedState) -> list[float]:
+    """What a reset should not lose (codegen/kernel/layout.py's FUSED.kept, in its order): the attitude, the gyro's
+    bias, the accelerometer's offsets and their block of the tilt/offset filter's covariance, the along-track bias
+    and its variance, the walking speed. The app keeps them where a reset leaves them (the ESP32's RTC memory)."""
+    return [float(getattr(st, name)) for name in FUSED.kept]
+
+
+def restore(st: FusedState, kept, fcfg: FusedConfig) -> None:
+    """After a calibration that moved (a board reset on the road): takes up what `keep` gave before the reset. The
+    tilt/offset filter's tilt part starts again from the attitude (the board may have tilted while it was reset):
+    the leak's block as the prior's, var R_h R_h^T, uncorrelated with the offsets it keeps. The calibration counts
+    as a rest's (cal_moved 0); the speed stays unknown until the next fix."""
+    for name, value in zip(FUSED.kept, kept):
+        setattr(st, name, float(value))
+    st.cal_moved = 0.0
+    if st.p22 > 0.0:  # else the filter had not started: it starts at its first use
+        var = (fcfg.kf_bias_init_g * STANDARD_GRAVITY) ** 2
+        rows = quat_to_matrix(np.array([st.qw, st.qx, st.qy, st.qz]))[:2]
+        st.p00, st.p01, st.p11 = (float(var * rows[i] @ rows[j]) for i, j in ((0, 0), (0, 1), (1, 1)))
+        st.p02 = st.p03 = st.p04 = st.p12 = st.p13 = st.p14 = 0.0
+        st.kf_t = st.turn = 0.0
+        _covariance_checked(st, FILTER_TILT, STEP_START, fcfg)
+    _covariance_checked(st, FILTER_SPEED, STEP_START, fcfg)
 
 
 # The per-sample loop, as named steps in the order `process` calls them (docs/fused.md "Per sample"; dr_fused.c's

@@ -27,6 +27,8 @@ void dr_fused_config_init(dr_fused_config *cfg);
 int dr_fused_config_set(dr_fused_config *cfg, const float *p);
 void dr_fused_state_init(dr_fused_state *st);
 int dr_fused_calibrate(const dr_config *kcfg, dr_fused_state *st, const int16_t *samples, int32_t count);
+void dr_fused_keep(const dr_fused_state *st, float *kept);
+void dr_fused_restore(const dr_fused_config *cfg, dr_fused_state *st, const float *kept);
 int dr_fused_process(const dr_config *kcfg, const dr_fused_config *cfg, dr_fused_state *st, const int16_t *samples,
                      const int32_t *dt_us, int32_t count, float out[6]);
 void dr_fused_gps(const dr_fused_config *cfg, dr_fused_state *st, float ve, float vn);
@@ -104,6 +106,16 @@ class FusedSession:
 
     def gps(self, ve: float, vn: float) -> None:
         self.fk.lib.dr_fused_gps(self.cfg, self.st, float(ve), float(vn))
+
+    def keep(self) -> np.ndarray:
+        """What a reset should not lose (dr_fused_keep), in codegen/kernel/layout.py's FUSED.kept order."""
+        kept = self.fk.ffi.new("float[]", len(FUSED.kept))
+        self.fk.lib.dr_fused_keep(self.st, kept)
+        return np.array(list(kept), dtype=np.float32)
+
+    def restore(self, kept) -> None:
+        values = self.fk.ffi.new("float[]", [float(v) for v in kept])
+        self.fk.lib.dr_fused_restore(self.cfg, self.st, values)
 
     def state_vector(self) -> np.ndarray:
         """The state floats in the order of codegen.kernel.fused.STATE_FIELDS."""

@@ -157,6 +157,9 @@ class Kernel:
     flags: tuple[Flag, ...] = ()
     board_prefix: str = ""  # the board keys of the parameters: algorithm.<board_prefix><name> ("" = not generated)
     param_array: bool = False  # C: *_config_set takes the parameters as one float array (else as arguments)
+    # the state values a reset should not lose, by element name, in the order *_keep copies them out (the fallback's
+    # and the C's offset tables are rendered from it; the reference reads it)
+    kept: tuple[str, ...] = ()
 
     @property
     def macro(self) -> str:
@@ -225,6 +228,12 @@ class Kernel:
 
     def board_key(self, p: Param) -> str:
         return self.board_prefix + p.name
+
+    @property
+    def kept_offsets(self) -> tuple[int, ...]:
+        """The offsets in floats of the values a reset should not lose (`kept`), in their order."""
+        at = self.element_offsets()
+        return tuple(at[name] for name in self.kept)
 
     def initial_values(self) -> tuple[tuple[Field, int, float], ...]:
         """(field, element index, value) of every non-zero value after *_state_init."""
@@ -406,6 +415,11 @@ FUSED = Kernel(
         Field("cal_moved", "", "1 from a calibration that moved until the next rest (the gyro bias took the motion's "
               "mean rate for a bias: the tilt drifts), else 0", public="CAL_MOVED"),
     ),
+    # what fused_keep copies out and fused_restore takes up after a reset: the attitude, the gyro's bias, the
+    # accelerometer's offsets with their block of the tilt/offset filter's covariance, the along-track bias with its
+    # variance, the walking speed (body-frame or the device's own; nothing of the kernel frame's heading)
+    kept=("qw", "qx", "qy", "qz", "bgx", "bgy", "bgz", "bax", "bay", "baz", "p22", "p23", "p24", "p33", "p34", "p44",
+          "bias", "sb_pbb", "walk_speed"),
     params=(
         Param("tilt_tau_s", "s", "tilt correction time constant while GPS fixes arrive", Store("kp", "1/s", "recip"),
               100.0, gt=0),
@@ -798,6 +812,9 @@ def check(kernel: Kernel) -> None:
         if f.local not in ("", "read", "carry") or (f.local and f.length > 1 and not f.elements):
             raise ValueError(f"{kernel.c_prefix}: field {f.name}: local is '', 'read' or 'carry' (an array's elements "
                              "named)")
+    unknown = [name for name in kernel.kept if name not in kernel.element_offsets()]
+    if unknown or len(set(kernel.kept)) != len(kernel.kept):
+        raise ValueError(f"{kernel.c_prefix}: kept names a value twice or one the state lacks: {', '.join(unknown)}")
     if any(f.ctype != "float" for f in kernel.state):
         raise ValueError(f"{kernel.c_prefix}: state fields are floats (the reference's flat view)")
 

@@ -292,4 +292,4 @@ class RTC:
         if len(data) > RTC_MEMORY_MAX:
             raise ValueError("buffer too long")
         _rtc_memory = bytes(data)
-        simworld.trace("rtc_memory", length=len(data))
+        simworld.trace("rtc_memory", length=len(data), data=_rtc_memory.hex())

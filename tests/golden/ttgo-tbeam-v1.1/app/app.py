@@ -99,33 +99,42 @@ def _wrap_lon_e7(d):
     return d
 
 
-# The last calibration at rest, kept in the RTC's memory (the ESP32's RTC slow memory, which the watchdog's reset
+# What a reset should not lose, kept in the RTC's memory (the ESP32's RTC slow memory, which the watchdog's reset
 # and machine.reset() leave as it was and a power-on clears): a board reset on the road calibrates while it moves,
-# taking a car's acceleration for gravity's direction and its turn rate for the gyro's bias; it starts from its last
-# rest's tilt and gyro bias instead (App._calibration_done). The record: a tag naming the kernel whose state it is,
-# then the orientation q (w, x, y, z; its yaw is the calibration's, 0) and the gyro's bias (counts, body frame).
-_CAL_KEPT_FLOATS = const(7)
+# taking a car's acceleration for gravity's direction and its turn rate for the gyro's bias; it takes up what it had
+# before the reset instead (App._calibration_done). The record: a tag naming the kernel whose state it is, then the
+# seed's orientation q (w, x, y, z) and gyro bias (counts, body frame) from its last rest, or what the fused
+# kernel's fused_keep gives (its attitude, gyro bias, accelerometer offsets and along-track bias, from the last rest
+# and every fix after it while its calibration is a rest's).
 
 
-def _cal_tag():
-    return b"DRf1" if FUSED else b"DRs1"
+def _kept_len():
+    return dr.FUSED_KEPT_LEN if FUSED else 7
 
 
-def _keep_calibration(s, bias_at):
-    values = array("f", [s[dr.Q + i] for i in range(4)] + [s[bias_at + i] for i in range(3)])
+def _kept_tag():
+    return b"DRf2" if FUSED else b"DRs1"
+
+
+def _keep(s):
+    if FUSED:
+        values = array("f", bytes(4 * dr.FUSED_KEPT_LEN))
+        dr.fused_keep(s, values)
+    else:
+        values = array("f", [s[dr.Q + i] for i in range(4)] + [s[dr.GYRO_BIAS + i] for i in range(3)])
     try:
-        machine.RTC().memory(_cal_tag() + bytes(values))
+        machine.RTC().memory(_kept_tag() + bytes(values))
     except (AttributeError, OSError, ValueError):  # a port without the RTC's memory: nothing is kept
         pass
 
 
-def _kept_calibration():
-    """The calibration kept before the reset, or None (none kept, another kernel's, or not a calibration)."""
+def _kept():
+    """What was kept before the reset, or None (nothing kept, another kernel's, or not a valid record)."""
     try:
         data = machine.RTC().memory()
     except (AttributeError, OSError):
         return None
-    if len(data) != 4 + 4 * _CAL_KEPT_FLOATS or bytes(data[:4]) != _cal_tag():
+    if len(data) != 4 + 4 * _kept_len() or bytes(data[:4]) != _kept_tag():
         return None
     values = array("f", bytes(data[4:]))
     norm = values[0] * values[0] + values[1] * values[1] + values[2] * values[2] + values[3] * values[3]
@@ -248,8 +257,8 @@ class App:
             self.warn("reset: watchdog")
         elif cause == getattr(machine, "SOFT_RESET", -1):
             self.warn("reset: error")
-        # after the app's own resets, the calibration at rest from before (a power-on has none)
-        self.kept_cal = _kept_calibration() if cause in (
+        # after the app's own resets, what it kept before (a power-on has nothing)
+        self.kept = _kept() if cause in (
             getattr(machine, "WDT_RESET", -1), getattr(machine, "SOFT_RESET", -1)) else None
         self.gps_bytes_ms = time.ticks_ms()  # when the GPS last sent anything
         self.gps_silent = False
@@ -313,12 +322,12 @@ class App:
             moved = dr.calibrate(self.state, self.calib)
         if self.on_calibrated is not None:
             self.on_calibrated(self, self.calib, moved)
-        if moved and self.kept_cal is not None:
-            self._restore_calibration()
+        if moved and self.kept is not None:
+            self._restore()
             moved = False
         elif not moved:
-            _keep_calibration(*self._calibrated())
-        self.kept_cal = None  # the boot's first calibration only: a later one that moves (the button) starts again
+            _keep(self._calibrated()[0])
+        self.kept = None  # the boot's first calibration only: a later one that moves (the button) starts again
         if moved and self._travelling():
             print("CAL moved: travelling at %.1f m/s, kept" % self.gps_fix.speed_ms)
             self.log.event("calibration in motion")
@@ -345,19 +354,17 @@ class App:
         """(the kernel's state, the offset of its gyro bias): where the calibration is (the orientation at dr.Q)."""
         return (self.fstate, dr.FUSED_GYRO_BIAS) if FUSED else (self.state, dr.GYRO_BIAS)
 
-    def _restore_calibration(self):
-        """The calibration moved after a reset: its tilt and gyro bias are the last rest's, kept from before the
-        reset. The rest of what the kernel's calibration set stands (the fused method's speed unknown until the next
-        fix), but for the fused method's mark of a calibration that moved: its along-track bias's filter starts as
-        after a rest (docs/watchdog.md, benchmarks/watchdog_reset.py)."""
-        s, bias_at = self._calibrated()
-        kept = self.kept_cal
-        for i in range(4):
-            s[dr.Q + i] = kept[i]
-        for i in range(3):
-            s[bias_at + i] = kept[4 + i]
-        if FUSED:  # the tilt and the gyro bias are a rest's: the along-track bias's filter as after one
-            s[dr.CAL_MOVED] = 0.0
+    def _restore(self):
+        """The calibration moved after a reset: what was kept before it is taken up instead (the seed's tilt and
+        gyro bias from its last rest; the fused kernel's fused_restore, its speed unknown until the next fix;
+        docs/watchdog.md, benchmarks/watchdog_reset.py)."""
+        if FUSED:
+            dr.fused_restore(self.fstate, self.kept)
+        else:
+            for i in range(4):
+                self.state[dr.Q + i] = self.kept[i]
+            for i in range(3):
+                self.state[dr.GYRO_BIAS + i] = self.kept[4 + i]
         print("CAL moved: the calibration from before the reset restored")
         self.log.event("calibration restored")
 
@@ -547,6 +554,8 @@ class App:
             de, dn = self._metres_from_anchor(p.lat_e7, p.lon_e7)
             dr.fused_position(self.fstate, v[0], v[1], de, dn)
             dr.fused_gps(self.fstate, v[0], v[1])
+            if self.fstate[dr.CAL_MOVED] == 0.0:  # what it learnt on a rest's calibration, for after a reset
+                _keep(self.fstate)
             # an outage starts from the fix smoothed with its Doppler (API.md, fused_position)
             east, north = self.fstate[dr.FIX_AE], self.fstate[dr.FIX_AE + 1]
         elif running:

@@ -803,6 +803,42 @@ def fused_calibrate(fstate, samples):
     return moved
 
 
+# what a reset should not lose (fused_keep, fused_restore), as codegen/kernel/layout.py's FUSED.kept names it:
+# qw, qx, qy, qz, bgx, bgy, bgz, bax, bay, baz, p22, p23, p24, p33, p34, p44, bias, sb_pbb, walk_speed
+FUSED_KEPT_LEN = const(19)
+_F_KEPT = (0, 1, 2, 3, 4, 5, 6, 69, 70, 71, 79, 80, 84, 81, 85, 86, 17, 145, 35)
+
+
+def fused_keep(fstate, kept):
+    """Copies what a reset should not lose into kept (FUSED_KEPT_LEN floats)."""
+    for i in range(FUSED_KEPT_LEN):
+        kept[i] = fstate[_F_KEPT[i]]
+
+
+def fused_restore(fstate, kept):
+    """After a calibration that moved (a board reset on the road): takes up what fused_keep kept before the reset.
+    The tilt/offset filter's tilt part starts again from the attitude (the board may have tilted while it was
+    reset), uncorrelated with the offsets it keeps; the calibration counts as a rest's; the speed stays unknown until
+    the next fix."""
+    st = fstate
+    for i in range(FUSED_KEPT_LEN):
+        st[_F_KEPT[i]] = kept[i]
+    st[_F_CAL_MOVED] = 0.0
+    if st[_F_P22] > 0.0:  # else the filter had not started: it starts at its first use
+        # the leak's block as the prior's (var R_h R_h^T), its rows against the offsets 0
+        var = st[_FC_KF_BIAS_VAR]
+        r = [0.0] * 9
+        _rotation_rows(st, r)
+        st[_F_P00] = var * (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+        st[_F_P01] = var * (r[0] * r[3] + r[1] * r[4] + r[2] * r[5])
+        st[_F_P11] = var * (r[3] * r[3] + r[4] * r[4] + r[5] * r[5])
+        st[_F_P02] = st[_F_P03] = st[_F_P12] = st[_F_P13] = st[_F_P04] = st[_F_P14] = 0.0
+        st[_F_KF_T] = 0.0
+        st[_F_TURN] = 0.0
+        _covariance_checked(st, _FILTER_TILT, _STEP_START)
+    _covariance_checked(st, _FILTER_SPEED, _STEP_START)
+
+
 def fused_process(fstate, samples, dt_us, out):
     """m samples (array('h'), sensor frame) held dt_us[k] us each (array('i')). out[0:3] = displacement East,
     North, Up (m, true ENU; Up 0), out[3:6] = velocity (m/s). The per-sample loop is the reference's steps

@@ -463,6 +463,30 @@ typedef char dr_fused_cov_repairs_at_142[
 typedef char dr_fused_cal_moved_at_149[
     offsetof(dr_fused_state, cal_moved) == DR_FUSED_STATE_CAL_MOVED * sizeof(float)
     ? 1 : -1];
+/* what a reset should not lose (dr_fused_keep, dr_fused_restore): X(index into the kept values,
+ * offset in floats into the state) for each of qw, qx, qy, qz, bgx, bgy, bgz, bax, bay, baz, p22, p23, p24, p33, p34,
+ * p44, bias, sb_pbb, walk_speed */
+#define DR_FUSED_KEPT_LEN (19)
+#define DR_FUSED_KEPT(X) \
+    X(0, 0) \
+    X(1, 1) \
+    X(2, 2) \
+    X(3, 3) \
+    X(4, 4) \
+    X(5, 5) \
+    X(6, 6) \
+    X(7, 69) \
+    X(8, 70) \
+    X(9, 71) \
+    X(10, 79) \
+    X(11, 80) \
+    X(12, 84) \
+    X(13, 81) \
+    X(14, 85) \
+    X(15, 86) \
+    X(16, 17) \
+    X(17, 145) \
+    X(18, 35)
 /* platform's choices */
 #define DR_FUSED_PLATFORM_PEDESTRIAN (0)
 #define DR_FUSED_PLATFORM_VEHICLE (1)
