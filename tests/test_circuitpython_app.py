@@ -121,6 +121,18 @@ def test_app_boots_shows_and_logs_within_the_boards_heap(apps, name, tmp_path):
     assert "dropped=0" in diag, diag
 
 
+def test_an_exception_in_code_py_is_printed_as_the_firmware_prints_it(apps, tmp_path):
+    """CircuitPython has no sys.print_exception: the emulated firmware prints what code.py raised, names its type
+    and message, and says the code is done (it once failed inside its own printing and hid the app's error)."""
+    micropython = circuitpython()
+    board, out = apps[PICO]
+    run = run_cp(micropython, out, board, _static_world(board, tmp_path, 3.0), tmp_path,
+                 code="raise ValueError('the app broke here')\n")
+    assert run.returncode == 0, run.stderr + run.stdout[-2000:]
+    assert "ValueError: the app broke here" in run.stdout, run.stdout[-2000:]
+    assert "Code done running." in run.stdout
+
+
 def test_a_button_held_at_start_leaves_the_drive_to_the_computer(apps, tmp_path):
     micropython = circuitpython()
     board, out = apps[PICO]

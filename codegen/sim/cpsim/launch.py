@@ -36,7 +36,7 @@ import firmware  # noqa: E402
 import microcontroller  # noqa: E402,F401
 import storage  # noqa: E402
 import supervisor  # noqa: E402
-import traceback  # noqa: E402,F401
+import traceback  # noqa: E402
 import watchdog  # noqa: E402,F401
 
 del sys.modules["machine"]
@@ -97,7 +97,7 @@ while True:
         try:
             _run("boot.py")
         except Exception as problem:  # the firmware prints it and carries on with code.py
-            sys.print_exception(problem)
+            traceback.print_exception(problem)
         storage.boot_done()
         while True:
             _start_program()
@@ -107,7 +107,7 @@ while True:
             except supervisor.ReloadRequested:
                 firmware.release_all()
             except Exception as problem:
-                sys.print_exception(problem)
+                traceback.print_exception(problem)
                 break
         _idle()
     except time.Reset as reset:
