@@ -269,20 +269,18 @@ void dr_fused_restore(const dr_fused_config *cfg, dr_fused_state *st, const floa
     DR_FUSED_KEPT(DR_FUSED_RESTORE_ONE)
 #undef DR_FUSED_RESTORE_ONE
     st->cal_moved = 0.0f;
-    if (!(st->p[DR_FUSED_P22] > 0.0f)) { /* the filter had not started: it starts at its first use */
-        (void)dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_SPEED, DR_FUSED_STEP_START, 1);
-        return;
+    if (st->p[DR_FUSED_P22] > 0.0f) { /* else the filter had not started: it starts at its first use */
+        /* the leak's block as the prior's (var R_h R_h^T), its rows against the offsets 0 */
+        dr_quat_to_matrix(st->q, r);
+        st->p[DR_FUSED_P00] = v * (r[0][0] * r[0][0] + r[0][1] * r[0][1] + r[0][2] * r[0][2]);
+        st->p[DR_FUSED_P01] = v * (r[0][0] * r[1][0] + r[0][1] * r[1][1] + r[0][2] * r[1][2]);
+        st->p[DR_FUSED_P11] = v * (r[1][0] * r[1][0] + r[1][1] * r[1][1] + r[1][2] * r[1][2]);
+        st->p[DR_FUSED_P02] = st->p[DR_FUSED_P03] = st->p[DR_FUSED_P12] = st->p[DR_FUSED_P13] = 0.0f;
+        st->pz[DR_FUSED_P04] = st->pz[DR_FUSED_P14] = 0.0f;
+        st->kf_t = 0.0f;
+        st->turn = 0.0f;
+        (void)dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_START, 1);
     }
-    /* the leak's block as the prior's (var R_h R_h^T), its rows against the offsets 0 */
-    dr_quat_to_matrix(st->q, r);
-    st->p[DR_FUSED_P00] = v * (r[0][0] * r[0][0] + r[0][1] * r[0][1] + r[0][2] * r[0][2]);
-    st->p[DR_FUSED_P01] = v * (r[0][0] * r[1][0] + r[0][1] * r[1][1] + r[0][2] * r[1][2]);
-    st->p[DR_FUSED_P11] = v * (r[1][0] * r[1][0] + r[1][1] * r[1][1] + r[1][2] * r[1][2]);
-    st->p[DR_FUSED_P02] = st->p[DR_FUSED_P03] = st->p[DR_FUSED_P12] = st->p[DR_FUSED_P13] = 0.0f;
-    st->pz[DR_FUSED_P04] = st->pz[DR_FUSED_P14] = 0.0f;
-    st->kf_t = 0.0f;
-    st->turn = 0.0f;
-    (void)dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_TILT, DR_FUSED_STEP_START, 1);
     (void)dr_fused_covariance_checked(cfg, st, DR_FUSED_FILTER_SPEED, DR_FUSED_STEP_START, 1);
 }
 
